@@ -1,0 +1,59 @@
+# pg_node: `make train` runs the main job, `make test` runs every test.
+# Both create (or reuse) .venv and install the pinned dependencies from requirements.lock;
+# when nothing changed, the install step is skipped.
+
+PYTHON ?= python3
+VENV := .venv
+PY := $(VENV)/bin/python
+LOCK_HASH := $(shell sha1sum requirements.lock | cut -c1-12)
+STAMP := $(VENV)/.installed-$(LOCK_HASH)
+
+# ament_index look-ups (message packages, pg_node's share dir) search the venv prefix.
+export AMENT_PREFIX_PATH := $(abspath $(VENV))
+export PYTHONPATH := $(abspath .)
+export PYTHONUNBUFFERED := 1
+export MUJOCO_GL ?= osmesa
+
+ARGS ?=
+PYTEST_ARGS ?=
+
+.PHONY: all venv train test test-fast lint bench variance lock clean
+
+all: test
+
+venv: $(STAMP)
+
+$(STAMP): requirements.lock
+	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	@$(PY) -m pip install --quiet --disable-pip-version-check --upgrade pip==26.3
+	@echo "Installing pinned dependencies into $(VENV) (first run: a few minutes, about 6 GB)"
+	@$(PY) -m pip install --quiet --disable-pip-version-check -r requirements.lock
+	@rm -f $(VENV)/.installed-*
+	@touch $@
+
+train: $(STAMP)
+	$(PY) -m pg_node train $(ARGS)
+
+test: $(STAMP)
+	$(PY) -m pytest $(PYTEST_ARGS)
+
+test-fast: $(STAMP)
+	$(PY) -m pytest -m "not slow" $(PYTEST_ARGS)
+
+lint: $(STAMP)
+	$(PY) -m pytest test/test_flake8.py test/test_pep257.py
+
+variance: $(STAMP)
+	$(PY) -m pg_node variance $(ARGS)
+
+bench: $(STAMP)
+	$(PY) -m pg_node bench $(ARGS)
+
+# Regenerate requirements.lock after editing requirements.in.
+lock:
+	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --disable-pip-version-check -r requirements.in
+	$(PY) scripts/freeze_lock.py requirements.lock
+
+clean:
+	rm -rf build install log .pytest_cache

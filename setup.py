@@ -1,0 +1,36 @@
+from glob import glob
+import os
+
+from setuptools import find_packages, setup
+
+package_name = 'pg_node'
+
+setup(
+    name=package_name,
+    version='0.1.0',
+    packages=find_packages(exclude=['test']),
+    package_data={package_name: ['models/*.xml']},
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
+        ('share/' + package_name, ['package.xml']),
+        (os.path.join('share', package_name, 'config'), glob('config/*.yaml')),
+        (os.path.join('share', package_name, 'launch'), glob('launch/*.launch.py')),
+        (os.path.join('share', package_name, 'models'), glob('pg_node/models/*.xml')),
+    ],
+    install_requires=['setuptools'],
+    zip_safe=True,
+    maintainer='pg_node developers',
+    maintainer_email='pg-node@users.noreply.github.com',
+    description='Policy-gradient learning for a MuJoCo robot arm over ROS 2.',
+    license='Apache-2.0',
+    tests_require=['pytest'],
+    entry_points={
+        'console_scripts': [
+            'sim_node = pg_node.sim_node:main',
+            'actor_node = pg_node.actor_node:main',
+            'critic_node = pg_node.critic_node:main',
+            'learner_node = pg_node.learner_node:main',
+            'replay_node = pg_node.replay_node:main',
+        ],
+    },
+)
