@@ -23,7 +23,7 @@ setup(
     maintainer_email='pg-node@users.noreply.github.com',
     description='Policy-gradient learning for a MuJoCo robot arm over ROS 2.',
     license='Apache-2.0',
-    tests_require=['pytest'],
+    extras_require={'test': ['pytest']},
     entry_points={
         'console_scripts': [
             'sim_node = pg_node.sim_node:main',
