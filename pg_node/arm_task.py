@@ -1,0 +1,399 @@
+"""
+The reaching task on a MuJoCo arm, for ``num_envs`` arms at once (no ROS here).
+
+The default model, ``reacher2``, reproduces Gymnasium's ``Reacher-v5`` step for step; any
+MJCF that follows these conventions can be used instead:
+
+* **arm joints** are the joints driven by actuators (``actuator_trntype`` joint), in actuator
+  order; they must be hinges. Joint names, limits and control ranges are read from the model.
+* a **site named** ``fingertip`` marks the end effector;
+* a **body named** ``target`` is the goal. Either it is a mocap body (``mocap_pos`` is set
+  to the goal, 3-D goals), or it carries 1-3 un-actuated slide joints along world x, y, z in
+  that order whose qpos equals the world coordinate (``ref`` equal to the body position, as
+  in Reacher-v5); the goal then has as many dimensions as the target has joints;
+* optional ``<custom><numeric>`` fields: ``pg_target_radius`` (disc/ball radius of the goal,
+  default 0.2), ``pg_target_center`` (default the origin), ``pg_init_qpos_noise`` (0.1) and
+  ``pg_init_qvel_noise`` (0.005).
+
+Episode start (as ``Reacher-v5.reset_model`` draws it, in the same order, so that an env
+seeded like a Gymnasium env draws the same numbers):
+``qpos = qpos0 + U(-a, a)`` over all ``nq``; the goal by rejection,
+``g ~ U(-r, r)^k`` until ``|g| < r``, written over the target's qpos (or ``mocap_pos``);
+``qvel = U(-b, b)`` over all ``nv`` with the target's velocities zeroed; then ``mj_forward``.
+
+One control step applies ``act`` as ``ctrl`` (MuJoCo clamps it to ``ctrlrange``) for
+``frame_skip`` physics steps, then reads
+
+* observation ``[cos q, sin q, target, qdot, (fingertip - target)[:k]]`` with ``q``, ``qdot``
+  the arm joints' positions and velocities and ``k`` the goal's dimension;
+* reward ``r = -reward_dist_weight * |fingertip - target| - reward_control_weight * sum(act^2)``,
+  with the positions read after the physics steps from ``data.site_xpos`` exactly as
+  Reacher-v5 reads ``data.xpos`` (under RK4 that is the last Runge-Kutta stage's kinematics,
+  about 1e-6 m from a fresh ``mj_kinematics``; kept so that the numbers match Gymnasium's);
+  ``act`` enters the penalty unclipped, also as in Reacher-v5.
+
+An episode never terminates and is truncated after ``max_episode_steps`` control steps
+(never, with ``None``: the Gymnasium wrapper leaves that to ``TimeLimit``).
+Ended envs are reset at once (Gymnasium's same-step auto-reset, as SB3's ``VecEnv``): the
+returned observation is the new episode's first one and ``info['final_obs']`` holds the
+observation the action reached (for every env; it differs from ``obs`` only where an
+episode ended), which is what ``V`` must be evaluated on to bootstrap a truncated return.
+
+Randomness: env ``i`` has its own ``numpy.random.Generator(PCG64(SeedSequence(seed + i)))``,
+the seeding of Gymnasium's vector envs, so env ``i`` of ``ArmTask(..., seed=s)`` draws what
+``gymnasium.make('Reacher-v5').reset(seed=s + i)`` draws.
+
+Stepping: ``mj_step(model, data_i, nstep=frame_skip)`` over one ``MjData`` per env, in a
+plain loop, or split over a thread pool (``mj_step`` releases the GIL) when there are many
+envs (``num_threads``; by default threads from 32 envs on). Measured on 2 cores against
+``mujoco.rollout`` (one call for all envs, 1 or 2 threads), see ``bench/bench_sim.py``: the
+loop wins for few arms, threads and rollout tie for 64 arms, and only stepping the
+``MjData`` leaves the post-step ``xpos`` that Reacher-v5's reward reads, so rollout is not
+used.
+"""
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+import os
+from typing import Optional
+
+import mujoco
+import numpy as np
+
+FINGERTIP_SITE = 'fingertip'
+TARGET_BODY = 'target'
+THREADS_FROM_ENVS = 32
+
+
+def _custom_numeric(model: mujoco.MjModel, name: str, default):
+    """Return the ``<custom><numeric>`` field ``name`` as an array, or ``default``."""
+    idx = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_NUMERIC, name)
+    if idx < 0:
+        return np.asarray(default, dtype=np.float64)
+    adr, size = model.numeric_adr[idx], model.numeric_size[idx]
+    return np.array(model.numeric_data[adr:adr + size], dtype=np.float64)
+
+
+@dataclass(frozen=True)
+class ArmSpec:
+    """What pg_node reads from an arm model: joints, actuators, fingertip and target."""
+
+    joint_names: tuple
+    joint_ids: np.ndarray
+    qpos_adr: np.ndarray
+    dof_adr: np.ndarray
+    joint_range: np.ndarray
+    joint_limited: np.ndarray
+    actuator_names: tuple
+    ctrl_low: np.ndarray
+    ctrl_high: np.ndarray
+    fingertip_site: int
+    target_body: int
+    target_mocap: int
+    target_qpos_adr: np.ndarray
+    target_dof_adr: np.ndarray
+    target_dim: int
+    target_radius: float
+    target_center: np.ndarray
+    init_qpos_noise: float
+    init_qvel_noise: float
+    link_bodies: np.ndarray
+    link_parents: np.ndarray
+
+    @classmethod
+    def from_model(cls, model: mujoco.MjModel) -> 'ArmSpec':
+        """Read the conventions documented in the module docstring; raise ValueError if unmet."""
+        if model.nu == 0:
+            raise ValueError('the model has no actuators, so no arm joints')
+        joint_ids, act_names = [], []
+        for a in range(model.nu):
+            if model.actuator_trntype[a] != mujoco.mjtTrn.mjTRN_JOINT:
+                raise ValueError(f'actuator {a} does not drive a joint')
+            joint_ids.append(int(model.actuator_trnid[a, 0]))
+            act_names.append(mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_ACTUATOR, a)
+                             or f'actuator{a}')
+        if len(set(joint_ids)) != len(joint_ids):
+            raise ValueError('two actuators drive the same joint')
+        joint_ids = np.array(joint_ids)
+        for j in joint_ids:
+            if model.jnt_type[j] != mujoco.mjtJoint.mjJNT_HINGE:
+                raise ValueError(f'arm joint {j} is not a hinge')
+        names = tuple(mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, j) or f'joint{j}'
+                      for j in joint_ids)
+        site = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, FINGERTIP_SITE)
+        if site < 0:
+            raise ValueError(f'the model has no site named {FINGERTIP_SITE!r}')
+        body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, TARGET_BODY)
+        if body < 0:
+            raise ValueError(f'the model has no body named {TARGET_BODY!r}')
+        mocap = int(model.body_mocapid[body])
+        target_joints = [j for j in range(model.njnt) if model.jnt_bodyid[j] == body]
+        if mocap >= 0:
+            if target_joints:
+                raise ValueError('a mocap target cannot have joints')
+            dim = 3
+        else:
+            dim = len(target_joints)
+            if not 1 <= dim <= 3:
+                raise ValueError('the target must be a mocap body or have 1-3 slide joints')
+            for k, j in enumerate(target_joints):
+                if (model.jnt_type[j] != mujoco.mjtJoint.mjJNT_SLIDE
+                        or not np.allclose(model.jnt_axis[j], np.eye(3)[k])):
+                    raise ValueError('target joints must be slides along world x, y, z in order')
+                if model.body_parentid[body] != 0 or not np.isclose(
+                        model.body_pos[body][k], model.qpos0[model.jnt_qposadr[j]]):
+                    raise ValueError('target slide joints need ref equal to the body position '
+                                     'and the target body a child of the world')
+            if set(target_joints) & set(joint_ids.tolist()):
+                raise ValueError('target joints must not be actuated')
+        center = _custom_numeric(model, 'pg_target_center', np.zeros(dim))
+        if center.shape != (dim,):
+            raise ValueError(f'pg_target_center needs {dim} numbers')
+        # bodies that carry an arm joint, and the fingertip's, to draw the links
+        chain = sorted({int(model.jnt_bodyid[j]) for j in joint_ids}
+                       | {int(model.site_bodyid[site])})
+        return cls(
+            joint_names=names,
+            joint_ids=joint_ids,
+            qpos_adr=model.jnt_qposadr[joint_ids].copy(),
+            dof_adr=model.jnt_dofadr[joint_ids].copy(),
+            joint_range=model.jnt_range[joint_ids].copy(),
+            joint_limited=model.jnt_limited[joint_ids].astype(bool),
+            actuator_names=tuple(act_names),
+            ctrl_low=np.where(model.actuator_ctrllimited.astype(bool),
+                              model.actuator_ctrlrange[:, 0], -np.inf),
+            ctrl_high=np.where(model.actuator_ctrllimited.astype(bool),
+                               model.actuator_ctrlrange[:, 1], np.inf),
+            fingertip_site=site,
+            target_body=body,
+            target_mocap=mocap,
+            target_qpos_adr=np.array([model.jnt_qposadr[j] for j in target_joints], dtype=int),
+            target_dof_adr=np.array([model.jnt_dofadr[j] for j in target_joints], dtype=int),
+            target_dim=dim,
+            target_radius=float(_custom_numeric(model, 'pg_target_radius', [0.2])[0]),
+            target_center=center,
+            init_qpos_noise=float(_custom_numeric(model, 'pg_init_qpos_noise', [0.1])[0]),
+            init_qvel_noise=float(_custom_numeric(model, 'pg_init_qvel_noise', [0.005])[0]),
+            link_bodies=np.array(chain, dtype=int),
+            link_parents=model.body_parentid[chain].copy(),
+        )
+
+
+class ArmTask:
+    """
+    ``num_envs`` copies of a reaching task on one MuJoCo arm model, stepped together.
+
+    ``episode_id[i]`` numbers episodes over the task's lifetime (0..N-1 at the first reset,
+    then the next free number at each auto-reset, in env order); ``episode_step[i]`` counts
+    the control steps taken in env ``i``'s current episode (0 right after a reset).
+    """
+
+    def __init__(self, model_path, num_envs: int = 1, seed: Optional[int] = None,
+                 frame_skip: int = 2, max_episode_steps: Optional[int] = 50,
+                 reward_dist_weight: float = 1.0, reward_control_weight: float = 1.0,
+                 num_threads: Optional[int] = None):
+        """
+        Load the model and make ``num_envs`` simulations of it; call ``reset`` next.
+
+        ``num_threads`` threads step the envs (1: a plain loop); by default 1 below
+        ``THREADS_FROM_ENVS`` envs, else the number of CPUs (at most 4).
+        """
+        if (num_envs < 1 or frame_skip < 1
+                or (max_episode_steps is not None and max_episode_steps < 1)):
+            raise ValueError('num_envs, frame_skip and max_episode_steps must be >= 1')
+        self.model_path = str(model_path)
+        self.model = mujoco.MjModel.from_xml_path(self.model_path)
+        self.spec = ArmSpec.from_model(self.model)
+        self.num_envs = int(num_envs)
+        self.frame_skip = int(frame_skip)
+        self.max_episode_steps = max_episode_steps
+        self.reward_dist_weight = float(reward_dist_weight)
+        self.reward_control_weight = float(reward_control_weight)
+        self.datas = [mujoco.MjData(self.model) for _ in range(self.num_envs)]
+        self.dt = self.model.opt.timestep * self.frame_skip
+        self.n_joints = len(self.spec.joint_ids)
+        self.act_dim = self.model.nu
+        self.obs_dim = 3 * self.n_joints + 2 * self.spec.target_dim
+        self.episode_id = np.zeros(self.num_envs, dtype=np.int64)
+        self.episode_step = np.zeros(self.num_envs, dtype=np.int64)
+        self.episode_return = np.zeros(self.num_envs)
+        self._next_episode_id = 0
+        self._rngs = []
+        self._seed(seed)
+        if num_threads is None:
+            num_threads = (1 if self.num_envs < THREADS_FROM_ENVS
+                           else min(4, os.cpu_count() or 1))
+        self.num_threads = max(1, min(int(num_threads), self.num_envs))
+        self._pool = None
+        self._chunks = [range(self.num_envs)]
+        if self.num_threads > 1:
+            self._pool = ThreadPoolExecutor(self.num_threads, thread_name_prefix='arm_task')
+            bounds = np.linspace(0, self.num_envs, self.num_threads + 1).astype(int)
+            self._chunks = [range(a, b) for a, b in zip(bounds[:-1], bounds[1:])]
+
+    def close(self):
+        """Stop the stepping threads, if any."""
+        if self._pool is not None:
+            self._pool.shutdown()
+            self._pool = None
+
+    def _seed(self, seed: Optional[int]):
+        """Give env ``i`` the generator ``PCG64(SeedSequence(seed + i))``."""
+        if seed is None:
+            seed = int(np.random.SeedSequence().entropy)
+        self._rngs = [np.random.Generator(np.random.PCG64(np.random.SeedSequence(seed + i)))
+                      for i in range(self.num_envs)]
+
+    @property
+    def rngs(self):
+        """Return the per-env random generators (env ``i`` draws only from ``rngs[i]``)."""
+        return self._rngs
+
+    def reset(self, seed: Optional[int] = None) -> np.ndarray:
+        """Start a new episode in every env and return the observations ``(N, obs_dim)``."""
+        if seed is not None:
+            self._seed(seed)
+        for i in range(self.num_envs):
+            self.reset_env(i)
+        return self.observe()
+
+    def reset_env(self, i: int):
+        """Draw env ``i``'s initial state and goal as Reacher-v5 does (module docstring)."""
+        m, d, s, rng = self.model, self.datas[i], self.spec, self._rngs[i]
+        mujoco.mj_resetData(m, d)
+        qpos = rng.uniform(low=-s.init_qpos_noise, high=s.init_qpos_noise, size=m.nq) + m.qpos0
+        # the goal, uniform in the disc/ball by rejection (Reacher-v5's loop)
+        while True:
+            goal = rng.uniform(low=-s.target_radius, high=s.target_radius, size=s.target_dim)
+            if np.linalg.norm(goal) < s.target_radius:
+                break
+        if np.any(s.target_center):
+            goal = goal + s.target_center
+        qvel = rng.uniform(low=-s.init_qvel_noise, high=s.init_qvel_noise, size=m.nv)
+        if s.target_mocap >= 0:
+            d.mocap_pos[s.target_mocap] = goal
+        else:
+            qpos[s.target_qpos_adr] = goal
+            qvel[s.target_dof_adr] = 0.0
+        d.qpos[:] = qpos
+        d.qvel[:] = qvel
+        mujoco.mj_forward(m, d)
+        self.episode_id[i] = self._next_episode_id
+        self._next_episode_id += 1
+        self.episode_step[i] = 0
+        self.episode_return[i] = 0.0
+
+    def set_state(self, i: int, qpos, qvel, target=None):
+        """Put env ``i`` in a given state (and goal), as Gymnasium's ``set_state`` does."""
+        m, d, s = self.model, self.datas[i], self.spec
+        d.qpos[:] = qpos
+        d.qvel[:] = qvel
+        if target is not None:
+            if s.target_mocap >= 0:
+                d.mocap_pos[s.target_mocap] = target
+            else:
+                d.qpos[s.target_qpos_adr] = target
+                d.qvel[s.target_dof_adr] = 0.0
+        mujoco.mj_forward(m, d)
+
+    def fingertip_pos(self) -> np.ndarray:
+        """Return the fingertips' world positions ``(N, 3)`` as the last step left them."""
+        site = self.spec.fingertip_site
+        return np.array([d.site_xpos[site] for d in self.datas])
+
+    def target_pos(self) -> np.ndarray:
+        """Return the goals' world positions ``(N, 3)``."""
+        body = self.spec.target_body
+        return np.array([d.xpos[body] for d in self.datas])
+
+    def joint_state(self):
+        """
+        Return arm joint ``(position, velocity, effort)``, each ``(N, n_joints)``.
+
+        The effort is the actuator force on the joint (``qfrc_actuator``), in N m.
+        """
+        s = self.spec
+        pos = np.array([d.qpos[s.qpos_adr] for d in self.datas])
+        vel = np.array([d.qvel[s.dof_adr] for d in self.datas])
+        eff = np.array([d.qfrc_actuator[s.dof_adr] for d in self.datas])
+        return pos, vel, eff
+
+    def link_positions(self) -> np.ndarray:
+        """Return ``(N, L, 2, 3)`` segments from each arm body's parent to the body, then tip."""
+        s = self.spec
+        out = np.empty((self.num_envs, len(s.link_bodies) + 1, 2, 3))
+        for i, d in enumerate(self.datas):
+            out[i, :-1, 0] = d.xpos[s.link_parents]
+            out[i, :-1, 1] = d.xpos[s.link_bodies]
+            out[i, -1, 0] = d.xpos[s.link_bodies[-1]]
+            out[i, -1, 1] = d.site_xpos[s.fingertip_site]
+        return out
+
+    def observe(self) -> np.ndarray:
+        """Return the observations ``(N, obs_dim)`` of the current states."""
+        s = self.spec
+        k = s.target_dim
+        q = np.array([d.qpos[s.qpos_adr] for d in self.datas])
+        qdot = np.array([d.qvel[s.dof_adr] for d in self.datas])
+        if s.target_mocap >= 0:
+            target = np.array([d.mocap_pos[s.target_mocap] for d in self.datas])
+        else:
+            target = np.array([d.qpos[s.target_qpos_adr] for d in self.datas])
+        vec = self.fingertip_pos() - self.target_pos()
+        return np.concatenate([np.cos(q), np.sin(q), target, qdot, vec[:, :k]], axis=1)
+
+    def step(self, act):
+        """
+        Apply ``act (N, act_dim)`` for one control step; auto-reset ended episodes.
+
+        Return ``obs, reward, terminated, truncated, info`` with ``info`` holding
+        ``final_obs`` (the observation the action reached), ``episode_id`` and
+        ``episode_step`` of the returned observation, ``final_episode_id`` (the episode
+        the action was taken in), ``episode_return`` / ``episode_length`` (NaN / 0 where
+        no episode ended) and the two reward terms ``reward_dist`` and ``reward_ctrl``.
+        """
+        act = np.asarray(act, dtype=np.float64)
+        if act.shape != (self.num_envs, self.act_dim):
+            raise ValueError(f'act has shape {act.shape}, expected '
+                             f'{(self.num_envs, self.act_dim)}')
+        m, n, datas = self.model, self.frame_skip, self.datas
+
+        def advance(envs):
+            for i in envs:
+                datas[i].ctrl[:] = act[i]
+                mujoco.mj_step(m, datas[i], nstep=n)
+
+        if self._pool is None:
+            advance(self._chunks[0])
+        else:
+            list(self._pool.map(advance, self._chunks))
+        obs = self.observe()
+        # reward from the post-step positions, in Reacher-v5's order of operations
+        reward_dist = -np.linalg.norm(self.fingertip_pos() - self.target_pos(), axis=1)
+        reward_dist *= self.reward_dist_weight
+        reward_ctrl = -np.square(act).sum(axis=1) * self.reward_control_weight
+        reward = reward_dist + reward_ctrl
+        self.episode_step += 1
+        self.episode_return += reward
+        terminated = np.zeros(self.num_envs, dtype=bool)
+        if self.max_episode_steps is None:
+            truncated = np.zeros(self.num_envs, dtype=bool)
+        else:
+            truncated = self.episode_step >= self.max_episode_steps
+        done = terminated | truncated
+        final_obs = obs.copy()
+        info = {
+            'final_obs': final_obs,
+            'final_episode_id': self.episode_id.copy(),
+            'episode_return': np.where(done, self.episode_return, np.nan),
+            'episode_length': np.where(done, self.episode_step, 0),
+            'reward_dist': reward_dist,
+            'reward_ctrl': reward_ctrl,
+        }
+        for i in np.flatnonzero(done):
+            self.reset_env(int(i))
+        if done.any():
+            obs = obs.copy()
+            obs[done] = self.observe()[done]
+        info['episode_id'] = self.episode_id.copy()
+        info['episode_step'] = self.episode_step.copy()
+        return obs, reward, terminated, truncated, info

@@ -1,0 +1,398 @@
+"""
+sim_node: the simulated arm(s) as a ROS 2 driver would offer them.
+
+The physics and the task are :class:`pg_node.arm_task.ArmTask`; this node only moves data.
+
+Topics published:
+
+* ``/joint_states`` (``sensor_msgs/JointState``), every control step, one message for all
+  arms: names ``arm<i>/<joint>`` (``<joint>`` the model's joint name, ``i`` from 0, for
+  every ``num_envs`` including 1), position (rad), velocity (rad/s), effort (actuator
+  torque, N m), stamped with simulated time;
+* ``/clock`` (``rosgraph_msgs/Clock``): simulated time, ``control steps * dt``, every
+  control step; it never goes back, not even on a world reset;
+* ``/target`` (``geometry_msgs/PointStamped``): one message per arm whenever its target
+  changes (episode start), ``frame_id = 'arm<i>'`` and the point in that arm's own
+  coordinates; reliable, transient-local, depth ``num_envs``, so a late subscriber still
+  gets the current targets;
+* ``/pg_node/transition`` (``std_msgs/Float64MultiArray``): every control step, the layout
+  of :mod:`pg_node.transition`; reliable, transient-local, depth 1;
+* ``/pg_node/markers`` (``visualization_msgs/MarkerArray``) at ``marker_rate`` Hz of wall
+  time: per arm the links (``LINE_LIST``), fingertip and target (``SPHERE``) in
+  ``frame_id``; arm ``i`` is drawn shifted by its place on a square grid with
+  ``marker_spacing`` between arms (frame ``arm<i>`` is ``frame_id`` shifted so);
+* ``/diagnostics`` (``diagnostic_msgs/DiagnosticArray``) at ``diagnostics_rate`` Hz: mode,
+  paused, steps, simulated time, steps per second, commands received / dropped (wrong size,
+  non-finite) / clipped, lock-step timeouts.
+
+Subscribed: ``/arm_controller/commands`` (``std_msgs/Float64MultiArray``, as ros2_control's
+forward_command_controller): ``num_envs * n_actuators`` values, arm-major (arm 0's
+actuators in model order, then arm 1's...); the layout is not read. A message of another
+size or with a non-finite value is dropped, counted and warned about (throttled); values
+are clipped to the actuators' control range.
+
+Modes (parameter ``mode``):
+
+* ``lock_step`` (default): each accepted command is one control step, then a transition is
+  published; with no command for ``lock_step_timeout`` s the last transition is re-sent
+  (same ``seq``) and the wait logged, so neither side hangs on a lost message;
+* ``real_time``: control steps at ``real_time_factor / dt`` Hz of wall time with the last
+  command held, zero torque once it is older than ``command_timeout`` s.
+
+Services (names as in mujoco_ros2_control): ``~/reset_world`` (``std_srvs/Trigger``: new
+episodes in all arms, publishes a transition), ``~/set_pause`` (``std_srvs/SetBool``) and
+``~/step_simulation`` (``std_srvs/Trigger``: while paused, one control step with the held
+command; refused when not paused). While paused, lock-step commands are held, not stepped.
+
+Parameters come from ``config/pg_node.yaml`` (section ``sim_node``) unless the command line
+gives a ``--params-file``; ``PARAMETERS`` lists them with their descriptions.
+"""
+import array
+import math
+import sys
+import time
+
+from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import Point, PointStamped
+import numpy as np
+from pg_node import transition
+from pg_node.arm_task import ArmTask
+from pg_node.paths import default_config, resolve_model
+from rcl_interfaces.msg import ParameterDescriptor
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray
+from std_srvs.srv import SetBool, Trigger
+from visualization_msgs.msg import Marker, MarkerArray
+
+MODES = ('lock_step', 'real_time')
+
+PARAMETERS = (
+    ('model', 'reacher2', 'Shipped model name (reacher2, arm5_3d) or path to an MJCF file.'),
+    ('num_envs', 1, 'Number of arms simulated side by side.'),
+    ('seed', 0, 'Seed of the episode starts; arm i draws from seed + i.'),
+    ('frame_skip', 2, 'Physics steps per control step.'),
+    ('max_episode_steps', 50, 'Control steps after which an episode is truncated.'),
+    ('reward_dist_weight', 1.0, 'Weight of the fingertip distance in the reward.'),
+    ('reward_control_weight', 1.0, 'Weight of the squared command norm in the reward.'),
+    ('mode', 'lock_step', 'lock_step: one control step per command; real_time: wall clock.'),
+    ('lock_step_timeout', 1.0, 'Seconds without a command before the last transition is '
+                               're-sent (lock_step).'),
+    ('command_timeout', 0.5, 'Seconds after which a held command drops to zero torque '
+                             '(real_time).'),
+    ('real_time_factor', 1.0, 'Simulated seconds per wall second (real_time).'),
+    ('start_paused', False, 'Start paused (step with ~/step_simulation).'),
+    ('marker_rate', 10.0, 'MarkerArray rate in Hz of wall time; 0 turns markers off.'),
+    ('marker_spacing', 0.7, 'Distance in m between arms drawn on the marker grid.'),
+    ('frame_id', 'world', 'Frame of the markers.'),
+    ('diagnostics_rate', 1.0, 'Diagnostics rate in Hz of wall time.'),
+)
+
+
+def sim_stamp(seconds: float) -> Time:
+    """Return ``seconds`` of simulated time as a ``builtin_interfaces/Time``."""
+    nanos = int(round(seconds * 1e9))
+    return Time(sec=nanos // 1_000_000_000, nanosec=nanos % 1_000_000_000)
+
+
+def as_array(values: np.ndarray) -> array.array:
+    """Return a float64 numpy array as the ``array.array`` that message fields hold."""
+    return array.array('d', np.ascontiguousarray(values, dtype=np.float64).tobytes())
+
+
+class SimNode(Node):
+    """Publish simulated arms and step them on torque commands."""
+
+    def __init__(self):
+        """Declare parameters, build the task and the ROS interfaces, publish the start."""
+        super().__init__('sim_node')
+        self._declare_parameters()
+        p = {name: self.get_parameter(name).value for name, _, _ in PARAMETERS}
+        if p['mode'] not in MODES:
+            raise ValueError(f'mode must be one of {MODES}, got {p["mode"]!r}')
+        self.mode = p['mode']
+        self.task = ArmTask(resolve_model(p['model']), num_envs=p['num_envs'], seed=p['seed'],
+                            frame_skip=p['frame_skip'],
+                            max_episode_steps=p['max_episode_steps'],
+                            reward_dist_weight=p['reward_dist_weight'],
+                            reward_control_weight=p['reward_control_weight'])
+        self.params = p
+        n, spec = self.task.num_envs, self.task.spec
+        self.n_cmd = n * self.task.act_dim
+        self.joint_names = [f'arm{i}/{name}' for i in range(n) for name in spec.joint_names]
+        cols = math.ceil(math.sqrt(n))
+        self.offsets = np.array([[(i % cols) * p['marker_spacing'],
+                                  (i // cols) * p['marker_spacing'], 0.0] for i in range(n)])
+        self.counters = {'steps': 0, 'commands_received': 0, 'commands_dropped_size': 0,
+                         'commands_dropped_nonfinite': 0, 'commands_clipped': 0,
+                         'lock_step_timeouts': 0, 'transitions_resent': 0}
+        self.paused = bool(p['start_paused'])
+        self.held = np.zeros((n, self.task.act_dim))
+        self.held_time = -math.inf
+        self.seq = -1
+        self.last_transition = None
+        self.last_sent = time.monotonic()
+        self._diag_steps, self._diag_time = 0, time.monotonic()
+
+        reliable_latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        targets_qos = QoSProfile(depth=n, reliability=ReliabilityPolicy.RELIABLE,
+                                 durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        self.pub_joints = self.create_publisher(JointState, '/joint_states', 10)
+        self.pub_clock = self.create_publisher(Clock, '/clock', 10)
+        self.pub_target = self.create_publisher(PointStamped, '/target', targets_qos)
+        self.pub_transition = self.create_publisher(Float64MultiArray, '/pg_node/transition',
+                                                    reliable_latched)
+        self.pub_markers = self.create_publisher(MarkerArray, '/pg_node/markers', 1)
+        self.pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        self.create_subscription(Float64MultiArray, '/arm_controller/commands',
+                                 self.on_command, 10)
+        self.create_service(Trigger, '~/reset_world', self.on_reset_world)
+        self.create_service(SetBool, '~/set_pause', self.on_set_pause)
+        self.create_service(Trigger, '~/step_simulation', self.on_step_simulation)
+        if p['marker_rate'] > 0:
+            self.create_timer(1.0 / p['marker_rate'], self.publish_markers)
+        self.create_timer(1.0 / max(p['diagnostics_rate'], 1e-3), self.publish_diagnostics)
+        if self.mode == 'real_time':
+            self.create_timer(self.task.dt / p['real_time_factor'], self.on_real_time_tick)
+        else:
+            self.create_timer(min(0.1, p['lock_step_timeout'] / 2), self.on_lock_step_watch)
+
+        obs = self.task.reset()
+        self.publish_state(self._reset_transition(obs))
+        self.get_logger().info(
+            f'{self.mode}: {n} x {p["model"]} ({self.task.act_dim} actuators, joints '
+            f'{", ".join(spec.joint_names)}), dt {self.task.dt:g} s')
+
+    def _declare_parameters(self):
+        """Declare every parameter with its default and a description."""
+        for name, default, text in PARAMETERS:
+            self.declare_parameter(name, default, ParameterDescriptor(description=text))
+
+    @property
+    def sim_time(self) -> float:
+        """Return the simulated time in seconds (control steps times dt)."""
+        return self.counters['steps'] * self.task.dt
+
+    # --- commands -------------------------------------------------------------------------
+
+    def on_command(self, msg: Float64MultiArray):
+        """Check, clip and hold a torque command; in lock-step, take one control step."""
+        self.counters['commands_received'] += 1
+        cmd = np.asarray(msg.data, dtype=np.float64)
+        if cmd.size != self.n_cmd:
+            self.counters['commands_dropped_size'] += 1
+            self.get_logger().warning(
+                f'dropped a command of {cmd.size} values, expected {self.n_cmd} '
+                f'({self.task.num_envs} arms x {self.task.act_dim} actuators)',
+                throttle_duration_sec=1.0)
+            return
+        if not np.all(np.isfinite(cmd)):
+            self.counters['commands_dropped_nonfinite'] += 1
+            self.get_logger().warning('dropped a command with a non-finite value',
+                                      throttle_duration_sec=1.0)
+            return
+        cmd = cmd.reshape(self.task.num_envs, self.task.act_dim)
+        clipped = np.clip(cmd, self.task.spec.ctrl_low, self.task.spec.ctrl_high)
+        if not np.array_equal(clipped, cmd):
+            self.counters['commands_clipped'] += 1
+        self.held = clipped
+        self.held_time = time.monotonic()
+        if self.mode == 'lock_step' and not self.paused:
+            self.control_step(self.held)
+
+    def on_real_time_tick(self):
+        """Take one control step with the held command, or zero torque if it is stale."""
+        if self.paused:
+            return
+        if time.monotonic() - self.held_time > self.params['command_timeout']:
+            self.held = np.zeros_like(self.held)
+        self.control_step(self.held)
+
+    def on_lock_step_watch(self):
+        """Re-send the last transition when no command came for ``lock_step_timeout``."""
+        if self.paused or self.last_transition is None:
+            return
+        waited = time.monotonic() - self.last_sent
+        if waited >= self.params['lock_step_timeout']:
+            self.counters['lock_step_timeouts'] += 1
+            self.get_logger().info(
+                f'no command for {waited:.1f} s, re-sending transition {self.seq}',
+                throttle_duration_sec=10.0)
+            self.pub_transition.publish(self.last_transition)
+            self.counters['transitions_resent'] += 1
+            self.last_sent = time.monotonic()
+
+    # --- stepping and publishing ----------------------------------------------------------
+
+    def control_step(self, act: np.ndarray):
+        """Step every arm once with ``act`` and publish the results."""
+        obs, reward, terminated, truncated, info = self.task.step(act)
+        self.counters['steps'] += 1
+        self.seq += 1
+        tr = transition.Transition(
+            seq=self.seq, obs=obs, reward=reward, terminated=terminated, truncated=truncated,
+            final_obs=info['final_obs'], episode_id=info['episode_id'],
+            episode_step=info['episode_step'])
+        self.publish_state(tr)
+
+    def _reset_transition(self, obs: np.ndarray) -> transition.Transition:
+        """Return the transition announcing fresh episodes in every arm."""
+        self.seq += 1
+        n = self.task.num_envs
+        return transition.Transition(
+            seq=self.seq, obs=obs, reward=np.zeros(n), terminated=np.zeros(n, dtype=bool),
+            truncated=np.zeros(n, dtype=bool), final_obs=obs,
+            episode_id=self.task.episode_id.copy(), episode_step=self.task.episode_step.copy())
+
+    def publish_state(self, tr: transition.Transition):
+        """Publish clock, joint states, new targets and the transition ``tr``."""
+        stamp = sim_stamp(self.sim_time)
+        self.pub_clock.publish(Clock(clock=stamp))
+        pos, vel, eff = self.task.joint_state()
+        js = JointState()
+        js.header.stamp = stamp
+        js.name = self.joint_names
+        js.position = as_array(pos.ravel())
+        js.velocity = as_array(vel.ravel())
+        js.effort = as_array(eff.ravel())
+        self.pub_joints.publish(js)
+        new = np.flatnonzero(tr.episode_step == 0)
+        if new.size:
+            targets = self.task.target_pos()
+            for i in new:
+                point = PointStamped()
+                point.header.stamp = stamp
+                point.header.frame_id = f'arm{i}'
+                point.point = Point(x=float(targets[i, 0]), y=float(targets[i, 1]),
+                                    z=float(targets[i, 2]))
+                self.pub_target.publish(point)
+        self.last_transition = transition.to_msg(tr)
+        self.pub_transition.publish(self.last_transition)
+        self.last_sent = time.monotonic()
+
+    def publish_markers(self):
+        """Publish links, fingertips and targets of all arms as a MarkerArray."""
+        stamp = sim_stamp(self.sim_time)
+        links = self.task.link_positions()
+        tips = self.task.fingertip_pos()
+        targets = self.task.target_pos()
+        out = MarkerArray()
+        for i in range(self.task.num_envs):
+            off = self.offsets[i]
+            line = self._marker(stamp, 'links', i, Marker.LINE_LIST, (0.0, 0.4, 0.6), 0.02)
+            line.points = [Point(x=float(x), y=float(y), z=float(z))
+                           for x, y, z in links[i].reshape(-1, 3) + off]
+            tip = self._marker(stamp, 'fingertip', i, Marker.SPHERE, (0.0, 0.8, 0.6), 0.025)
+            tip.pose.position = Point(x=float(tips[i, 0] + off[0]),
+                                      y=float(tips[i, 1] + off[1]),
+                                      z=float(tips[i, 2] + off[2]))
+            goal = self._marker(stamp, 'target', i, Marker.SPHERE, (0.9, 0.2, 0.2), 0.025)
+            goal.pose.position = Point(x=float(targets[i, 0] + off[0]),
+                                       y=float(targets[i, 1] + off[1]),
+                                       z=float(targets[i, 2] + off[2]))
+            out.markers += [line, tip, goal]
+        self.pub_markers.publish(out)
+
+    def _marker(self, stamp, ns: str, i: int, kind: int, rgb, size: float) -> Marker:
+        """Return a marker with the common fields filled in."""
+        marker = Marker()
+        marker.header.stamp = stamp
+        marker.header.frame_id = self.params['frame_id']
+        marker.ns = ns
+        marker.id = i
+        marker.type = kind
+        marker.action = Marker.ADD
+        marker.pose.orientation.w = 1.0
+        marker.scale.x = marker.scale.y = marker.scale.z = size
+        marker.color.r, marker.color.g, marker.color.b = rgb
+        marker.color.a = 1.0
+        return marker
+
+    def publish_diagnostics(self):
+        """Publish the counters as one DiagnosticStatus."""
+        now = time.monotonic()
+        rate = (self.counters['steps'] - self._diag_steps) / max(now - self._diag_time, 1e-9)
+        self._diag_steps, self._diag_time = self.counters['steps'], now
+        dropped = (self.counters['commands_dropped_size']
+                   + self.counters['commands_dropped_nonfinite'])
+        status = DiagnosticStatus()
+        status.name = 'sim_node: simulated arms'
+        status.hardware_id = f'{self.params["model"]} x {self.task.num_envs}'
+        status.level = DiagnosticStatus.WARN if dropped else DiagnosticStatus.OK
+        status.message = ('paused' if self.paused else self.mode) + (
+            f', {dropped} commands dropped' if dropped else '')
+        values = dict(self.counters, mode=self.mode, paused=self.paused,
+                      sim_time=round(self.sim_time, 6), steps_per_second=round(rate, 1),
+                      num_envs=self.task.num_envs)
+        status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
+        msg = DiagnosticArray()
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.status = [status]
+        self.pub_diag.publish(msg)
+
+    # --- services -------------------------------------------------------------------------
+
+    def on_reset_world(self, request, response):
+        """Start new episodes in every arm and publish them."""
+        obs = self.task.reset()
+        self.publish_state(self._reset_transition(obs))
+        response.success = True
+        response.message = f'new episodes {self.task.episode_id.tolist()}'
+        return response
+
+    def on_set_pause(self, request, response):
+        """Pause (``data=True``) or resume the simulation."""
+        self.paused = bool(request.data)
+        response.success = True
+        response.message = 'paused' if self.paused else 'running'
+        return response
+
+    def on_step_simulation(self, request, response):
+        """Take one control step with the held command while paused."""
+        if not self.paused:
+            response.success = False
+            response.message = 'not paused: pause with ~/set_pause first'
+            return response
+        self.control_step(self.held)
+        response.success = True
+        response.message = f'stepped to seq {self.seq}'
+        return response
+
+
+def with_default_params(args):
+    """Return ``args`` with ``--params-file config/pg_node.yaml`` unless one is given."""
+    args = list(sys.argv if args is None else args)
+    config = default_config()
+    if '--params-file' in args or not config.is_file():
+        return args
+    # first after --ros-args, so that -p overrides on the command line still win
+    if '--ros-args' not in args:
+        args.append('--ros-args')
+    at = args.index('--ros-args') + 1
+    return args[:at] + ['--params-file', str(config)] + args[at:]
+
+
+def main(args=None):
+    """Run sim_node until Ctrl-C or an external shutdown."""
+    rclpy.init(args=with_default_params(args))
+    node = None
+    try:
+        node = SimNode()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.task.close()
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == '__main__':
+    main()
