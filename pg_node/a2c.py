@@ -1,4 +1,5 @@
-"""One learner step and one critic step: the A2C update (and PPO's) on a finished batch.
+"""
+One learner step and one critic step: the A2C update (and PPO's) on a finished batch.
 
 In pg_node the actor and the critic are separate networks living in separate processes
 (the learner and critic nodes), so SB3's single loss ``pg + vf_coef * vl - ent_coef * H`` is
@@ -13,10 +14,9 @@ from dataclasses import dataclass
 from typing import Dict, Optional
 
 import numpy as np
+from pg_node import losses
 import torch
 from torch import nn
-
-from pg_node import losses
 
 OPTIMIZERS = ('rmsprop', 'adam')
 
@@ -128,7 +128,8 @@ class PolicyUpdate:
                 else:
                     norms.append(norm)
                 logs.append(stats)
-            if self.target_kl is not None and logs and logs[-1]['approx_kl'] > 1.5 * self.target_kl:
+            kl = logs[-1]['approx_kl'] if logs else 0.0
+            if self.target_kl is not None and kl > 1.5 * self.target_kl:
                 break
         self.skipped += skipped
         out = {k: float(np.mean([s[k] for s in logs])) for k in logs[0]}

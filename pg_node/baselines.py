@@ -1,4 +1,5 @@
-"""Baselines b subtracted from phi: constant, variance-optimal and time-dependent.
+"""
+Baselines b subtracted from phi: constant, variance-optimal and time-dependent.
 
 Subtracting anything that does not depend on the action leaves the gradient estimate
 unbiased, because the score has zero mean (eqs. 21-28 and 49-59); a good choice lowers its
@@ -23,7 +24,8 @@ def _leave_one_out(total: np.ndarray, count: np.ndarray, own: np.ndarray,
 
 
 def constant_baseline(seg_return: np.ndarray) -> np.ndarray:
-    """Mean-return baseline ``b = (1/m) sum_i R(tau_i)``, one value per trajectory.
+    """
+    Mean-return baseline ``b = (1/m) sum_i R(tau_i)``, one value per trajectory.
 
     The notes' first choice in section 4.4, the one Williams' REINFORCE uses. ``seg_return``
     holds R(tau_i) for each of the m trajectories; the result holds trajectory i's b,
@@ -37,7 +39,8 @@ def constant_baseline(seg_return: np.ndarray) -> np.ndarray:
 
 
 def optimal_baseline(seg_return: np.ndarray, score_sq: np.ndarray) -> np.ndarray:
-    """Variance-optimal constant baseline ``b* = E[|g|^2 R] / E[|g|^2]``, g the score.
+    """
+    Variance-optimal constant baseline ``b* = E[|g|^2 R] / E[|g|^2]``, g the score.
 
     The notes' section 4.4 gives ``b = sum_i (grad log P(tau_i))^2 R(tau_i) / sum_i
     (grad log P(tau_i))^2``; reading the square as the squared norm of the whole score
@@ -58,7 +61,8 @@ def optimal_baseline(seg_return: np.ndarray, score_sq: np.ndarray) -> np.ndarray
 
 
 def time_baseline(ret: np.ndarray, ep_step: np.ndarray) -> np.ndarray:
-    """Time-dependent baseline ``b_t = (1/m) sum_i G_t^(i)``, the mean reward-to-go at step t.
+    """
+    Time-dependent baseline ``b_t = (1/m) sum_i G_t^(i)``, the mean reward-to-go at step t.
 
     Section 4.4's third choice: one baseline per time index, so that early steps (with much
     reward still ahead) and late steps (with little) are centred separately. ``ret`` holds

@@ -1,4 +1,5 @@
-"""``python -m pg_node <command>``: one entry point for the tools that need no ``ros2`` CLI.
+"""
+``python -m pg_node <command>``: one entry point for the tools that need no ``ros2`` CLI.
 
 Each command lives in its own module with a ``main(argv) -> int``; it is imported only when
 asked for, so ``python -m pg_node variance`` never loads rclpy and a command whose module is
@@ -16,7 +17,7 @@ COMMANDS = {
     'bench': ('pg_node.bench', 'throughput, latency and learning benchmarks'),
     'replay': ('pg_node.replay_node', 'play a rosbag2 MCAP bag back onto its topics'),
     'monitor': ('pg_node.monitor', 'live terminal view of a running training'),
-    'topics': ('pg_node.topics', 'list the graph\'s topics, types, endpoints and rates'),
+    'topics': ('pg_node.topics', "list the graph's topics, types, endpoints and rates"),
     'plot': ('pg_node.plot', 'learning-curve PNG from a bag or run directory'),
     'render': ('pg_node.render', 'animation of a recorded episode'),
     'soak': ('pg_node.soak', 'training with injected faults, and a report'),
@@ -30,7 +31,7 @@ def usage() -> str:
         available = importlib.util.find_spec(module) is not None
         lines.append(f'  {name:<10} {text}' + ('' if available else '  (not built yet)'))
     lines.append('')
-    lines.append('`python -m pg_node <command> --help` describes a command\'s options.')
+    lines.append("`python -m pg_node <command> --help` describes a command's options.")
     return '\n'.join(lines)
 
 

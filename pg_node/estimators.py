@@ -1,4 +1,5 @@
-"""Every choice of phi in ``grad U ~ mean sum_t grad log pi(u_t|s_t) phi_t`` (eq. 20).
+"""
+Every choice of phi in ``grad U ~ mean sum_t grad log pi(u_t|s_t) phi_t`` (eq. 20).
 
 The notes reduce the policy gradient to the score of each action times a weight phi_t, and
 then lower the variance step by step by choosing phi better. Each function here computes one
@@ -117,7 +118,8 @@ def compute_phi(name: str, batch: Rollout, gamma: float, gae_lambda: float = 0.9
 
 def value_targets(batch: Rollout, gamma: float, gae_lambda: float = 0.95,
                   kind: str = 'td_lambda') -> np.ndarray:
-    """Targets for fitting V (section 4.5).
+    """
+    Targets for fitting V (section 4.5).
 
     ``mc`` regresses V on the empirical discounted return (section 4.5.1), bootstrapped only
     where the data stops without a termination; ``td_lambda`` on the TD(lambda) return

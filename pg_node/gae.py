@@ -1,4 +1,5 @@
-"""The TD residual and generalized advantage estimation, GAE(gamma, lambda).
+"""
+The TD residual and generalized advantage estimation, GAE(gamma, lambda).
 
 With a critic V, the advantage of the action at step t can be estimated by the one-step TD
 residual ``delta_t = r_t + gamma V(s_{t+1}) - V(s_t)`` (the notes' list of phi choices after
@@ -14,7 +15,8 @@ from pg_node.rollout import Rollout
 
 
 def td_residual(batch: Rollout, gamma: float) -> np.ndarray:
-    """One-step TD residual ``delta_t = r_t + gamma (1 - term_t) V(s_{t+1}) - V(s_t)``.
+    """
+    One-step TD residual ``delta_t = r_t + gamma (1 - term_t) V(s_{t+1}) - V(s_t)``.
 
     After a termination the next state's value is zero; after a truncation it is
     ``V`` of the true last state (``batch.next_val``), the bootstrap the time limit asks for.
@@ -28,7 +30,8 @@ def td_residual(batch: Rollout, gamma: float) -> np.ndarray:
 
 
 def gae(batch: Rollout, gamma: float, gae_lambda: float) -> np.ndarray:
-    """Generalized advantage estimate ``A_t = delta_t + gamma lambda A_{t+1}`` within a segment.
+    """
+    Generalized advantage estimate ``A_t = delta_t + gamma lambda A_{t+1}`` within a segment.
 
     The recursion stops at every episode end (the residual there already holds the right
     bootstrap) and at the edge of the batch (where ``next_val`` bootstraps).

@@ -1,4 +1,5 @@
-"""A problem whose policy gradient is known exactly: linear dynamics, Gaussian noise, quadratic cost.
+"""
+A problem with a known policy gradient: linear dynamics, Gaussian noise, quadratic cost.
 
 ``s_{t+1} = A s_t + B u_t + w_t`` with ``w_t ~ N(0, W)``, ``s_0 ~ N(mu0, S0)``, reward
 ``r_t = -(s_t' Q s_t + u_t' R u_t)`` over a finite horizon H, and a linear Gaussian policy
@@ -71,7 +72,8 @@ class LinearGaussianProblem:
             mu_u = K @ m + k
             S_u = K @ S @ K.T + var_u
             # E[s'Qs] = tr(QS) + m'Qm and E[u'Ru] likewise, u's moments from s's.
-            total = total - (torch.trace(Q @ S) + m @ Q @ m + torch.trace(R @ S_u) + mu_u @ R @ mu_u)
+            total = total - (torch.trace(Q @ S) + m @ Q @ m
+                             + torch.trace(R @ S_u) + mu_u @ R @ mu_u)
             M = A + B @ K
             m = M @ m + B @ k
             S = M @ S @ M.T + B @ var_u @ B.T + W
@@ -84,7 +86,8 @@ class LinearGaussianProblem:
         return grad.numpy()
 
     def value_coefficients(self):
-        """Return ``[(P_t, p_t, c_t)]`` for t = 0..H with ``V_t(s) = -(s'P_t s + p_t's + c_t)``.
+        """
+        Return ``[(P_t, p_t, c_t)]`` for t = 0..H with ``V_t(s) = -(s'P_t s + p_t's + c_t)``.
 
         Backward recursion from ``V_H = 0``: ``V_t(s) = E[r_t + V_{t+1}(s_{t+1})]`` with
         ``u = K s + k + noise`` and ``s_{t+1} = M s + B k + B noise + w``, ``M = A + B K``.
@@ -106,7 +109,8 @@ class LinearGaussianProblem:
         return coeffs
 
     def sample(self, m: int, rng: np.random.Generator):
-        """Roll out m trajectories; return a dict of ``(H, m, ...)`` arrays.
+        """
+        Roll out m trajectories; return a dict of ``(H, m, ...)`` arrays.
 
         Keys: ``obs``, ``act``, ``rew``, ``score`` (``grad_theta log pi(u_t|s_t)`` per step, in
         closed form for the Gaussian), ``val`` (true ``V_t(s_t)``) and ``next_val`` (true

@@ -1,4 +1,5 @@
-"""Losses whose gradients are the policy-gradient estimates of the notes.
+"""
+Losses whose gradients are the policy-gradient estimates of the notes.
 
 Minimising ``-(1/B) sum logp * phi`` with phi held fixed gives exactly the estimator
 ``(1/B) sum grad log pi(u|s) phi`` of eq. 20 (eq. 64 for the A2C advantage). The entropy
@@ -25,7 +26,8 @@ def policy_gradient_loss(logp: torch.Tensor, adv: torch.Tensor) -> torch.Tensor:
 
 def ppo_clip_loss(logp: torch.Tensor, old_logp: torch.Tensor, adv: torch.Tensor,
                   clip_range: float) -> Tuple[torch.Tensor, Dict[str, float]]:
-    """PPO's clipped surrogate ``-mean(min(rho A, clip(rho, 1-eps, 1+eps) A))``.
+    """
+    Return PPO's clipped surrogate ``-mean(min(rho A, clip(rho, 1-eps, 1+eps) A))``.
 
     ``rho = pi_new(u|s) / pi_old(u|s)``. At ``rho = 1`` (the first step on fresh data) its
     gradient equals the A2C policy gradient; away from it, the clip removes the incentive to
@@ -55,7 +57,7 @@ def value_loss(val_pred: torch.Tensor, ret: torch.Tensor) -> torch.Tensor:
 
 
 def explained_variance(val_pred, ret) -> float:
-    """``1 - Var[ret - V] / Var[ret]``: 1 is a perfect critic, 0 no better than a constant."""
+    """Return ``1 - Var[ret - V] / Var[ret]``: 1 for a perfect critic, 0 for a constant."""
     ret = torch.as_tensor(ret, dtype=torch.float64)
     val_pred = torch.as_tensor(val_pred, dtype=torch.float64)
     var = ret.var(unbiased=False)

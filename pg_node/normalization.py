@@ -1,4 +1,5 @@
-"""Observation normalisation by a running mean and variance, kept inside the networks.
+"""
+Observation normalisation by a running mean and variance, kept inside the networks.
 
 The statistics are torch buffers, so they travel in the ``state_dict`` of the policy (and of
 the value function) and are saved and restored with the weights: a policy evaluated later,
@@ -10,7 +11,8 @@ from torch import nn
 
 
 class RunningNorm(nn.Module):
-    """Normalise inputs as ``clip((x - mean) / sqrt(var + eps), -clip, clip)``.
+    """
+    Normalise inputs as ``clip((x - mean) / sqrt(var + eps), -clip, clip)``.
 
     ``update`` merges a batch into the running moments with the parallel algorithm of
     Chan et al. (the one SB3's ``RunningMeanStd`` uses); ``forward`` only reads them, so

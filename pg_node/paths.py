@@ -7,7 +7,8 @@ _SOURCE_ROOT = Path(__file__).resolve().parent.parent
 
 
 def share_dir() -> Path:
-    """Return the directory holding ``config/``, ``launch/`` and ``models/``.
+    """
+    Return the directory holding ``config/``, ``launch/`` and ``models/``.
 
     A source checkout (``config/`` beside the ``pg_node/`` package) wins, so that a developer
     always runs what they edit; otherwise the colcon/ament install's

@@ -1,4 +1,5 @@
-"""The actor: a diagonal Gaussian policy pi_theta(u|s) over continuous joint torques.
+"""
+The actor: a diagonal Gaussian policy pi_theta(u|s) over continuous joint torques.
 
 The mean is an MLP of the (normalised) observation; the log standard deviation is a learned
 parameter vector, or, with ``state_dependent_std``, a second head of the same MLP trunk.
@@ -8,12 +9,11 @@ The score ``grad_theta log pi_theta(u|s)`` that every estimator in the notes mul
 from typing import Sequence, Tuple
 
 import numpy as np
+from pg_node.networks import activation, mlp
+from pg_node.normalization import RunningNorm
 import torch
 from torch import nn
 from torch.distributions import Normal
-
-from pg_node.networks import activation, mlp
-from pg_node.normalization import RunningNorm
 
 LOG_STD_MIN, LOG_STD_MAX = -20.0, 2.0
 
@@ -61,7 +61,8 @@ class GaussianPolicy(nn.Module):
     @torch.no_grad()
     def sample(self, obs: torch.Tensor, generator: torch.Generator = None
                ) -> Tuple[torch.Tensor, torch.Tensor]:
-        """Draw ``u ~ pi(.|obs)``; return ``(act, logp)``.
+        """
+        Draw ``u ~ pi(.|obs)``; return ``(act, logp)``.
 
         With a ``generator`` the draw is reproducible (lock-step training uses one seeded
         generator per actor).
@@ -95,7 +96,8 @@ def flat_params(module: nn.Module) -> np.ndarray:
 
 def segment_score_sq(policy: GaussianPolicy, obs: torch.Tensor, act: torch.Tensor,
                      seg: np.ndarray) -> np.ndarray:
-    """Squared norm of each trajectory's score ``||sum_t grad log pi(u_t|s_t)||^2``.
+    """
+    Squared norm of each trajectory's score ``||sum_t grad log pi(u_t|s_t)||^2``.
 
     The optimal baseline (section 4.4) weighs trajectories by it. ``obs`` and ``act`` are
     flattened ``(B, ...)``; ``seg`` gives each row's segment id. Returns one value per row

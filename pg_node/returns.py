@@ -1,4 +1,5 @@
-"""Discounted returns: the total return R(tau) and the reward-to-go.
+"""
+Discounted returns: the total return R(tau) and the reward-to-go.
 
 These are the two baseline-free choices of phi in the notes: the whole trajectory's return,
 which multiplies every score term of that trajectory (eq. 18), and the return that follows
@@ -10,7 +11,8 @@ from pg_node.rollout import Rollout, segment_ids
 
 
 def discount_cumsum(x, gamma: float) -> np.ndarray:
-    """Discounted cumulative sum along the first axis, the tail folded back.
+    """
+    Return the discounted cumulative sum along the first axis, the tail folded back.
 
     ``[x0, x1, x2] -> [x0 + g*x1 + g^2*x2, x1 + g*x2, x2]``:
 
@@ -27,7 +29,8 @@ def discount_cumsum(x, gamma: float) -> np.ndarray:
 
 
 def reward_to_go(batch: Rollout, gamma: float, bootstrap: bool = True) -> np.ndarray:
-    """Discounted reward-to-go ``G_t = sum_{k>=t} gamma^(k-t) r_k`` within each segment.
+    """
+    Discounted reward-to-go ``G_t = sum_{k>=t} gamma^(k-t) r_k`` within each segment.
 
     This is eq. 63's inner sum with discounting. Where a segment stops without the task
     having terminated (time-limit truncation, or the edge of the batch) the future beyond it
@@ -54,7 +57,8 @@ def reward_to_go(batch: Rollout, gamma: float, bootstrap: bool = True) -> np.nda
 
 
 def total_return(batch: Rollout, gamma: float, bootstrap: bool = True) -> np.ndarray:
-    """The return of each step's whole segment, ``R(tau)``, repeated at every step of it.
+    """
+    Return each step's whole-segment return ``R(tau)``, repeated along the segment.
 
     Eq. 18 weighs each score term ``grad log pi(u_t|s_t)`` with the return of the entire
     trajectory, rewards before t included. Over a batch that cuts episodes, R(tau) is the

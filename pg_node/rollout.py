@@ -1,4 +1,5 @@
-"""A batch of experience laid out time-major, as ``(T, N)`` arrays for N parallel arms.
+"""
+A batch of experience laid out time-major, as ``(T, N)`` arrays for N parallel arms.
 
 Every estimator of phi in pg_node reads this one layout. Column ``n`` is arm ``n``'s stream of
 control steps; an episode may end inside the batch by *termination* (the task is over: the
@@ -15,20 +16,19 @@ import numpy as np
 
 @dataclass
 class Rollout:
-    """Rewards, episode ends and value estimates of a ``(T, N)`` batch.
+    """
+    Rewards, episode ends and value estimates of a ``(T, N)`` batch.
 
-    Attributes:
-        rew: ``r_t``, reward received for the action at step t.
-        terminated: True where the episode ended for good after step t.
-        truncated: True where a time limit cut the episode after step t.
-        val: ``V(s_t)``, the critic's value of the state acted in (zeros if none).
-        next_val: ``V(s_{t+1})`` of the true next state, also where the episode ended and the
-            arm was reset (the final observation, not the reset one); used to bootstrap.
-        ep_step: the step's index inside its episode (0 at a reset), for the time-dependent
-            baseline; derived from the ends if not given (the batch then starts episodes).
-        score_sq: per step, the squared norm of its segment's score
-            ``||sum_t grad log pi(u_t|s_t)||^2``; only the optimal baseline needs it.
-
+    - ``rew``: ``r_t``, reward received for the action at step t.
+    - ``terminated``: True where the episode ended for good after step t.
+    - ``truncated``: True where a time limit cut the episode after step t.
+    - ``val``: ``V(s_t)``, the critic's value of the state acted in (zeros if none).
+    - ``next_val``: ``V(s_{t+1})`` of the true next state, also where the episode ended and
+      the arm was reset (the final observation, not the reset one); used to bootstrap.
+    - ``ep_step``: the step's index inside its episode (0 at a reset), for the time-dependent
+      baseline; derived from the ends if not given (the batch then starts episodes).
+    - ``score_sq``: per step, the squared norm of its segment's score
+      ``||sum_t grad log pi(u_t|s_t)||^2``; only the optimal baseline needs it.
     """
 
     rew: np.ndarray
@@ -77,7 +77,8 @@ def _as(x, shape, dtype, name):
 
 
 def episode_steps(done: np.ndarray) -> np.ndarray:
-    """Index of each step inside its episode, counting from 0 after every end.
+    """
+    Return the index of each step inside its episode, counting from 0 after every end.
 
     >>> episode_steps(np.array([[False], [True], [False]]))[:, 0].tolist()
     [0, 1, 0]
@@ -90,7 +91,8 @@ def episode_steps(done: np.ndarray) -> np.ndarray:
 
 
 def segment_ids(done: np.ndarray) -> np.ndarray:
-    """Number the segments of a ``(T, N)`` batch: 0, 1, ... column by column.
+    """
+    Return segment numbers of a ``(T, N)`` batch: 0, 1, ... column by column.
 
     A new segment starts at t = 0 and after every end.
 

@@ -2,11 +2,10 @@
 from typing import Sequence
 
 import numpy as np
-import torch
-from torch import nn
-
 from pg_node.networks import activation, mlp
 from pg_node.normalization import RunningNorm
+import torch
+from torch import nn
 
 
 class ValueFunction(nn.Module):

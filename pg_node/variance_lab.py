@@ -1,4 +1,5 @@
-"""The gradient-estimator lab: bias and variance of every phi against a known true gradient.
+"""
+The gradient-estimator lab: bias and variance of every phi against a known true gradient.
 
 Draws many independent batches of m trajectories from a problem whose ``grad U`` is known
 (:class:`~pg_node.linear_gaussian.LinearGaussianProblem`), forms the estimate
@@ -15,8 +16,8 @@ state (``[approx V]``, the mean value at each time step). As a baseline (eq. 64)
 costs variance; inside the TD residual and GAE it biases the estimate, and the lab shows it.
 The lab works in the notes' setting: finite horizon, no discounting (gamma = 1).
 """
-import json
 from dataclasses import dataclass, field
+import json
 from typing import Dict, List, Tuple
 
 import numpy as np
@@ -63,7 +64,8 @@ class LabResult:
     rows: List[dict] = field(default_factory=list)
 
     def variance_difference(self, a: str, b: str) -> Tuple[float, float]:
-        """Return ``(Var_a - Var_b, standard error)`` from paired per-batch deviations.
+        """
+        Return ``(Var_a - Var_b, standard error)`` from paired per-batch deviations.
 
         Both rows were computed on the same batches, so the difference of the per-batch
         squared deviations has a small, directly estimable standard error.
@@ -95,8 +97,9 @@ def run_lab(problem: LinearGaussianProblem = None, n_batches: int = 2000, batch_
         score = data['score']
         score_sq = np.broadcast_to((score.sum(0) ** 2).sum(-1), (H, m))
         batches = {
-            'exact': Rollout(rew=data['rew'], terminated=terminated, truncated=np.zeros((H, m), bool),
-                             val=data['val'], next_val=data['next_val'], score_sq=score_sq),
+            'exact': Rollout(rew=data['rew'], terminated=terminated,
+                             truncated=np.zeros((H, m), bool), val=data['val'],
+                             next_val=data['next_val'], score_sq=score_sq),
             'approx': Rollout(rew=data['rew'], terminated=terminated,
                               truncated=np.zeros((H, m), bool), val=approx_val,
                               next_val=approx_next, score_sq=score_sq),

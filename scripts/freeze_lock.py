@@ -1,4 +1,5 @@
-"""Write requirements.lock: every distribution installed in this venv, pinned.
+"""
+Write requirements.lock: every distribution installed in this venv, pinned.
 
 Only real distributions (``.dist-info``) are listed; the ROS wheels also carry
 ``.egg-info`` records for the ROS packages inside them, which are not on PyPI.

@@ -1,4 +1,5 @@
-"""Unbiasedness and variance of every estimator against the exact gradient (the lab).
+"""
+Unbiasedness and variance of every estimator against the exact gradient (the lab).
 
 All claims use one fixed seed and tolerances from the sampling error: a bias z-score is the
 mean's distance from the true gradient in standard errors, and a variance difference is
@@ -9,12 +10,11 @@ import subprocess
 import sys
 
 import numpy as np
-import pytest
-import torch
-
 from pg_node import baselines
 from pg_node.linear_gaussian import LinearGaussianProblem
 from pg_node.variance_lab import LAB_ROWS, run_lab
+import pytest
+import torch
 
 
 @pytest.fixture(scope='module')

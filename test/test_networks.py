@@ -3,14 +3,13 @@ import io
 import math
 
 import numpy as np
-import pytest
-import torch
-
 from pg_node import losses
 from pg_node.a2c import make_optimizer, PolicyBatch, PolicyUpdate, ValueUpdate
 from pg_node.normalization import RunningNorm
 from pg_node.policy import GaussianPolicy, segment_score_sq
 from pg_node.value import ValueFunction
+import pytest
+import torch
 
 
 @pytest.fixture(autouse=True)

@@ -1,11 +1,10 @@
 """Hand-computed returns and advantages, as SB3's test_gae does, plus the special cases."""
 import numpy as np
-import pytest
-
 from pg_node import estimators
 from pg_node.gae import gae, td_lambda_return, td_residual
 from pg_node.returns import discount_cumsum, reward_to_go, total_return
-from pg_node.rollout import Rollout, episode_steps, segment_ids
+from pg_node.rollout import episode_steps, Rollout, segment_ids
+import pytest
 
 
 def brute_force_gae(rew, val, next_val, term, trunc, gamma, lam):
@@ -127,7 +126,7 @@ def test_constant_v_by_hand():
 
 
 def test_truncation_bootstraps_but_termination_does_not():
-    base = dict(rew=[1.0, 1.0], val=[0.0, 0.0], next_val=[0.0, 7.0])
+    base = {'rew': [1.0, 1.0], 'val': [0.0, 0.0], 'next_val': [0.0, 7.0]}
     term = Rollout(terminated=[0, 1], truncated=[0, 0], **base)
     trunc = Rollout(terminated=[0, 0], truncated=[0, 1], **base)
     assert reward_to_go(term, 1.0)[1, 0] == 1.0
@@ -157,7 +156,8 @@ def test_endless_constant_reward_tends_to_r_over_one_minus_gamma(gamma):
 def test_discount_cumsum_example():
     x = np.array([1.0, 10.0, 100.0])
     g = 0.9
-    np.testing.assert_allclose(discount_cumsum(x, g), [1 + g * 10 + g * g * 100, 10 + g * 100, 100])
+    np.testing.assert_allclose(discount_cumsum(x, g),
+                               [1 + g * 10 + g * g * 100, 10 + g * 100, 100])
 
 
 def test_segments_and_episode_steps():
