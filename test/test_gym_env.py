@@ -1,0 +1,66 @@
+"""pg_node's Gymnasium ids: registration, Reacher-v5 equality, SB3's checker."""
+import gymnasium as gym
+from gymnasium.utils.env_checker import check_env
+import numpy as np
+import pg_node.gym_env  # noqa: F401  (registers the ids)
+from pg_node.gym_env import ARM5_ID, REACHER2_ID
+import pytest
+
+
+def test_ids_are_registered_on_import():
+    assert REACHER2_ID == 'pg_node/Reacher2-v0' and ARM5_ID == 'pg_node/Arm5-v0'
+    for env_id in (REACHER2_ID, ARM5_ID):
+        assert env_id in gym.registry
+        assert gym.registry[env_id].max_episode_steps == 50
+
+
+@pytest.mark.parametrize('env_id', [REACHER2_ID, ARM5_ID])
+def test_gymnasium_and_sb3_checkers_pass(env_id):
+    from stable_baselines3.common.env_checker import check_env as sb3_check_env
+    check_env(gym.make(env_id).unwrapped, skip_render_check=True)
+    sb3_check_env(gym.make(env_id), warn=False)
+
+
+def test_reacher2_v0_replays_reacher_v5_for_the_same_seed():
+    ours, theirs = gym.make(REACHER2_ID), gym.make('Reacher-v5')
+    assert ours.observation_space == theirs.observation_space
+    assert ours.action_space == theirs.action_space
+    o1, _ = ours.reset(seed=42)
+    o2, _ = theirs.reset(seed=42)
+    np.testing.assert_array_equal(o1, o2)
+    rng = np.random.default_rng(9)
+    truncations = 0
+    for step in range(150):
+        act = rng.uniform(-1, 1, 2)  # float64, so both penalties are computed alike
+        o1, r1, te1, tr1, i1 = ours.step(act)
+        o2, r2, te2, tr2, i2 = theirs.step(act)
+        np.testing.assert_allclose(o1, o2, rtol=0, atol=1e-12)
+        assert r1 == pytest.approx(r2, abs=1e-12)
+        assert i1['reward_dist'] == pytest.approx(i2['reward_dist'], abs=1e-12)
+        assert (te1, tr1) == (te2, tr2) == (False, (step + 1) % 50 == 0)
+        if tr1:
+            truncations += 1
+            o1, _ = ours.reset()
+            o2, _ = theirs.reset()
+            np.testing.assert_array_equal(o1, o2)
+    assert truncations == 3
+
+
+def test_arm5_v0_spaces_and_time_limit():
+    env = gym.make(ARM5_ID)
+    assert env.observation_space.shape == (21,) and env.action_space.shape == (5,)
+    env.reset(seed=0)
+    for step in range(50):
+        obs, reward, terminated, truncated, _ = env.step(env.action_space.sample())
+        assert np.all(np.isfinite(obs)) and np.isfinite(reward) and reward < 0
+        assert truncated == (step == 49) and not terminated
+
+
+def test_model_kwarg_and_vector_env(tmp_path):
+    env = gym.make(REACHER2_ID, model='arm5_3d')
+    assert env.action_space.shape == (5,)
+    venv = gym.make_vec(REACHER2_ID, num_envs=2, vectorization_mode='sync')
+    obs, _ = venv.reset(seed=0)
+    assert obs.shape == (2, 10)
+    obs, reward, *_ = venv.step(np.zeros((2, 2)))
+    assert reward.shape == (2,)
