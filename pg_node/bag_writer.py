@@ -67,16 +67,35 @@ def _record(opcode, body) -> bytes:
 
 @contextlib.contextmanager
 def _signals_deferred():
-    """Hold SIGINT/SIGTERM while a file is being finished, so it is never left half-written."""
+    """
+    Hold SIGINT/SIGTERM while a file is being finished, so it is never left half-written.
+
+    Their Python handlers are swapped for one that only notes the signal; on leaving, the
+    original handlers come back and each noted signal is raised again, so the caller's
+    Ctrl-C/SIGTERM handling runs once the file is consistent. (Blocking the signals at
+    the OS level is not enough: a signal that already arrived runs its Python handler at
+    the next bytecode.)
+    """
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    held = {signal.SIGINT, signal.SIGTERM}
-    old = signal.pthread_sigmask(signal.SIG_BLOCK, held)
+    caught = []
+
+    def hold(signum, frame):
+        caught.append(signum)
+
+    old = {}
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        handler = signal.getsignal(signum)
+        if handler is not None:
+            old[signum] = signal.signal(signum, hold)
     try:
         yield
     finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+        for signum, handler in old.items():
+            signal.signal(signum, handler)
+        for signum in dict.fromkeys(caught):
+            signal.raise_signal(signum)
 
 
 def _compressor(compression):
@@ -415,7 +434,8 @@ class BagWriter:
                 raise ValueError(f'topic {name} already added with type {topic.type}')
             return
         self._topics[name] = _Topic(name, msg_type, qos)
-        self._add_channel(self._topics[name])
+        if self._file is not None:
+            self._add_channel(self._topics[name])
         self._write_metadata()
 
     def _add_channel(self, topic):
@@ -444,6 +464,8 @@ class BagWriter:
             from rclpy.serialization import serialize_message
             data = serialize_message(msg)
         t_ns = int(t_ns)
+        if self._file is None:
+            self._open_file()
         if (self.split_max_duration_ns and self._file_first_t is not None
                 and t_ns - self._file_first_t >= self.split_max_duration_ns):
             self.split()
@@ -469,7 +491,7 @@ class BagWriter:
 
     def flush(self):
         """Write the open chunk now (and metadata.yaml), e.g. at the end of an episode."""
-        if not self.closed:
+        if not self.closed and self._file is not None:
             self._file.flush_chunk()
             self._write_metadata(force=True)
 
@@ -488,7 +510,7 @@ class BagWriter:
     @property
     def message_count(self) -> int:
         """Messages written so far, flushed or not."""
-        return sum(t.count for t in self._topics.values())
+        return self.flushed_message_count + (self._file.buffered if self._file else 0)
 
     def _file_path(self, index):
         return self.directory / f'{self.name}_{index}.mcap'
@@ -551,12 +573,15 @@ class BagWriter:
             write_metadata_yaml(self.directory, info)
 
     def split(self):
-        """Close the current file and continue in the next one (no-op if it is empty)."""
-        if self.closed or not any(self._file_counts.values()):
+        """
+        Finish the current file now; the next message goes into a new file.
+
+        A no-op if the current file holds no message. The next file is created by the
+        next :meth:`write`, so a split after the last episode leaves no empty file.
+        """
+        if self.closed or self._file is None or not any(self._file_counts.values()):
             return
-        with _signals_deferred():
-            self._close_file()
-            self._open_file()
+        self._close_file()
 
     def close(self):
         """Finish the open file and write the final metadata.yaml; safe to call twice."""
@@ -616,9 +641,9 @@ def reindex(directory, compression='zstd', keep_damaged=False) -> ReindexReport:
     Each ``.mcap`` file is scanned record by record. A complete file is left alone; a
     truncated or damaged one is rewritten (temporary file, then ``os.replace``) into a
     complete MCAP file holding everything before the damage. Then ``metadata.yaml`` is
-    rewritten from what the files really contain, keeping the QoS and type hashes the old
-    one (or the channel metadata) recorded. ``keep_damaged`` keeps each original damaged
-    file as ``<name>.damaged``.
+    rewritten from what the files really contain: counts, times, and each topic's QoS and
+    type hash from its MCAP channel (from the old metadata.yaml where a channel has none).
+    ``keep_damaged`` keeps each original damaged file as ``<name>.damaged``.
     """
     directory = Path(directory)
     old = {}
@@ -647,10 +672,12 @@ def reindex(directory, compression='zstd', keep_damaged=False) -> ReindexReport:
     for name, tm in topics.items():
         tm = dict(tm)
         if name in old and old[name].get('type') == tm['type']:
-            tm['offered_qos_profiles'] = ros_types.parse_qos(
-                old[name].get('offered_qos_profiles')) or tm['offered_qos_profiles']
-            tm['type_description_hash'] = (old[name].get('type_description_hash')
-                                           or tm['type_description_hash'])
+            # The channel's QoS is what readers match metadata.yaml against (rosbags
+            # yields nothing for a topic whose two QoS differ), so it wins.
+            tm['offered_qos_profiles'] = tm['offered_qos_profiles'] or ros_types.parse_qos(
+                old[name].get('offered_qos_profiles'))
+            tm['type_description_hash'] = (tm['type_description_hash']
+                                           or old[name].get('type_description_hash', ''))
         entries.append({'topic_metadata': tm, 'message_count': totals.get(name, 0)})
     write_metadata_yaml(directory, bag_metadata(entries, files, custom))
     return report
