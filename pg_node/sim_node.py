@@ -34,8 +34,9 @@ are clipped to the actuators' control range.
 Modes (parameter ``mode``):
 
 * ``lock_step`` (default): each accepted command is one control step, then a transition is
-  published; with no command for ``lock_step_timeout`` s the last transition is re-sent
-  (same ``seq``) and the wait logged, so neither side hangs on a lost message;
+  published; with no command for ``lock_step_timeout`` s the last transition and joint
+  state are re-sent (same ``seq`` and stamp) and the wait logged, so neither side hangs on
+  a lost message and a late ``/joint_states`` subscriber still sees the arm;
 * ``real_time``: control steps at ``real_time_factor / dt`` Hz of wall time with the last
   command held, zero torque once it is older than ``command_timeout`` s.
 
@@ -136,6 +137,7 @@ class SimNode(Node):
         self.held_time = -math.inf
         self.seq = -1
         self.last_transition = None
+        self.last_joint_state = None
         self.last_sent = time.monotonic()
         self._diag_steps, self._diag_time = 0, time.monotonic()
 
@@ -225,6 +227,8 @@ class SimNode(Node):
                 f'no command for {waited:.1f} s, re-sending transition {self.seq}',
                 throttle_duration_sec=10.0)
             self.pub_transition.publish(self.last_transition)
+            if self.last_joint_state is not None:
+                self.pub_joints.publish(self.last_joint_state)
             self.counters['transitions_resent'] += 1
             self.last_sent = time.monotonic()
 
@@ -262,6 +266,7 @@ class SimNode(Node):
         js.velocity = as_array(vel.ravel())
         js.effort = as_array(eff.ravel())
         self.pub_joints.publish(js)
+        self.last_joint_state = js
         new = np.flatnonzero(tr.episode_step == 0)
         if new.size:
             targets = self.task.target_pos()

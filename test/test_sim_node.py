@@ -1,0 +1,268 @@
+"""sim_node as a real process over DDS: joint states, commands, lock-step, services."""
+import os
+from pathlib import Path
+import signal
+import subprocess
+import sys
+import time
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+import numpy as np
+from pg_node import transition
+from pg_node.arm_task import ArmTask
+from pg_node.paths import resolve_model
+import pytest
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray
+from std_srvs.srv import SetBool, Trigger
+
+REPO = Path(__file__).resolve().parent.parent
+# one DDS domain per test process, so parallel runs do not hear each other
+DOMAIN_ID = 120 + os.getpid() % 100
+LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+def start_node(tmp_path, *params):
+    """Start ``python -m pg_node.sim_node`` in its own session with ``-p`` overrides."""
+    env = dict(os.environ, ROS_DOMAIN_ID=str(DOMAIN_ID), PYTHONUNBUFFERED='1',
+               PYTHONPATH=str(REPO), AMENT_PREFIX_PATH=os.environ.get(
+                   'AMENT_PREFIX_PATH', str(Path(sys.executable).parent.parent)))
+    args = [sys.executable, '-m', 'pg_node.sim_node', '--ros-args']
+    for param in params:
+        args += ['-p', param]
+    log = open(tmp_path / f'sim_node_{time.monotonic_ns()}.log', 'w+')
+    proc = subprocess.Popen(args, env=env, cwd=REPO, stdout=log, stderr=subprocess.STDOUT,
+                            start_new_session=True)
+    proc.log = log
+    return proc
+
+
+def stop_node(proc):
+    """Stop with SIGINT, then SIGTERM, then SIGKILL; return the exit code and the log."""
+    for sig, wait in ((signal.SIGINT, 10), (signal.SIGTERM, 5), (signal.SIGKILL, 5)):
+        if proc.poll() is not None:
+            break
+        proc.send_signal(sig)
+        try:
+            proc.wait(wait)
+        except subprocess.TimeoutExpired:
+            pass
+    proc.log.seek(0)
+    text = proc.log.read()
+    proc.log.close()
+    return proc.returncode, text
+
+
+class Client:
+    """The test's side of the wire: subscribers, a command publisher, service clients."""
+
+    def __init__(self):
+        """Join the test's DDS domain."""
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context, domain_id=DOMAIN_ID)
+        self.node = rclpy.create_node('sim_node_test', context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.joint_states, self.transitions, self.diagnostics, self.clocks = [], [], [], []
+        self.node.create_subscription(JointState, '/joint_states',
+                                      self.joint_states.append, 100)
+        self.node.create_subscription(Float64MultiArray, '/pg_node/transition',
+                                      self._on_transition, LATCHED)
+        self.node.create_subscription(DiagnosticArray, '/diagnostics',
+                                      self.diagnostics.append, 10)
+        self.node.create_subscription(Clock, '/clock', self.clocks.append, 100)
+        self.commands = self.node.create_publisher(Float64MultiArray,
+                                                   '/arm_controller/commands', 10)
+
+    def _on_transition(self, msg):
+        self.transitions.append(transition.from_msg(msg))
+
+    def spin_until(self, condition, timeout=15.0):
+        """Spin until ``condition()`` holds; fail the test after ``timeout`` s."""
+        deadline = time.monotonic() + timeout
+        while not condition():
+            assert time.monotonic() < deadline, 'timed out waiting for the node'
+            self.executor.spin_once(timeout_sec=0.05)
+
+    def spin_for(self, seconds):
+        """Spin for ``seconds``."""
+        deadline = time.monotonic() + seconds
+        while time.monotonic() < deadline:
+            self.executor.spin_once(timeout_sec=0.05)
+
+    def wait_ready(self, *more):
+        """Wait for the first transition, the command topic's match and ``more`` lists."""
+        self.spin_until(lambda: self.transitions and self.commands.get_subscription_count()
+                        and all(more))
+
+    def send(self, values):
+        """Publish one command."""
+        self.commands.publish(Float64MultiArray(data=[float(v) for v in values]))
+
+    def step(self, values, timeout=15.0):
+        """Send a command and return the next transition (lock-step)."""
+        seq = self.transitions[-1].seq
+        self.send(values)
+        self.spin_until(lambda: self.transitions[-1].seq > seq, timeout)
+        assert self.transitions[-1].seq == seq + 1
+        return self.transitions[-1]
+
+    def call(self, srv_type, name, request, timeout=10.0):
+        """Call a service and return its response."""
+        client = self.node.create_client(srv_type, name)
+        assert client.wait_for_service(timeout_sec=timeout), name
+        future = client.call_async(request)
+        self.spin_until(future.done, timeout)
+        return future.result()
+
+    def counters(self):
+        """Return the latest diagnostics key/values as a dict."""
+        return {kv.key: kv.value for kv in self.diagnostics[-1].status[0].values}
+
+    def close(self):
+        """Leave the domain."""
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+
+
+@pytest.fixture
+def client():
+    c = Client()
+    yield c
+    c.close()
+
+
+@pytest.mark.e2e
+@pytest.mark.slow
+def test_joint_states_commands_rejections_and_clean_shutdown(tmp_path, client):
+    proc = start_node(tmp_path, 'num_envs:=2', 'diagnostics_rate:=5.0',
+                      'lock_step_timeout:=0.5')
+    try:
+        names = ArmTask(resolve_model('reacher2')).spec.joint_names
+        expected = [f'arm{i}/{name}' for i in range(2) for name in names]
+        client.wait_ready(client.joint_states)
+        first = client.joint_states[-1]
+        assert list(first.name) == expected
+        pos0 = np.array(first.position)
+        for field in (first.position, first.velocity, first.effort):
+            assert len(field) == 4 and np.all(np.isfinite(field))
+        assert client.transitions[-1].obs.shape == (2, 10)
+
+        n_js = len(client.joint_states)
+        tr = client.step([1.0, -1.0, -1.0, 1.0])
+        client.spin_until(lambda: len(client.joint_states) > n_js)
+        moved = client.joint_states[-1]
+        assert np.all(np.abs(np.array(moved.position) - pos0) > 1e-4)
+        np.testing.assert_allclose(moved.effort, [200, -200, -200, 200])
+        assert tr.reward.shape == (2,) and np.all(tr.reward < -2.0)  # both pay |a|^2 = 2
+
+        seq = tr.seq
+        client.send([0.5, 0.5, 0.5])                # wrong size
+        client.send([0.5, float('nan'), 0.0, 0.0])  # non-finite
+        client.send([0.0, float('inf'), 0.0, 0.0])
+        client.spin_until(lambda: client.diagnostics and int(
+            client.counters()['commands_dropped_nonfinite']) >= 2)
+        counters = client.counters()
+        assert counters['commands_dropped_size'] == '1'
+        assert counters['commands_dropped_nonfinite'] == '2'
+        assert counters['steps'] == '1'
+        assert client.diagnostics[-1].status[0].level == DiagnosticStatus.WARN
+        assert client.transitions[-1].seq == seq            # nothing was stepped
+        assert proc.poll() is None
+
+        tr = client.step([5.0, 0.0, 0.0, 0.0])  # clipped to [-1, 1]
+        assert tr.seq == seq + 1
+        client.spin_until(lambda: client.joint_states[-1].effort[0] != 0.0)
+        assert client.joint_states[-1].effort[0] == pytest.approx(200.0)
+        client.spin_until(lambda: int(client.counters()['commands_clipped']) == 1)
+        assert client.clocks[-1].clock.nanosec == 40_000_000  # 2 steps x 0.02 s
+    finally:
+        rc, log = stop_node(proc)
+    assert rc == 0, log
+    assert 'dropped a command of 3 values' in log and 'non-finite' in log
+    assert 'Traceback' not in log
+
+
+@pytest.mark.e2e
+@pytest.mark.slow
+def test_lock_step_through_the_node_equals_the_task_in_process(tmp_path, client):
+    n, seed, steps = 3, 21, 60
+    proc = start_node(tmp_path, f'num_envs:={n}', f'seed:={seed}', 'marker_rate:=0.0')
+    acts = np.random.default_rng(4).uniform(-1, 1, (steps, n, 2))
+    try:
+        client.wait_ready()
+        got = [client.transitions[-1]] + [client.step(a.ravel()) for a in acts]
+    finally:
+        rc, log = stop_node(proc)
+    assert rc == 0, log
+    task = ArmTask(resolve_model('reacher2'), num_envs=n, seed=seed)
+    np.testing.assert_array_equal(got[0].obs, task.reset())
+    assert got[0].seq == 0 and np.all(got[0].episode_step == 0)
+    for k, act in enumerate(acts):
+        obs, reward, terminated, truncated, info = task.step(act)
+        tr = got[k + 1]
+        assert tr.seq == k + 1
+        np.testing.assert_array_equal(tr.obs, obs)
+        np.testing.assert_array_equal(tr.reward, reward)
+        np.testing.assert_array_equal(tr.truncated, truncated)
+        np.testing.assert_array_equal(tr.terminated, terminated)
+        np.testing.assert_array_equal(tr.final_obs, info['final_obs'])
+        np.testing.assert_array_equal(tr.episode_id, info['episode_id'])
+        np.testing.assert_array_equal(tr.episode_step, info['episode_step'])
+    assert got[50].truncated.all() and np.all(got[50].episode_id == [3, 4, 5])
+
+
+@pytest.mark.e2e
+@pytest.mark.slow
+def test_services_pause_step_reset_and_lock_step_timeout(tmp_path, client):
+    proc = start_node(tmp_path, 'lock_step_timeout:=0.3', 'model:=arm5_3d')
+    try:
+        client.wait_ready()
+        client.step([0.5] * 5)
+        assert client.call(SetBool, '/sim_node/set_pause', SetBool.Request(data=True)).success
+        seq = client.transitions[-1].seq
+        client.send([0.2] * 5)
+        client.spin_for(0.8)  # held, not stepped, and no re-sends while paused
+        assert client.transitions[-1].seq == seq
+        response = client.call(Trigger, '/sim_node/step_simulation', Trigger.Request())
+        assert response.success
+        client.spin_until(lambda: client.transitions[-1].seq == seq + 1)
+        assert client.transitions[-1].reward[0] < -0.2  # penalty of the held 0.2 command
+        response = client.call(Trigger, '/sim_node/reset_world', Trigger.Request())
+        assert response.success
+        client.spin_until(lambda: client.transitions[-1].seq == seq + 2)
+        tr = client.transitions[-1]
+        assert tr.episode_step[0] == 0 and tr.episode_id[0] == 1 and tr.reward[0] == 0.0
+        assert client.call(SetBool, '/sim_node/set_pause', SetBool.Request(data=False)).success
+        refused = client.call(Trigger, '/sim_node/step_simulation', Trigger.Request())
+        assert not refused.success
+        # no command: the last transition is re-sent with the same seq
+        count = len(client.transitions)
+        client.spin_until(lambda: len(client.transitions) >= count + 2, timeout=5.0)
+        assert {t.seq for t in client.transitions[count:]} == {seq + 2}
+    finally:
+        rc, log = stop_node(proc)
+    assert rc == 0, log
+
+
+@pytest.mark.e2e
+@pytest.mark.slow
+def test_real_time_mode_runs_on_its_own_and_drops_to_zero_torque(tmp_path, client):
+    proc = start_node(tmp_path, 'mode:=real_time', 'command_timeout:=0.3')
+    try:
+        client.spin_until(lambda: len(client.clocks) > 10
+                          and client.commands.get_subscription_count())
+        client.send([1.0, 1.0])
+        client.spin_until(lambda: client.joint_states[-1].effort[0] == 200.0)
+        # the command is held for a while, then the arm gets zero torque
+        client.spin_until(lambda: client.joint_states[-1].effort[0] == 0.0, timeout=5.0)
+        stamps = [c.clock.sec + 1e-9 * c.clock.nanosec for c in client.clocks]
+        assert np.all(np.diff(stamps) > 0)
+    finally:
+        rc, log = stop_node(proc)
+    assert rc == 0, log
