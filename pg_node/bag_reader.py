@@ -283,8 +283,7 @@ class McapScan:
             else:
                 events += self._inner_events(opcode, inner, loose=False)
         self.chunks += 1
-        if messages:
-            events.append(('messages', messages))
+        events.append(('messages', messages))  # also when empty: one event per chunk
         return events
 
     def _inner_events(self, opcode, body, loose):
@@ -302,15 +301,52 @@ class McapScan:
         return []
 
 
+def _record_start_times(path):
+    """
+    Return the earliest log time of each chunk and loose message, in file order.
+
+    Reads only record headers (seeking over bodies), so it is cheap; it stops at the
+    first record that runs past the end of the file.
+    """
+    starts = []
+    try:
+        size = os.path.getsize(path)
+        with open(path, 'rb') as f:
+            if f.read(8) != MAGIC:
+                return starts
+            pos = 8
+            while pos + 9 <= size:
+                f.seek(pos)
+                opcode, length = _RECORD_HEAD.unpack(f.read(9))
+                if pos + 9 + length > size or opcode == OP_FOOTER:
+                    break
+                if opcode == OP_CHUNK and length >= 16:
+                    first, last = struct.unpack('<QQ', f.read(16))
+                    # an empty chunk (schemas and channels only) holds nothing back
+                    starts.append(float('inf') if first == last == 0 else first)
+                elif opcode == OP_MESSAGE and length >= 14:
+                    starts.append(struct.unpack('<6xQ', f.read(14))[0])
+                pos += 9 + length
+    except OSError:
+        pass
+    return starts
+
+
 def _file_messages(scan, file_index):
     """
     Yield ``(log_time, file_index, n, topic, msg_type, data)`` in log-time order.
 
-    Chunks overlap in time only a little, so a heap holds the messages of the chunks read
-    so far and gives out those not later than the start of the next chunk.
+    A heap holds the messages read so far; one is given out once no later chunk of the
+    file can hold an earlier message, which the chunk headers' start times tell (read
+    ahead of time). Ties keep file order.
     """
+    starts = _record_start_times(scan.path)
+    later = [float('inf')] * (len(starts) + 1)
+    for i in range(len(starts) - 1, -1, -1):
+        later[i] = min(starts[i], later[i + 1])
     heap = []
     n = 0
+    k = 0
     resolved = {}
     for kind, value in scan:
         if kind == 'channel':
@@ -318,8 +354,9 @@ def _file_messages(scan, file_index):
             resolved[value.id] = (value.topic, schema.name if schema else '')
         if kind != 'messages':
             continue
-        first = min(m[2] for m in value)
-        while heap and heap[0][0] <= first:
+        bound = later[k] if k < len(later) else float('inf')
+        k += 1
+        while heap and heap[0][0] <= bound:
             yield heapq.heappop(heap)
         for cid, _, log, _, data in value:
             topic_type = resolved.get(cid)
