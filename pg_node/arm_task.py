@@ -330,16 +330,26 @@ class ArmTask:
 
     def observe(self) -> np.ndarray:
         """Return the observations ``(N, obs_dim)`` of the current states."""
+        return self._observe()[0]
+
+    def _observe(self):
+        """Return the observations and the fingertip-minus-target vectors ``(N, 3)``."""
         s = self.spec
-        k = s.target_dim
-        q = np.array([d.qpos[s.qpos_adr] for d in self.datas])
-        qdot = np.array([d.qvel[s.dof_adr] for d in self.datas])
-        if s.target_mocap >= 0:
-            target = np.array([d.mocap_pos[s.target_mocap] for d in self.datas])
-        else:
-            target = np.array([d.qpos[s.target_qpos_adr] for d in self.datas])
-        vec = self.fingertip_pos() - self.target_pos()
-        return np.concatenate([np.cos(q), np.sin(q), target, qdot, vec[:, :k]], axis=1)
+        k, nj = s.target_dim, self.n_joints
+        q = np.empty((self.num_envs, nj))
+        obs = np.empty((self.num_envs, self.obs_dim))
+        vec = np.empty((self.num_envs, 3))
+        site, body, mocap = s.fingertip_site, s.target_body, s.target_mocap
+        for i, d in enumerate(self.datas):
+            q[i] = d.qpos[s.qpos_adr]
+            obs[i, 2 * nj + k:3 * nj + k] = d.qvel[s.dof_adr]
+            obs[i, 2 * nj:2 * nj + k] = (d.mocap_pos[mocap] if mocap >= 0
+                                         else d.qpos[s.target_qpos_adr])
+            vec[i] = d.site_xpos[site] - d.xpos[body]
+        obs[:, :nj] = np.cos(q)
+        obs[:, nj:2 * nj] = np.sin(q)
+        obs[:, 3 * nj + k:] = vec[:, :k]
+        return obs, vec
 
     def step(self, act):
         """
@@ -366,9 +376,9 @@ class ArmTask:
             advance(self._chunks[0])
         else:
             list(self._pool.map(advance, self._chunks))
-        obs = self.observe()
+        obs, vec = self._observe()
         # reward from the post-step positions, in Reacher-v5's order of operations
-        reward_dist = -np.linalg.norm(self.fingertip_pos() - self.target_pos(), axis=1)
+        reward_dist = -np.sqrt(np.einsum('ij,ij->i', vec, vec))
         reward_dist *= self.reward_dist_weight
         reward_ctrl = -np.square(act).sum(axis=1) * self.reward_control_weight
         reward = reward_dist + reward_ctrl
