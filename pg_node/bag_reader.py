@@ -398,7 +398,8 @@ class BagReader:
     Use :attr:`topics` (name -> :class:`TopicInfo`) and :meth:`messages`. After each full
     pass, :attr:`problems` lists the :class:`Damage` of each file that could not be read to
     its end, and :attr:`unknown_types` maps each topic whose type is not installed to that
-    type (those messages are still yielded, raw, with ``msg`` None).
+    type (those messages are still yielded, raw, with ``msg`` None), and
+    :attr:`decode_errors` counts per topic the messages whose CDR would not deserialise.
     """
 
     def __init__(self, path, warn=True):
@@ -414,6 +415,7 @@ class BagReader:
         self.problems = [Damage(m, 0, 'listed in metadata.yaml but missing') for m in missing]
         self.files = [f for f in self.files if f.exists()]
         self.unknown_types = {}
+        self.decode_errors = {}
         self._topics = None
 
     @property
@@ -421,9 +423,10 @@ class BagReader:
         """
         Map each topic name to its :class:`TopicInfo`.
 
-        Counts come from ``metadata.yaml`` when there is one; for a bare file, or topics
-        metadata.yaml does not list, they are counted by a scan. QoS comes from
-        metadata.yaml, else from the MCAP channel metadata.
+        Types, counts and QoS come from ``metadata.yaml`` when it lists topics (for a bag
+        whose writer was killed, counts are those of its last metadata update; see
+        ``bag_writer.reindex``); for a bare file or a directory without one, from a scan
+        of the files (counts) and the MCAP channels (QoS, type hash).
         """
         if self._topics is None:
             self._topics = self._load_topics()
@@ -439,6 +442,8 @@ class BagReader:
                     ros_types.parse_qos(tm.get('offered_qos_profiles')),
                     tm.get('type_description_hash', '') or '',
                     tm.get('serialization_format', 'cdr'))
+        if topics:
+            return topics
         counts = {}
         channels = {}
         for f in self.files:
@@ -503,7 +508,10 @@ class BagReader:
                     if cls is None:
                         self.unknown_types.setdefault(topic, msg_type)
                     else:
-                        msg = deserialize_message(data, cls)
+                        try:
+                            msg = deserialize_message(data, cls)
+                        except Exception:  # noqa: B902 - bad CDR: yield raw, count it
+                            self.decode_errors[topic] = self.decode_errors.get(topic, 0) + 1
                 yield BagMessage(topic, msg_type, log, data, msg)
         finally:
             for s in scans:

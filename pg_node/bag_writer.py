@@ -307,12 +307,19 @@ class McapFileWriter:
             self.closed = True
 
 
+def _serialize(msg):
+    from rclpy.serialization import serialize_message
+    return serialize_message(msg)
+
+
 class _Topic:
-    __slots__ = ('name', 'type', 'qos', 'hash', 'encoding', 'definition', 'count', 'seq')
+    __slots__ = ('name', 'type', 'cls', 'qos', 'hash', 'encoding', 'definition', 'count',
+                 'seq')
 
     def __init__(self, name, msg_type, qos):
         self.name = name
         self.type = ros_types.type_name(msg_type)
+        self.cls = ros_types.message_class(self.type)
         self.qos = ros_types.qos_list(qos)
         self.hash = ros_types.type_hash(self.type)
         self.encoding, self.definition = ros_types.message_definition(self.type)
@@ -416,6 +423,8 @@ class BagWriter:
         self._chunk_opened = time.monotonic()
         self._last_meta = 0.0
         self.closed = False
+        # A node may write from several executor threads; every public call holds this.
+        self._lock = threading.RLock()
         self._open_file()
 
     # -- topics and messages -------------------------------------------------------------
@@ -426,6 +435,10 @@ class BagWriter:
         ``qos`` is an ``rclpy.qos.QoSProfile``, a rosbag2 QoS dict, a list of either (one
         per publisher), or None for rclpy's default publisher profile.
         """
+        with self._lock:
+            self._add_topic(name, msg_type, qos)
+
+    def _add_topic(self, name, msg_type, qos):
         if self.closed:
             raise RuntimeError('bag writer is closed')
         if name in self._topics:
@@ -450,8 +463,13 @@ class BagWriter:
         """
         Record ``msg`` (an rclpy message, or CDR bytes) on ``topic`` at log time ``t_ns``.
 
-        A topic not yet added is added with the message's type and the default QoS.
+        A topic not yet added is added with the message's type and the default QoS; a
+        message of another type than its topic's raises TypeError.
         """
+        with self._lock:
+            self._write(topic, msg, t_ns, publish_time_ns)
+
+    def _write(self, topic, msg, t_ns, publish_time_ns):
         if self.closed:
             raise RuntimeError('bag writer is closed')
         if isinstance(msg, (bytes, bytearray, memoryview)):
@@ -460,9 +478,11 @@ class BagWriter:
             data = bytes(msg)
         else:
             if topic not in self._topics:
-                self.add_topic(topic, type(msg))
-            from rclpy.serialization import serialize_message
-            data = serialize_message(msg)
+                self._add_topic(topic, type(msg), None)
+            expected = self._topics[topic]
+            if expected.cls is not type(msg):
+                raise TypeError(f'topic {topic} has type {expected.type}, got {type(msg)!r}')
+            data = _serialize(msg)
         t_ns = int(t_ns)
         if self._file is None:
             self._open_file()
@@ -491,9 +511,10 @@ class BagWriter:
 
     def flush(self):
         """Write the open chunk now (and metadata.yaml), e.g. at the end of an episode."""
-        if not self.closed and self._file is not None:
-            self._file.flush_chunk()
-            self._write_metadata(force=True)
+        with self._lock:
+            if not self.closed and self._file is not None:
+                self._file.flush_chunk()
+                self._write_metadata(force=True)
 
     # -- files ---------------------------------------------------------------------------
     @property
@@ -579,18 +600,20 @@ class BagWriter:
         A no-op if the current file holds no message. The next file is created by the
         next :meth:`write`, so a split after the last episode leaves no empty file.
         """
-        if self.closed or self._file is None or not any(self._file_counts.values()):
-            return
-        self._close_file()
+        with self._lock:
+            if self.closed or self._file is None or not any(self._file_counts.values()):
+                return
+            self._close_file()
 
     def close(self):
         """Finish the open file and write the final metadata.yaml; safe to call twice."""
-        if self.closed:
-            return
-        self.closed = True
-        with _signals_deferred():
-            if self._file is not None:
-                self._close_file()
+        with self._lock:
+            if self.closed:
+                return
+            self.closed = True
+            with _signals_deferred():
+                if self._file is not None:
+                    self._close_file()
 
     def __enter__(self):
         """Return the writer itself."""
@@ -661,12 +684,19 @@ def reindex(directory, compression='zstd', keep_damaged=False) -> ReindexReport:
     topics = {}   # name -> topic_metadata
     totals = {}
     files = []
+    damaged = []
     for path in sorted(directory.glob('*.mcap'), key=_split_key):
-        counts, start, end, damage = _reindex_file(path, compression, keep_damaged, topics)
+        scan = McapScan(path)
+        counts, times = _copy_records(scan, None, topics)
+        damage = None
+        if scan.damage is not None or not scan.complete:
+            damage = scan.damage or f'{path}: no footer'
+            damaged.append(path)
         n = sum(counts.values())
         for t, c in counts.items():
             totals[t] = totals.get(t, 0) + c
-        files.append((path.name, start or 0, (end or 0) - (start or 0), n))
+        start = min(times, default=0)
+        files.append((path.name, start, max(times, default=0) - start, n))
         report.files.append((path.name, n, damage))
     entries = []
     for name, tm in topics.items():
@@ -679,27 +709,19 @@ def reindex(directory, compression='zstd', keep_damaged=False) -> ReindexReport:
             tm['type_description_hash'] = (tm['type_description_hash']
                                            or old[name].get('type_description_hash', ''))
         entries.append({'topic_metadata': tm, 'message_count': totals.get(name, 0)})
-    write_metadata_yaml(directory, bag_metadata(entries, files, custom))
+    info = bag_metadata(entries, files, custom)
+    for path in damaged:
+        tmp = path.with_name(f'.{path.name}.reindex')
+        if tmp.exists():
+            tmp.unlink()
+        writer = McapFileWriter(tmp, compression=compression)
+        _copy_records(McapScan(path), writer, {})
+        writer.close(metadata=[('rosbag2', {'serialized_metadata': _dump(info)})])
+        if keep_damaged:
+            os.replace(path, path.with_name(path.name + '.damaged'))
+        os.replace(tmp, path)
+    write_metadata_yaml(directory, info)
     return report
-
-
-def _reindex_file(path, compression, keep_damaged, topics):
-    """Scan one file; rewrite it if damaged. Return (topic counts, start, end, damage)."""
-    scan = McapScan(path)
-    counts, times = _copy_records(scan, None, topics)
-    if scan.complete and scan.damage is None:
-        return counts, min(times, default=None), max(times, default=None), None
-    tmp = path.with_name(f'.{path.name}.reindex')
-    if tmp.exists():
-        tmp.unlink()
-    writer = McapFileWriter(tmp, compression=compression)
-    _copy_records(McapScan(path), writer, {})
-    writer.close()
-    if keep_damaged:
-        os.replace(path, path.with_name(path.name + '.damaged'))
-    os.replace(tmp, path)
-    damage = scan.damage or f'{path}: no footer'
-    return counts, min(times, default=None), max(times, default=None), damage
 
 
 def _copy_records(scan, writer, topics):

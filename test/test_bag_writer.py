@@ -431,3 +431,57 @@ def test_sigterm_and_sigint_leave_a_complete_bag(tmp_path, how):
     assert indices == list(range(closed[0]))
     info = yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
     assert info['message_count'] == closed[0]
+
+
+def test_wrong_message_type_is_refused(tmp_path):
+    with BagWriter(tmp_path / 'typed') as w:
+        w.add_topic('/x', Float32)
+        with pytest.raises(TypeError):
+            w.write('/x', Float64MultiArray(data=[1.0]), T0)
+        with pytest.raises(ValueError):
+            w.add_topic('/x', JointState)
+        w.write('/x', Float32(data=1.0), T0)
+
+
+def test_concurrent_writers_lose_nothing(tmp_path):
+    """A node with a multi-threaded executor writes from several threads at once."""
+    import threading
+
+    def worker(k, w):
+        for i in range(500):
+            w.write(f'/t{k}', Float64MultiArray(data=[float(i)] * 16), T0 + i * 10 + k)
+
+    with BagWriter(tmp_path / 'threads', chunk_size=4096, split_max_messages=700) as w:
+        threads = [threading.Thread(target=worker, args=(k, w)) for k in range(4)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+    with Reader(tmp_path / 'threads') as reader:
+        per_topic = {}
+        for c, _, raw in reader.messages():
+            per_topic.setdefault(c.topic, []).append(
+                int(TYPESTORE.deserialize_cdr(raw, c.msgtype).data[0]))
+    assert {k: sorted(v) for k, v in per_topic.items()} == {
+        f'/t{k}': list(range(500)) for k in range(4)}
+
+
+def test_reindex_repairs_a_cut_file_and_an_empty_one(tmp_path):
+    bag = write_bag(tmp_path / 'cut', make_messages(n_episodes=4, seed=5), compression='none')
+    files = sorted(bag.glob('*.mcap'))
+    assert len(files) == 2
+    with open(files[1], 'r+b') as f:
+        f.truncate(files[1].stat().st_size // 2)
+    (bag / 'cut_2.mcap').write_bytes(b'\x89MCAP0\r\n')          # killed right after open
+    report = reindex(bag, keep_damaged=True)
+    assert [name for name, _ in report.repaired] == ['cut_1.mcap', 'cut_2.mcap']
+    assert (bag / 'cut_1.mcap.damaged').exists()
+    with Reader(bag) as reader:
+        n = sum(1 for _ in reader.messages())
+        assert n == reader.message_count == report.message_count
+    assert 0 < n < len(make_messages(n_episodes=4, seed=5))
+    scan = McapScan(files[1])
+    list(scan)
+    assert scan.complete
+    (name, data), = [m for m in scan.metadata if m[0] == 'rosbag2']
+    assert yaml.safe_load(data['serialized_metadata'])['message_count'] == n
