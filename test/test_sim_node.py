@@ -7,6 +7,7 @@ import sys
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from geometry_msgs.msg import PointStamped
 import numpy as np
 from pg_node import transition
 from pg_node.arm_task import ArmTask
@@ -19,6 +20,7 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import SetBool, Trigger
+from visualization_msgs.msg import MarkerArray
 
 REPO = Path(__file__).resolve().parent.parent
 # one DDS domain per test process, so parallel runs do not hear each other
@@ -76,6 +78,12 @@ class Client:
         self.node.create_subscription(DiagnosticArray, '/diagnostics',
                                       self.diagnostics.append, 10)
         self.node.create_subscription(Clock, '/clock', self.clocks.append, 100)
+        self.markers, self.targets = [], []
+        self.node.create_subscription(MarkerArray, '/pg_node/markers', self.markers.append, 10)
+        targets_qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
+                                 durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        self.node.create_subscription(PointStamped, '/target', self.targets.append,
+                                      targets_qos)
         self.commands = self.node.create_publisher(Float64MultiArray,
                                                    '/arm_controller/commands', 10)
 
@@ -152,6 +160,16 @@ def test_joint_states_commands_rejections_and_clean_shutdown(tmp_path, client):
         for field in (first.position, first.velocity, first.effort):
             assert len(field) == 4 and np.all(np.isfinite(field))
         assert client.transitions[-1].obs.shape == (2, 10)
+        # the targets (latched, one per arm) and the markers: links, fingertip, target per arm
+        client.spin_until(lambda: len(client.targets) >= 2 and client.markers)
+        assert [t.header.frame_id for t in client.targets[:2]] == ['arm0', 'arm1']
+        goals = client.transitions[-1].obs[:, 4:6]
+        for i, target in enumerate(client.targets[:2]):
+            np.testing.assert_allclose([target.point.x, target.point.y], goals[i], atol=1e-12)
+        markers = client.markers[-1].markers
+        assert sorted((m.ns, m.id) for m in markers) == sorted(
+            (ns, i) for ns in ('links', 'fingertip', 'target') for i in range(2))
+        assert all(np.isfinite([p.x for m in markers for p in m.points]))
 
         n_js = len(client.joint_states)
         tr = client.step([1.0, -1.0, -1.0, 1.0])
