@@ -19,6 +19,7 @@ import time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PointStamped
 from mcap.reader import make_reader
+from mcap.stream_reader import StreamReader
 from mcap_ros2.decoder import DecoderFactory
 import numpy as np
 from pg_node import ros_types
@@ -174,6 +175,9 @@ def test_mcap_reader_and_ros2_decoder(recorded):
     bag, messages = recorded
     got = []
     for path in sorted(bag.glob('*.mcap')):
+        with open(path, 'rb') as f:   # every record well-formed, every chunk CRC right
+            records = list(StreamReader(f, validate_crcs=True).records)
+        assert type(records[-1]).__name__ == 'Footer'
         with open(path, 'rb') as f:
             reader = make_reader(f, decoder_factories=[DecoderFactory()])
             assert reader.get_header().profile == 'ros2'
