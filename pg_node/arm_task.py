@@ -44,12 +44,14 @@ the seeding of Gymnasium's vector envs, so env ``i`` of ``ArmTask(..., seed=s)``
 ``gymnasium.make('Reacher-v5').reset(seed=s + i)`` draws.
 
 Stepping: ``mj_step(model, data_i, nstep=frame_skip)`` over one ``MjData`` per env, in a
-plain loop, or split over a thread pool (``mj_step`` releases the GIL) when there are many
-envs (``num_threads``; by default threads from 32 envs on). Measured on 2 cores against
-``mujoco.rollout`` (one call for all envs, 1 or 2 threads), see ``bench/bench_sim.py``: the
-loop wins for few arms, threads and rollout tie for 64 arms, and only stepping the
-``MjData`` leaves the post-step ``xpos`` that Reacher-v5's reward reads, so rollout is not
-used.
+plain loop, or split over a thread pool (``mj_step`` releases the GIL) from
+``THREADS_FROM_ENVS`` envs on (``num_threads``). Measured on 2 cores with
+``bench/bench_sim.py`` against ``mujoco.rollout`` (one call for all envs, 1 or 2 threads):
+for 1 arm the loop is fastest (about 40k steps/s; rollout 25k); with the cores idle,
+2 threads gain 20% at 16 arms and 60% at 64 (65k against the loop's 41k arm steps/s,
+2-thread rollout the same), with the cores busy all ways tie and threads can lose at 16,
+hence the threshold of 32. Only stepping the ``MjData`` leaves the
+post-step ``xpos`` that Reacher-v5's reward reads, so rollout is not used.
 """
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
