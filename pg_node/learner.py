@@ -1,0 +1,83 @@
+"""
+The learner's job, without ROS: the policy, its A2C/PPO update, versions and checkpoints.
+
+Each applied update increases the policy ``version`` by one. A batch is tagged with the
+version of the policy that sampled it; in synchronous mode only a batch of the current
+version is exact on-policy A2C, so :meth:`Learner.accepts` refuses any other (and the node
+counts the refusal). The observation statistics are merged *after* the gradient step, so
+that the step is taken at exactly the policy the actor sampled from.
+"""
+from typing import Dict, Optional
+
+import numpy as np
+from pg_node.a2c import PolicyBatch, PolicyUpdate
+from pg_node.checkpoint import load_latest, save_checkpoint
+from pg_node.policy import GaussianPolicy
+from pg_node.weights import flatten_state
+import torch
+
+
+def make_policy(obs_dim: int, act_dim: int, cfg: Dict) -> GaussianPolicy:
+    """Build the policy network the configuration describes (same in actor and learner)."""
+    torch.manual_seed(cfg['seed'])
+    return GaussianPolicy(obs_dim, act_dim, cfg['hidden_sizes'], cfg['activation'],
+                          cfg['log_std_init'], cfg['state_dependent_std'],
+                          cfg['normalize_obs'])
+
+
+class Learner:
+    """The policy, its optimiser and its version."""
+
+    def __init__(self, obs_dim: int, act_dim: int, cfg: Dict):
+        self.cfg = cfg
+        self.policy = make_policy(obs_dim, act_dim, cfg)
+        self.update = PolicyUpdate(
+            self.policy, learning_rate=cfg['learning_rate'], ent_coef=cfg['ent_coef'],
+            max_grad_norm=cfg['max_grad_norm'],
+            normalize_advantage=cfg['normalize_advantage'], algo=cfg['algo'],
+            optimizer=cfg['optimizer'], clip_range=cfg['clip_range'],
+            n_epochs=cfg['n_epochs'], batch_size=cfg['batch_size'], seed=cfg['seed'])
+        self.version = 0
+        self.env_steps = 0
+        self.rejected = 0
+
+    def accepts(self, batch_version: int, max_lag: int = 0) -> bool:
+        """Return whether a batch sampled with ``batch_version`` may be learned from now."""
+        ok = 0 <= self.version - batch_version <= max_lag
+        if not ok:
+            self.rejected += 1
+        return ok
+
+    def learn(self, obs, act, logp, adv) -> Dict[str, float]:
+        """Apply one update from a batch; return its metrics (version advanced if applied)."""
+        stats = self.update.update(PolicyBatch.from_numpy(obs, act, logp, adv))
+        if stats['skipped_updates'] == 0 or self.cfg['algo'] == 'ppo':
+            self.policy.obs_norm.update(np.asarray(obs).reshape(-1, self.policy.obs_dim))
+            self.version += 1
+        self.env_steps += int(np.asarray(adv).size)
+        stats['policy_version'] = float(self.version)
+        return stats
+
+    def weights(self):
+        """Return ``(layout, vector)`` of the current policy, for the actors."""
+        return flatten_state(self.policy)
+
+    def state(self) -> Dict:
+        """Return what a checkpoint keeps of the learner."""
+        return {'policy': self.policy.state_dict(), 'opt': self.update.opt.state_dict(),
+                'env_steps': self.env_steps, 'obs_dim': self.policy.obs_dim,
+                'act_dim': self.policy.act_dim, 'config': dict(self.cfg)}
+
+    def save(self, directory, extra: Optional[Dict] = None):
+        """Write an atomic checkpoint of the current version."""
+        return save_checkpoint(directory, self.version, {**self.state(), **(extra or {})})
+
+    def resume(self, directory):
+        """Load the newest valid checkpoint; return ``(state or None, problems)``."""
+        state, problems = load_latest(directory)
+        if state is not None:
+            self.policy.load_state_dict(state['policy'])
+            self.update.opt.load_state_dict(state['opt'])
+            self.version = int(state['version'])
+            self.env_steps = int(state.get('env_steps', 0))
+        return state, problems

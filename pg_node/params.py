@@ -1,0 +1,266 @@
+"""
+Every training parameter: default, meaning, and what values are allowed.
+
+One table serves three readers: the nodes declare their ROS parameters from it (with the
+description as ``ParameterDescriptor``, so ``ros2 param describe`` explains each), the
+``python -m pg_node train`` bring-up validates the YAML file and ``key=value`` overrides
+against it before starting anything, and the README's parameter table is taken from it.
+Validation refuses an unknown key, a value of the wrong type and a value out of range, with
+a message that names the key, the value and what is allowed.
+
+The YAML file (``config/pg_node.yaml``) follows ROS 2's parameter-file format: a section
+``<node_name>: ros__parameters:`` per node, and ``/**: ros__parameters:`` for the values every
+node shares (the arm model, the number of arms, the seed, the network shape).
+"""
+from dataclasses import dataclass
+import math
+from typing import Any, Dict, Optional, Sequence
+
+import yaml
+
+SHARED = '/**'
+
+
+class ConfigError(ValueError):
+    """A parameter file or override that cannot be used; the message says why."""
+
+
+@dataclass(frozen=True)
+class Param:
+    """One parameter: its default (whose type is the parameter's type) and its limits."""
+
+    default: Any
+    description: str
+    choices: Optional[Sequence[Any]] = None
+    low: Optional[float] = None
+    high: Optional[float] = None
+    low_inclusive: bool = True
+
+    def allowed(self) -> str:
+        """Describe the allowed values in words."""
+        kind = type(self.default).__name__
+        if isinstance(self.default, list):
+            kind = 'list of integers'
+        if self.choices is not None:
+            return 'one of ' + ', '.join(repr(c) for c in self.choices)
+        if self.low is not None or self.high is not None:
+            lo = '' if self.low is None else (
+                f'{self.low} <= ' if self.low_inclusive else f'{self.low} < ')
+            hi = '' if self.high is None else f' <= {self.high}'
+            return f'{_article(kind)} {kind} with {lo}value{hi}'
+        return f'{_article(kind)} {kind}'
+
+    def check(self, key: str, value):
+        """Return ``value`` converted to the parameter's type, or raise ConfigError."""
+        want = type(self.default)
+        bad = ConfigError(f'parameter {key!r}: {value!r} is not allowed; '
+                          f'expected {self.allowed()}')
+        if want is bool:
+            if not isinstance(value, bool):
+                raise bad
+        elif want is int:
+            if isinstance(value, bool) or not isinstance(value, int):
+                raise bad
+        elif want is float:
+            if isinstance(value, str):
+                # YAML 1.1 reads 3e-4 (no dot) as a string; accept any float literal.
+                try:
+                    value = float(value)
+                except ValueError:
+                    raise bad from None
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise bad
+            value = float(value)
+            if not math.isfinite(value):
+                raise bad
+        elif want is str:
+            if not isinstance(value, str):
+                raise bad
+        elif want is list:
+            if (not isinstance(value, (list, tuple))
+                    or not all(isinstance(v, int) and not isinstance(v, bool) and v > 0
+                               for v in value)):
+                raise bad
+            value = list(value)
+        if self.choices is not None and value not in self.choices:
+            raise bad
+        if self.low is not None and (value < self.low or (value == self.low
+                                                          and not self.low_inclusive)):
+            raise bad
+        if self.high is not None and value > self.high:
+            raise bad
+        return value
+
+
+def _article(word: str) -> str:
+    return 'an' if word[0] in 'aeiou' else 'a'
+
+
+POSITIVE = {'low': 0.0, 'low_inclusive': False}
+
+#: Values every node reads (the ``/**`` section).
+SHARED_PARAMS: Dict[str, Param] = {
+    'model': Param('reacher2', 'shipped arm model (reacher2, arm5_3d) or a path to an MJCF file'),
+    'num_envs': Param(64, 'arms simulated side by side, all in one message per step', low=1),
+    'seed': Param(0, 'seed of the simulator, the policy initialisation and the sampling', low=0),
+    'hidden_sizes': Param([64, 64], 'hidden layer widths of the policy and value networks'),
+    'activation': Param('tanh', 'hidden activation of both networks',
+                        choices=('tanh', 'relu', 'elu')),
+    'normalize_obs': Param(True, 'normalise observations by a running mean and variance'),
+}
+
+ACTOR_PARAMS: Dict[str, Param] = {
+    'n_steps': Param(8, 'control steps per arm in one rollout (rollout = n_steps x num_envs)',
+                     low=1),
+    'log_std_init': Param(-0.5, 'initial log standard deviation of the Gaussian policy',
+                          low=-5.0, high=2.0),
+    'state_dependent_std': Param(False, 'log-std from a network head instead of a parameter'),
+    'sync_mode': Param('sync', 'sync: wait for the weights of version k before rollout k+1 '
+                               '(exact on-policy A2C); async: keep sampling with stale '
+                               'weights up to max_policy_lag versions (A3C-style)',
+                       choices=('sync', 'async')),
+    'max_policy_lag': Param(4, 'async mode: most versions the sampling policy may lag', low=0),
+    'actor_id': Param(0, 'id of this actor when several feed one critic/learner', low=0),
+}
+
+CRITIC_PARAMS: Dict[str, Param] = {
+    'estimator': Param('gae', 'choice of phi (see pg_node.estimators)',
+                       choices=('total_return', 'reward_to_go', 'constant_baseline',
+                                'optimal_baseline', 'time_baseline', 'value_baseline',
+                                'td_residual', 'gae')),
+    'gamma': Param(0.9, 'discount factor', low=0.0, high=1.0),
+    'gae_lambda': Param(0.95, 'GAE lambda (also of the TD(lambda) value target)',
+                        low=0.0, high=1.0),
+    'value_target': Param('td_lambda', 'targets V is fitted to: td_lambda (GAE + V) or mc '
+                                       '(empirical discounted return, section 4.5.1)',
+                          choices=('td_lambda', 'mc')),
+    'vf_learning_rate': Param(1e-3, 'learning rate of the value network', **POSITIVE),
+    'vf_coef': Param(0.5, 'weight of the value loss', **POSITIVE),
+    'vf_epochs': Param(1, 'passes over each batch when fitting V', low=1),
+    'vf_batch_size': Param(0, 'minibatch size when fitting V (0: the whole batch)', low=0),
+    'vf_optimizer': Param('adam', 'optimiser of the value network', choices=('rmsprop', 'adam')),
+    'vf_max_grad_norm': Param(0.5, 'gradient clipping of V (0: none)', low=0.0),
+}
+
+LEARNER_PARAMS: Dict[str, Param] = {
+    'algo': Param('a2c', 'a2c: one gradient step per batch; ppo: clipped surrogate, epochs',
+                  choices=('a2c', 'ppo')),
+    'learning_rate': Param(1e-3, 'learning rate of the policy', **POSITIVE),
+    'optimizer': Param('adam', 'optimiser of the policy', choices=('rmsprop', 'adam')),
+    'ent_coef': Param(0.0, 'entropy bonus weight', low=0.0),
+    'max_grad_norm': Param(0.5, 'gradient clipping of the policy (0: none)', low=0.0),
+    'normalize_advantage': Param(True, 'scale phi to zero mean and unit std per batch'),
+    'n_epochs': Param(10, 'ppo: passes over each batch', low=1),
+    'batch_size': Param(64, 'ppo: minibatch size', low=1),
+    'clip_range': Param(0.2, 'ppo: clip range of the probability ratio', **POSITIVE),
+    'total_steps': Param(3_000_000, 'environment steps (all arms) to train for', low=1),
+    'checkpoint_every': Param(50, 'policy versions between checkpoints', low=1),
+    'run_dir': Param('runs/latest', 'where checkpoints, bags and summaries go'),
+}
+
+SCHEMA: Dict[str, Dict[str, Param]] = {
+    'actor_node': ACTOR_PARAMS,
+    'critic_node': CRITIC_PARAMS,
+    'learner_node': LEARNER_PARAMS,
+}
+
+
+def defaults(section: str) -> Dict[str, Any]:
+    """Return the default value of every parameter one node reads (shared ones included)."""
+    return {k: p.default for k, p in {**SHARED_PARAMS, **SCHEMA[section]}.items()}
+
+
+def params_for(section: str) -> Dict[str, Param]:
+    """Return the parameter table of one node, shared parameters included."""
+    return {**SHARED_PARAMS, **SCHEMA[section]}
+
+
+def parse_override(text: str):
+    """Split ``key=value`` (value parsed as YAML: ``3``, ``0.5``, ``true``, ``[64, 64]``)."""
+    if '=' not in text:
+        raise ConfigError(f'override {text!r} is not of the form key=value')
+    key, _, raw = text.partition('=')
+    try:
+        value = yaml.safe_load(raw)
+    except yaml.YAMLError as exc:
+        raise ConfigError(f'override {text!r}: value is not valid YAML ({exc})') from None
+    return key.strip(), value
+
+
+def load_config(path=None, overrides: Sequence[str] = (), extra_sections=None
+                ) -> Dict[str, Dict[str, Any]]:
+    """
+    Read a parameter file, apply ``key=value`` overrides, validate, fill in defaults.
+
+    Returns ``{section: {key: value}}`` for ``'/**'``, every node in :data:`SCHEMA` and every
+    node in ``extra_sections`` (a map of node name to its own table, e.g. ``sim_node``'s).
+    A node's value comes from its own section, else from ``/**`` if it is a shared key, else
+    from the default; a node of :data:`SCHEMA` also receives every shared key. An override
+    ``key=value`` goes to ``/**`` for a shared key, else to every node that has the key;
+    ``node.key=value`` sets it in one node only.
+    """
+    extra = dict(extra_sections or {})
+    tables = {SHARED: SHARED_PARAMS}
+    tables.update({name: {**SHARED_PARAMS, **t} for name, t in SCHEMA.items()})
+    tables.update(extra)
+    given = {name: {} for name in tables}
+    if path is not None:
+        for name, params in _read_sections(path).items():
+            if name not in tables:
+                raise ConfigError(f'unknown section {name!r} in {path}; known: '
+                                  f'{", ".join(tables)}')
+            given[name].update(params)
+    for text in overrides:
+        key, value = parse_override(text)
+        if '.' in key:
+            name, _, key = key.partition('.')
+            if name not in tables:
+                raise ConfigError(f'override {text!r}: unknown node {name!r}; known: '
+                                  f'{", ".join(tables)}')
+            given[name][key] = value
+        elif key in SHARED_PARAMS:
+            given[SHARED][key] = value
+        else:
+            homes = [n for n, t in tables.items() if key in t]
+            if not homes:
+                raise ConfigError(f'override {text!r}: unknown parameter {key!r}')
+            for name in homes:
+                given[name][key] = value
+    out = {}
+    for name, table in tables.items():
+        for key in given[name]:
+            if key not in table:
+                raise ConfigError(f'unknown parameter {key!r} in section {name!r}; allowed: '
+                                  f'{", ".join(table)}')
+        values = {}
+        for key, param in table.items():
+            if key in given[name]:
+                value = given[name][key]
+            elif key in SHARED_PARAMS and key in given[SHARED]:
+                value = given[SHARED][key]
+            else:
+                value = param.default
+            label = key if name == SHARED else f'{name}.{key}'
+            values[key] = param.check(label, value)
+        out[name] = values
+    return out
+
+
+def _read_sections(path) -> Dict[str, Dict[str, Any]]:
+    """Return ``{section: ros__parameters}`` of a ROS 2 parameter file, checking its shape."""
+    try:
+        with open(path) as f:
+            raw = yaml.safe_load(f) or {}
+    except OSError as exc:
+        raise ConfigError(f'cannot read config file {path}: {exc.strerror}') from None
+    except yaml.YAMLError as exc:
+        raise ConfigError(f'config file {path} is not valid YAML: {exc}') from None
+    if not isinstance(raw, dict):
+        raise ConfigError(f'config file {path} must map node names to sections')
+    out = {}
+    for name, section in raw.items():
+        params = section.get('ros__parameters') if isinstance(section, dict) else None
+        if not isinstance(params, dict):
+            raise ConfigError(f'section {name!r} in {path} must hold a ros__parameters: map')
+        out[str(name)] = params
+    return out

@@ -1,0 +1,215 @@
+"""The ROS-free training roles: parameters, buffers, wire formats, checkpoints, learning."""
+import os
+
+import numpy as np
+from pg_node import messages, table_msg
+from pg_node.checkpoint import list_checkpoints, load_latest, save_checkpoint
+from pg_node.critic import Critic
+from pg_node.learner import Learner
+from pg_node.params import ConfigError, load_config, Param
+from pg_node.policy import GaussianPolicy
+from pg_node.rollout_buffer import RolloutBuffer
+from pg_node.train_inprocess import train_inprocess
+from pg_node.weights import flatten_state, load_flat_state
+import pytest
+import torch
+import yaml
+
+
+@pytest.mark.parametrize('override,key', [
+    ('gamma=1.5', 'gamma'),
+    ('gamma=-0.1', 'gamma'),
+    ('learning_rate=-0.001', 'learning_rate'),
+    ('learning_rate=0', 'learning_rate'),
+    ('estimator=gea', 'estimator'),
+    ('num_envs=2.5', 'num_envs'),
+    ('normalize_advantage=maybe', 'normalize_advantage'),
+    ('hidden_sizes=[64, -1]', 'hidden_sizes'),
+    ('gae_lambda=nan', 'gae_lambda'),
+])
+def test_bad_values_are_refused_naming_key_value_and_rule(override, key):
+    with pytest.raises(ConfigError) as exc:
+        load_config(None, [override])
+    text = str(exc.value)
+    assert key in text and override.split('=', 1)[1].split(',')[0].strip('[') in text
+    assert 'expected' in text
+
+
+def test_unknown_keys_and_sections_are_refused(tmp_path):
+    with pytest.raises(ConfigError, match="unknown parameter 'gama'"):
+        load_config(None, ['gama=0.9'])
+    bad = tmp_path / 'bad.yaml'
+    bad.write_text(yaml.safe_dump({'critic_node': {'ros__parameters': {'gama': 0.9}}}))
+    with pytest.raises(ConfigError, match="unknown parameter 'gama' in section 'critic_node'"):
+        load_config(bad)
+    bad.write_text(yaml.safe_dump({'critc_node': {'ros__parameters': {}}}))
+    with pytest.raises(ConfigError, match="unknown section 'critc_node'"):
+        load_config(bad)
+    with pytest.raises(ConfigError, match='cannot read config file'):
+        load_config(tmp_path / 'missing.yaml')
+
+
+def test_shared_values_reach_every_node_and_node_values_win(tmp_path):
+    f = tmp_path / 'c.yaml'
+    f.write_text(yaml.safe_dump({
+        '/**': {'ros__parameters': {'num_envs': 8, 'seed': 3}},
+        'actor_node': {'ros__parameters': {'n_steps': 4, 'seed': 5}},
+    }))
+    sim = {'num_envs': Param(1, 'arms', low=1), 'seed': Param(0, 's')}
+    cfg = load_config(f, ['learning_rate=3e-4'], {'sim_node': sim})
+    assert cfg['critic_node']['num_envs'] == 8 and cfg['sim_node']['num_envs'] == 8
+    assert cfg['actor_node']['seed'] == 5 and cfg['critic_node']['seed'] == 3
+    assert cfg['learner_node']['learning_rate'] == pytest.approx(3e-4)
+    assert cfg['actor_node']['n_steps'] == 4
+
+
+def test_shipped_config_is_valid():
+    from pg_node.paths import default_config
+    from pg_node.sim_node import PARAMETERS
+    sim = {name: Param(default, text) for name, default, text in PARAMETERS}
+    cfg = load_config(default_config(), extra_sections={'sim_node': sim})
+    assert cfg['/**']['model'] == 'reacher2'
+
+
+def test_rollout_buffer_and_message_round_trip():
+    rng = np.random.default_rng(0)
+    T, N, D, A = 3, 4, 5, 2
+    buf = RolloutBuffer(T, N, D, A)
+    for t in range(T):
+        buf.add_action(rng.normal(size=(N, D)), rng.normal(size=(N, A)), rng.normal(size=N),
+                       np.full(N, t), np.arange(N), t + 10)
+        with pytest.raises(RuntimeError):
+            buf.add_action(np.zeros((N, D)), np.zeros((N, A)), np.zeros(N), 0, 0)
+        buf.add_outcome(rng.normal(size=N), rng.random(N) < 0.2, rng.random(N) < 0.2,
+                        rng.normal(size=(N, D)))
+    ro = buf.finish()
+    assert not buf.full and buf.pos == 0
+    msg = table_msg.to_msg(*messages.pack_rollout(ro, version=7, actor_id=2, rollout_seq=9))
+    header, back = messages.unpack_rollout(*table_msg.from_msg(msg), obs_dim=D, act_dim=A)
+    assert header == {'version': 7, 'actor_id': 2, 'rollout_seq': 9, 'n_steps': T,
+                      'num_envs': N}
+    for k, v in ro.as_dict().items():
+        np.testing.assert_array_equal(getattr(back, k), v)
+        assert getattr(back, k).dtype == v.dtype
+
+
+@pytest.mark.parametrize('breakage', ['label', 'size', 'short', 'flag', 'nan', 'obs_dim'])
+def test_malformed_rollouts_are_refused(breakage):
+    ro = RolloutBuffer(1, 2, 3, 1)
+    ro.add_action(np.zeros((2, 3)), np.zeros((2, 1)), np.zeros(2), 0, 0)
+    ro.add_outcome(np.zeros(2), np.zeros(2, bool), np.zeros(2, bool), np.zeros((2, 3)))
+    dims, off, data = messages.pack_rollout(ro.finish(), 0, 0, 0)
+    obs_dim = 3
+    if breakage == 'label':
+        dims[2] = ('action', *dims[2][1:])
+    elif breakage == 'size':
+        dims[1] = ('obs', 4, 4)
+    elif breakage == 'short':
+        data = data[:-1]
+    elif breakage == 'flag':
+        data[off + 3 + 1 + 1 + 1] = 0.5     # terminated of row 0
+    elif breakage == 'nan':
+        data[off] = np.nan
+    elif breakage == 'obs_dim':
+        obs_dim = 4
+    with pytest.raises(ValueError):
+        messages.unpack_rollout(dims, off, data, obs_dim=obs_dim)
+
+
+def test_weights_round_trip_and_layout_mismatch():
+    pol = GaussianPolicy(10, 2)
+    pol.obs_norm.update(np.random.default_rng(0).normal(size=(50, 10)))
+    layout, vec = flatten_state(pol)
+    msg = table_msg.to_msg(*messages.pack_weights(layout, vec, 5, 1000))
+    header, layout2, vec2 = messages.unpack_weights(*table_msg.from_msg(msg))
+    assert header == {'version': 5, 'env_steps': 1000}
+    other = GaussianPolicy(10, 2)
+    load_flat_state(other, layout2, vec2)
+    obs = torch.randn(3, 10)
+    torch.testing.assert_close(other.mean_action(obs), pol.mean_action(obs))
+    with pytest.raises(ValueError, match='layout does not match'):
+        load_flat_state(GaussianPolicy(10, 3), layout2, vec2)
+    bad = vec2.copy()
+    bad[0] = np.inf
+    with pytest.raises(ValueError, match='non-finite'):
+        load_flat_state(other, layout2, bad)
+
+
+def test_checkpoints_are_atomic_and_corrupt_ones_skipped(tmp_path):
+    for v in (1, 2, 3):
+        save_checkpoint(tmp_path, v, {'x': v}, keep=2)
+    assert [v for _, v in list_checkpoints(tmp_path)] == [3, 2]
+    assert not [p for p in os.listdir(tmp_path) if p.endswith('.tmp')]
+    # corrupt the newest: it is reported and the next one is used
+    (tmp_path / 'ckpt_00000003.pt').write_bytes(b'not a checkpoint')
+    state, problems = load_latest(tmp_path)
+    assert state['version'] == 2 and state['x'] == 2
+    assert len(problems) == 1 and 'ckpt_00000003.pt' in problems[0]
+    assert load_latest(tmp_path / 'none') == (None, [])
+
+
+def _cfg(**over):
+    return load_config(None, [f'{k}={v}' for k, v in over.items()])
+
+
+def test_learner_versions_and_refuses_wrong_version():
+    cfg = _cfg(num_envs=2)
+    learner = Learner(4, 1, {**cfg['learner_node'], **cfg['actor_node']})
+    assert learner.accepts(0) and not learner.accepts(1) and learner.rejected == 1
+    stats = learner.learn(np.zeros((3, 2, 4)), np.zeros((3, 2, 1)), np.zeros((3, 2)),
+                          np.random.default_rng(0).normal(size=(3, 2)))
+    assert learner.version == 1 and stats['policy_version'] == 1
+    assert not learner.accepts(0) and learner.accepts(0, max_lag=1)
+
+
+def test_learner_checkpoint_resume(tmp_path):
+    cfg = _cfg()
+    c = {**cfg['learner_node'], **cfg['actor_node']}
+    a = Learner(4, 1, c)
+    a.learn(np.ones((2, 2, 4)), np.ones((2, 2, 1)), np.zeros((2, 2)), np.ones((2, 2)))
+    a.save(tmp_path)
+    b = Learner(4, 1, c)
+    state, problems = b.resume(tmp_path)
+    assert b.version == a.version == 1 and not problems
+    for p, q in zip(a.policy.parameters(), b.policy.parameters()):
+        assert torch.equal(p, q)
+
+
+def test_critic_annotates_with_the_chosen_estimator():
+    cfg = _cfg(estimator='optimal_baseline', num_envs=3)
+    critic = Critic(4, cfg['critic_node'])
+    buf = RolloutBuffer(5, 3, 4, 1)
+    rng = np.random.default_rng(0)
+    for t in range(5):
+        buf.add_action(rng.normal(size=(3, 4)), rng.normal(size=(3, 1)), np.zeros(3), t, 0)
+        buf.add_outcome(rng.normal(size=3), np.zeros(3, bool), np.array([t == 2] * 3),
+                        rng.normal(size=(3, 4)))
+    ro = buf.finish()
+    with pytest.raises(ValueError, match='sampling policy'):
+        critic.annotate(ro)
+    pol = GaussianPolicy(4, 1)
+    adv, ret, stats = critic.annotate(ro, pol)
+    assert adv.shape == ret.shape == (5, 3) and np.isfinite(adv).all()
+    assert {'value_loss', 'explained_variance'} <= set(stats)
+
+
+@pytest.mark.slow
+def test_inprocess_a2c_learns_to_reach():
+    """
+    200k steps of A2C beat the untrained policy by far more than the noise.
+
+    Both policies are evaluated on the same 100 episodes (same seeds, so the same starts
+    and targets): the per-episode differences are paired, and their standard error is the
+    noise the gain is compared with.
+    """
+    from pg_node.evaluate import evaluate_policy
+    from pg_node.learner import make_policy
+    cfg = _cfg(num_envs=16)
+    untrained = evaluate_policy(make_policy(10, 2, {**cfg['learner_node'],
+                                                   **cfg['actor_node']}), 'reacher2', 100)
+    summary = train_inprocess(cfg, 200_000)
+    diff = np.array(summary['eval_returns']) - np.array(untrained['eval_returns'])
+    se = diff.std(ddof=1) / np.sqrt(diff.size)
+    assert diff.mean() > 6 * se, (untrained['eval_return'], summary['eval_return'], se)
+    assert summary['eval_return'] > -10
+    assert summary['policy_version'] == summary['learner'].version > 1000
