@@ -205,8 +205,8 @@ def test_inprocess_a2c_learns_to_reach():
     from pg_node.evaluate import evaluate_policy
     from pg_node.learner import make_policy
     cfg = _cfg(num_envs=16)
-    untrained = evaluate_policy(make_policy(10, 2, {**cfg['learner_node'],
-                                                   **cfg['actor_node']}), 'reacher2', 100)
+    policy = make_policy(10, 2, {**cfg['learner_node'], **cfg['actor_node']})
+    untrained = evaluate_policy(policy, 'reacher2', 100)
     summary = train_inprocess(cfg, 200_000)
     diff = np.array(summary['eval_returns']) - np.array(untrained['eval_returns'])
     se = diff.std(ddof=1) / np.sqrt(diff.size)
