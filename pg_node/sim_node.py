@@ -45,6 +45,11 @@ episodes in all arms, publishes a transition), ``~/set_pause`` (``std_srvs/SetBo
 ``~/step_simulation`` (``std_srvs/Trigger``: while paused, one control step with the held
 command; refused when not paused). While paused, lock-step commands are held, not stepped.
 
+Topic names other than ``/diagnostics`` are relative: started in a namespace
+(``--ros-args -r __ns:=/arm1``) the node publishes ``/arm1/joint_states``,
+``/arm1/pg_node/transition``... and listens on ``/arm1/arm_controller/commands``, so several
+simulator/actor pairs can share one graph; in the root namespace the names are as above.
+
 Parameters come from ``config/pg_node.yaml`` (section ``sim_node``) unless the command line
 gives a ``--params-file``; ``PARAMETERS`` lists them with their descriptions.
 """
@@ -145,14 +150,14 @@ class SimNode(Node):
                                       durability=DurabilityPolicy.TRANSIENT_LOCAL)
         targets_qos = QoSProfile(depth=n, reliability=ReliabilityPolicy.RELIABLE,
                                  durability=DurabilityPolicy.TRANSIENT_LOCAL)
-        self.pub_joints = self.create_publisher(JointState, '/joint_states', 10)
-        self.pub_clock = self.create_publisher(Clock, '/clock', 10)
-        self.pub_target = self.create_publisher(PointStamped, '/target', targets_qos)
-        self.pub_transition = self.create_publisher(Float64MultiArray, '/pg_node/transition',
+        self.pub_joints = self.create_publisher(JointState, 'joint_states', 10)
+        self.pub_clock = self.create_publisher(Clock, 'clock', 10)
+        self.pub_target = self.create_publisher(PointStamped, 'target', targets_qos)
+        self.pub_transition = self.create_publisher(Float64MultiArray, 'pg_node/transition',
                                                     reliable_latched)
-        self.pub_markers = self.create_publisher(MarkerArray, '/pg_node/markers', 1)
+        self.pub_markers = self.create_publisher(MarkerArray, 'pg_node/markers', 1)
         self.pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
-        self.create_subscription(Float64MultiArray, '/arm_controller/commands',
+        self.create_subscription(Float64MultiArray, 'arm_controller/commands',
                                  self.on_command, 10)
         self.create_service(Trigger, '~/reset_world', self.on_reset_world)
         self.create_service(SetBool, '~/set_pause', self.on_set_pause)
