@@ -62,6 +62,8 @@ class LabResult:
     true_grad: np.ndarray
     estimates: Dict[str, np.ndarray]
     rows: List[dict] = field(default_factory=list)
+    title: str = 'the linear-Gaussian problem'
+    bias_threshold: float = 4.0
 
     def variance_difference(self, a: str, b: str) -> Tuple[float, float]:
         """
@@ -78,22 +80,37 @@ class LabResult:
         return float(d.mean()), float(d.std(ddof=1) / np.sqrt(n))
 
 
-def run_lab(problem: LinearGaussianProblem = None, n_batches: int = 2000, batch_size: int = 64,
-            gae_lambda: float = 0.9, seed: int = 0) -> LabResult:
-    """Estimate the gradient with every row of :data:`LAB_ROWS` on the same batches."""
-    problem = problem or LinearGaussianProblem()
-    if n_batches < 2 or batch_size < 1:
-        raise ValueError('need n_batches >= 2 and batch_size >= 1')
-    rng = np.random.default_rng(seed)
-    H, m = problem.horizon, batch_size
-    v_hat = approx_values(problem)
-    approx_val = np.broadcast_to(v_hat[:H, None], (H, m))
-    approx_next = np.broadcast_to(v_hat[1:, None], (H, m))
-    terminated = np.zeros((H, m), dtype=bool)
-    terminated[-1] = True
-    estimates = {name: np.zeros((n_batches, problem.n_params)) for name, _, _ in LAB_ROWS}
-    for b in range(n_batches):
-        data = problem.sample(m, rng)
+class LinearGaussianLab:
+    """
+    The linear-Gaussian problem as a lab problem: closed-form scores, the true V^pi.
+
+    ``exact`` rows use the true value function, ``approx`` rows the state-blind
+    :func:`approx_values`; the true gradient is exact, so its standard error is zero.
+    """
+
+    title = 'the linear-Gaussian problem'
+    gamma = 1.0
+    bias_threshold = 4.0
+    exact_value = True
+
+    def __init__(self, problem: LinearGaussianProblem = None):
+        self.problem = problem or LinearGaussianProblem()
+        self.n_params = self.problem.n_params
+        self.v_hat = approx_values(self.problem)
+
+    def true_gradient(self) -> Tuple[np.ndarray, np.ndarray]:
+        """Return ``(grad U, its standard error)``: exact, so the error is zero."""
+        return self.problem.true_gradient(), np.zeros(self.n_params)
+
+    def batch_estimates(self, m: int, rng: np.random.Generator,
+                        gae_lambda: float) -> Dict[str, np.ndarray]:
+        """Sample one batch of m trajectories; return every row's gradient estimate."""
+        H = self.problem.horizon
+        approx_val = np.broadcast_to(self.v_hat[:H, None], (H, m))
+        approx_next = np.broadcast_to(self.v_hat[1:, None], (H, m))
+        terminated = np.zeros((H, m), dtype=bool)
+        terminated[-1] = True
+        data = self.problem.sample(m, rng)
         score = data['score']
         score_sq = np.broadcast_to((score.sum(0) ** 2).sum(-1), (H, m))
         batches = {
@@ -104,25 +121,60 @@ def run_lab(problem: LinearGaussianProblem = None, n_batches: int = 2000, batch_
                               truncated=np.zeros((H, m), bool), val=approx_val,
                               next_val=approx_next, score_sq=score_sq),
         }
+        out = {}
         for name, est, which in LAB_ROWS:
-            phi = compute_phi(est, batches[which], gamma=1.0, gae_lambda=gae_lambda)
+            phi = compute_phi(est, batches[which], gamma=self.gamma, gae_lambda=gae_lambda)
             # the next line is eq. 20: the average over trajectories of sum_t score_t * phi_t
-            estimates[name][b] = np.einsum('tmp,tm->p', score, phi) / m
-    result = LabResult(true_grad=problem.true_gradient(), estimates=estimates)
+            out[name] = np.einsum('tmp,tm->p', score, phi) / m
+        return out
+
+
+def run_lab(problem=None, n_batches: int = 2000, batch_size: int = 64,
+            gae_lambda: float = 0.9, seed: int = 0) -> LabResult:
+    """
+    Estimate the gradient with every row of :data:`LAB_ROWS` on the same batches.
+
+    ``problem`` is a :class:`LinearGaussianProblem` (the default) or any lab problem: an
+    object with ``n_params``, ``bias_threshold``, ``true_gradient() -> (grad, se)`` and
+    ``batch_estimates(m, rng, gae_lambda) -> {row: estimate}`` that draws one batch of m
+    trajectories and returns every row's estimate computed on it (e.g.
+    :class:`pg_node.arm_lab.ArmLab`). ``bias_z`` divides by the standard error of the
+    batches' mean and of the true gradient combined.
+    """
+    if problem is None or isinstance(problem, LinearGaussianProblem):
+        problem = LinearGaussianLab(problem)
+    if n_batches < 2 or batch_size < 1:
+        raise ValueError('need n_batches >= 2 and batch_size >= 1')
+    rng = np.random.default_rng(seed)
+    estimates = {name: np.zeros((n_batches, problem.n_params)) for name, _, _ in LAB_ROWS}
+    for b in range(n_batches):
+        for name, g in problem.batch_estimates(batch_size, rng, gae_lambda).items():
+            estimates[name][b] = g
+    true_grad, true_se = problem.true_gradient()
+    result = LabResult(true_grad=true_grad, estimates=estimates)
+    unit = true_grad / max(np.linalg.norm(true_grad), 1e-300)
+    exact_v = getattr(problem, 'exact_value', False)
     base_var = None
     for name, est, which in LAB_ROWS:
         g = estimates[name]
-        se = g.std(0, ddof=1) / np.sqrt(n_batches)
+        se = np.sqrt(g.var(0, ddof=1) / n_batches + true_se ** 2)
         z = (g.mean(0) - result.true_grad) / se
+        # the same along the true gradient's direction: one number, no multiple comparisons
+        proj = g @ unit
+        z_dir = (proj.mean() - true_grad @ unit) / np.sqrt(
+            proj.var(ddof=1) / n_batches + true_se ** 2 @ unit ** 2)
         var = float(g.var(0, ddof=1).sum())
         base_var = var if base_var is None else base_var
         result.rows.append({
             'estimator': name,
             'bias_z': float(z[np.argmax(np.abs(z))]),
+            'bias_z_along_grad': float(z_dir),
             'variance': var,
             'relative_variance': var / base_var,
-            'action_dependent': est in ACTION_DEPENDENT and which == 'approx',
+            'action_dependent': est in ACTION_DEPENDENT and (which == 'approx' or not exact_v),
         })
+    result.title = getattr(problem, 'title', 'a lab problem')
+    result.bias_threshold = float(getattr(problem, 'bias_threshold', 4.0))
     return result
 
 
@@ -130,13 +182,15 @@ def format_table(result: LabResult, n_batches: int, batch_size: int):
     """Return a rich Table of the lab's rows."""
     from rich.markup import escape
     from rich.table import Table
-    table = Table(title=f'Policy-gradient estimators on the linear-Gaussian problem '
+    table = Table(title=f'Policy-gradient estimators on {result.title} '
                         f'({n_batches} batches x {batch_size} trajectories)')
-    for col in ('estimator', 'bias_z', 'variance', 'relative_variance', 'unbiased?'):
+    for col in ('estimator', 'bias_z', 'bias_z_along_grad', 'variance', 'relative_variance',
+                'unbiased?'):
         table.add_column(col, justify='left' if col == 'estimator' else 'right', no_wrap=True)
     for row in result.rows:
-        ok = 'yes' if abs(row['bias_z']) < 4 else 'NO (biased)'
-        table.add_row(escape(row['estimator']), f"{row['bias_z']:+.2f}", f"{row['variance']:.4g}",
+        ok = 'yes' if abs(row['bias_z']) < result.bias_threshold else 'NO (biased)'
+        table.add_row(escape(row['estimator']), f"{row['bias_z']:+.2f}",
+                      f"{row['bias_z_along_grad']:+.2f}", f"{row['variance']:.4g}",
                       f"{row['relative_variance']:.4f}", ok)
     return table
 
@@ -146,28 +200,55 @@ def main(argv=None) -> int:
     import argparse
     parser = argparse.ArgumentParser(
         prog='python -m pg_node variance',
-        description='Bias and variance of every policy-gradient estimator against the exact '
-                    'gradient of a linear-Gaussian control problem.')
-    parser.add_argument('--batches', type=int, default=2000,
-                        help='number of independent batches (default: %(default)s)')
-    parser.add_argument('--batch-size', type=int, default=64,
-                        help='trajectories per batch (default: %(default)s)')
-    parser.add_argument('--horizon', type=int, default=10,
-                        help='steps per trajectory (default: %(default)s)')
+        description='Bias and variance of every policy-gradient estimator against the true '
+                    'gradient: of a linear-Gaussian control problem (exact), or of a partly '
+                    'trained policy on the simulated arm (from a very large batch).')
+    parser.add_argument('--problem', choices=('linear', 'arm'), default='linear',
+                        help='linear: linear-Gaussian problem; arm: the default arm with a '
+                             'partly trained policy (default: %(default)s)')
+    parser.add_argument('--batches', type=int, default=None,
+                        help='number of independent batches (default: 2000 linear, 200 arm)')
+    parser.add_argument('--batch-size', type=int, default=None,
+                        help='trajectories per batch (default: 64 linear, 32 arm)')
+    parser.add_argument('--horizon', type=int, default=None,
+                        help='steps per trajectory (default: 10 linear, 50 arm)')
     parser.add_argument('--gae-lambda', type=float, default=0.9,
                         help='lambda of the GAE rows (default: %(default)s)')
     parser.add_argument('--seed', type=int, default=0, help='random seed (default: %(default)s)')
+    parser.add_argument('--train-steps', type=int, default=100_000,
+                        help='arm: in-process A2C steps that train the fixed policy '
+                             '(default: %(default)s)')
+    parser.add_argument('--true-episodes', type=int, default=32768,
+                        help='arm: episodes of the large batch for the true gradient '
+                             '(default: %(default)s)')
+    parser.add_argument('--value-episodes', type=int, default=4096,
+                        help='arm: separate episodes the value network is fitted on '
+                             '(default: %(default)s)')
     parser.add_argument('--json', action='store_true', help='print JSON instead of a table')
     args = parser.parse_args(argv)
-    if args.batches < 2 or args.batch_size < 1 or args.horizon < 1:
+    arm = args.problem == 'arm'
+    batches = args.batches if args.batches is not None else (200 if arm else 2000)
+    batch_size = args.batch_size if args.batch_size is not None else (32 if arm else 64)
+    horizon = args.horizon if args.horizon is not None else (50 if arm else 10)
+    if batches < 2 or batch_size < 1 or horizon < 1:
         parser.error('--batches must be >= 2, --batch-size and --horizon >= 1')
     if not 0.0 <= args.gae_lambda <= 1.0:
         parser.error(f'--gae-lambda must be in [0, 1], got {args.gae_lambda}')
-    result = run_lab(LinearGaussianProblem(horizon=args.horizon), args.batches, args.batch_size,
-                     args.gae_lambda, args.seed)
+    if arm:
+        if args.horizon not in (None, 50):
+            parser.error('--horizon of the arm is its episode length, 50')
+        from pg_node.arm_lab import make_arm_lab
+        problem = make_arm_lab(args.train_steps, args.seed, true_episodes=args.true_episodes,
+                               value_episodes=args.value_episodes)
+    else:
+        problem = LinearGaussianProblem(horizon=horizon)
+    result = run_lab(problem, batches, batch_size, args.gae_lambda, args.seed)
     if args.json:
         print(json.dumps(result.rows, indent=2))
     else:
         from rich.console import Console
-        Console().print(format_table(result, args.batches, args.batch_size))
+        Console().print(format_table(result, batches, batch_size))
+        if arm:
+            Console().print(f'policy: {problem.info}; value network explained variance '
+                            f'{problem.value_explained_variance:.3f}')
     return 0
