@@ -81,3 +81,51 @@ class Learner:
             self.version = int(state['version'])
             self.env_steps = int(state.get('env_steps', 0))
         return state, problems
+
+
+class EpisodeStats:
+    """
+    Running returns of the episodes a stream of batches holds, and the recent finished ones.
+
+    Episodes span several batches, so each arm's return is summed across them, keyed by
+    (actor, arm column, episode id); an arm that shows a new episode id without the old one
+    having ended (a reset, a restarted simulator) drops the old, cut-short sum.
+    """
+
+    def __init__(self, window: int = 100):
+        self.window = int(window)
+        self.open = {}
+        self.returns = []
+        self.lengths = []
+        self.finished = 0
+
+    def update(self, rew, terminated, truncated, episode_id, actor) -> int:
+        """Add a batch's ``(T, N)`` arrays; return how many episodes finished in it."""
+        done = np.asarray(terminated) | np.asarray(truncated)
+        n_done = 0
+        for t in range(rew.shape[0]):
+            for n in range(rew.shape[1]):
+                key = (int(actor[t, n]), n)
+                ep = int(episode_id[t, n])
+                cur = self.open.get(key)
+                if cur is None or cur[0] != ep:
+                    cur = self.open[key] = [ep, 0.0, 0]
+                cur[1] += float(rew[t, n])
+                cur[2] += 1
+                if done[t, n]:
+                    self.returns.append(cur[1])
+                    self.lengths.append(cur[2])
+                    del self.open[key]
+                    n_done += 1
+        self.returns = self.returns[-self.window:]
+        self.lengths = self.lengths[-self.window:]
+        self.finished += n_done
+        return n_done
+
+    def mean_return(self) -> float:
+        """Return the mean return of the last ``window`` finished episodes (NaN if none)."""
+        return float(np.mean(self.returns)) if self.returns else float('nan')
+
+    def mean_length(self) -> float:
+        """Return the mean length of the last ``window`` finished episodes (NaN if none)."""
+        return float(np.mean(self.lengths)) if self.lengths else float('nan')

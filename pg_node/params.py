@@ -14,8 +14,9 @@ node shares (the arm model, the number of arms, the seed, the network shape).
 """
 from dataclasses import dataclass
 import math
-from typing import Any, Dict, Optional, Sequence
+from typing import Any, Callable, Dict, Optional, Sequence
 
+from pg_node.paths import resolve_model
 import yaml
 
 SHARED = '/**'
@@ -35,6 +36,8 @@ class Param:
     low: Optional[float] = None
     high: Optional[float] = None
     low_inclusive: bool = True
+    #: extra check: called with the value, raises ValueError/OSError with the reason
+    validate: Optional[Callable[[Any], Any]] = None
 
     def allowed(self) -> str:
         """Describe the allowed values in words."""
@@ -89,6 +92,11 @@ class Param:
             raise bad
         if self.high is not None and value > self.high:
             raise bad
+        if self.validate is not None:
+            try:
+                self.validate(value)
+            except (ValueError, OSError) as exc:
+                raise ConfigError(f'parameter {key!r}: {value!r} is not allowed: {exc}') from None
         return value
 
 
@@ -100,13 +108,22 @@ POSITIVE = {'low': 0.0, 'low_inclusive': False}
 
 #: Values every node reads (the ``/**`` section).
 SHARED_PARAMS: Dict[str, Param] = {
-    'model': Param('reacher2', 'shipped arm model (reacher2, arm5_3d) or a path to an MJCF file'),
+    'model': Param('reacher2', 'shipped arm model (reacher2, arm5_3d) or a path to an MJCF file',
+                   validate=lambda v: resolve_model(v)),
     'num_envs': Param(64, 'arms simulated side by side, all in one message per step', low=1),
     'seed': Param(0, 'seed of the simulator, the policy initialisation and the sampling', low=0),
     'hidden_sizes': Param([64, 64], 'hidden layer widths of the policy and value networks'),
     'activation': Param('tanh', 'hidden activation of both networks',
                         choices=('tanh', 'relu', 'elu')),
     'normalize_obs': Param(True, 'normalise observations by a running mean and variance'),
+    'sync_mode': Param('sync', 'sync: actors wait for the weights of version k before rollout '
+                               'k+1 (exact on-policy A2C); async: actors keep sampling with '
+                               'stale weights up to max_policy_lag versions (A3C-style)',
+                       choices=('sync', 'async')),
+    'max_policy_lag': Param(4, "async mode: most versions a batch's policy may lag", low=0),
+    'num_actors': Param(1, 'simulator/actor pairs feeding the critic and learner; in sync '
+                           'mode one batch holds one rollout of each', low=1),
+    'run_dir': Param('runs/latest', 'where checkpoints, the bag and progress files go'),
 }
 
 ACTOR_PARAMS: Dict[str, Param] = {
@@ -115,12 +132,9 @@ ACTOR_PARAMS: Dict[str, Param] = {
     'log_std_init': Param(-0.5, 'initial log standard deviation of the Gaussian policy',
                           low=-5.0, high=2.0),
     'state_dependent_std': Param(False, 'log-std from a network head instead of a parameter'),
-    'sync_mode': Param('sync', 'sync: wait for the weights of version k before rollout k+1 '
-                               '(exact on-policy A2C); async: keep sampling with stale '
-                               'weights up to max_policy_lag versions (A3C-style)',
-                       choices=('sync', 'async')),
-    'max_policy_lag': Param(4, 'async mode: most versions the sampling policy may lag', low=0),
     'actor_id': Param(0, 'id of this actor when several feed one critic/learner', low=0),
+    'rollout_resend_timeout': Param(5.0, 'sync mode: seconds without new weights before the '
+                                         'last rollout is sent again', **POSITIVE),
 }
 
 CRITIC_PARAMS: Dict[str, Param] = {
@@ -140,6 +154,7 @@ CRITIC_PARAMS: Dict[str, Param] = {
     'vf_batch_size': Param(0, 'minibatch size when fitting V (0: the whole batch)', low=0),
     'vf_optimizer': Param('adam', 'optimiser of the value network', choices=('rmsprop', 'adam')),
     'vf_max_grad_norm': Param(0.5, 'gradient clipping of V (0: none)', low=0.0),
+    'checkpoint_every': Param(100, 'batches between checkpoints of V', low=1),
 }
 
 LEARNER_PARAMS: Dict[str, Param] = {
@@ -154,11 +169,37 @@ LEARNER_PARAMS: Dict[str, Param] = {
     'batch_size': Param(64, 'ppo: minibatch size', low=1),
     'clip_range': Param(0.2, 'ppo: clip range of the probability ratio', **POSITIVE),
     'total_steps': Param(3_000_000, 'environment steps (all arms) to train for', low=1),
-    'checkpoint_every': Param(50, 'policy versions between checkpoints', low=1),
-    'run_dir': Param('runs/latest', 'where checkpoints, bags and summaries go'),
+    'checkpoint_every': Param(100, 'policy versions between checkpoints', low=1),
+    'record_arms': Param(4, 'arms of actor 0 whose every step is written to the bag '
+                            '(episode summaries are written for all arms)', low=0),
+    'bag_split_episodes': Param(2000, 'episode summaries per bag file before a split', low=1),
+    'exit_when_done': Param(True, 'stop the learner once total_steps are learned'),
+}
+
+SIM_PARAMS: Dict[str, Param] = {
+    'frame_skip': Param(2, 'physics steps per control step', low=1),
+    'max_episode_steps': Param(50, 'control steps after which an episode is truncated', low=1),
+    'reward_dist_weight': Param(1.0, 'weight of the fingertip distance in the reward', low=0.0),
+    'reward_control_weight': Param(1.0, 'weight of the squared command norm in the reward',
+                                   low=0.0),
+    'mode': Param('lock_step', 'lock_step: one control step per command; real_time: wall '
+                               'clock', choices=('lock_step', 'real_time')),
+    'lock_step_timeout': Param(1.0, 'seconds without a command before the last transition '
+                                    'is re-sent (lock_step)', **POSITIVE),
+    'command_timeout': Param(0.5, 'seconds after which a held command drops to zero torque '
+                                  '(real_time)', **POSITIVE),
+    'real_time_factor': Param(1.0, 'simulated seconds per wall second (real_time)', **POSITIVE),
+    'start_paused': Param(False, 'start paused (step with ~/step_simulation)'),
+    'marker_rate': Param(10.0, 'MarkerArray rate in Hz of wall time; 0 turns markers off',
+                         low=0.0),
+    'marker_spacing': Param(0.7, 'distance in m between arms drawn on the marker grid',
+                            low=0.0),
+    'frame_id': Param('world', 'frame of the markers'),
+    'diagnostics_rate': Param(1.0, 'diagnostics rate in Hz of wall time', **POSITIVE),
 }
 
 SCHEMA: Dict[str, Dict[str, Param]] = {
+    'sim_node': SIM_PARAMS,
     'actor_node': ACTOR_PARAMS,
     'critic_node': CRITIC_PARAMS,
     'learner_node': LEARNER_PARAMS,
@@ -167,12 +208,18 @@ SCHEMA: Dict[str, Dict[str, Param]] = {
 
 def defaults(section: str) -> Dict[str, Any]:
     """Return the default value of every parameter one node reads (shared ones included)."""
-    return {k: p.default for k, p in {**SHARED_PARAMS, **SCHEMA[section]}.items()}
+    return {k: p.default for k, p in params_for(section).items()}
+
+
+#: The shared parameters a node reads, where it is not all of them.
+NODE_SHARED = {'sim_node': ('model', 'num_envs', 'seed')}
 
 
 def params_for(section: str) -> Dict[str, Param]:
-    """Return the parameter table of one node, shared parameters included."""
-    return {**SHARED_PARAMS, **SCHEMA[section]}
+    """Return the parameter table of one node, the shared parameters it reads included."""
+    shared = {k: p for k, p in SHARED_PARAMS.items()
+              if k in NODE_SHARED.get(section, SHARED_PARAMS)}
+    return {**shared, **SCHEMA[section]}
 
 
 def parse_override(text: str):
@@ -201,7 +248,7 @@ def load_config(path=None, overrides: Sequence[str] = (), extra_sections=None
     """
     extra = dict(extra_sections or {})
     tables = {SHARED: SHARED_PARAMS}
-    tables.update({name: {**SHARED_PARAMS, **t} for name, t in SCHEMA.items()})
+    tables.update({name: params_for(name) for name in SCHEMA})
     tables.update(extra)
     given = {name: {} for name in tables}
     if path is not None:
@@ -238,6 +285,8 @@ def load_config(path=None, overrides: Sequence[str] = (), extra_sections=None
                 value = given[name][key]
             elif key in SHARED_PARAMS and key in given[SHARED]:
                 value = given[SHARED][key]
+            elif key in SHARED_PARAMS:
+                value = SHARED_PARAMS[key].default
             else:
                 value = param.default
             label = key if name == SHARED else f'{name}.{key}'

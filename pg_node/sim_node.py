@@ -51,11 +51,11 @@ Topic names other than ``/diagnostics`` are relative: started in a namespace
 simulator/actor pairs can share one graph; in the root namespace the names are as above.
 
 Parameters come from ``config/pg_node.yaml`` (section ``sim_node``) unless the command line
-gives a ``--params-file``; ``PARAMETERS`` lists them with their descriptions.
+gives a ``--params-file``; :data:`pg_node.params.SIM_PARAMS` lists them with their
+descriptions and allowed values.
 """
 import array
 import math
-import sys
 import time
 
 from builtin_interfaces.msg import Time
@@ -64,10 +64,9 @@ from geometry_msgs.msg import Point, PointStamped
 import numpy as np
 from pg_node import transition
 from pg_node.arm_task import ArmTask
-from pg_node.paths import default_config, resolve_model
-from rcl_interfaces.msg import ParameterDescriptor
-import rclpy
-from rclpy.executors import ExternalShutdownException
+from pg_node.node_utils import declare_params, run
+from pg_node.params import params_for
+from pg_node.paths import resolve_model
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
@@ -75,29 +74,6 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import SetBool, Trigger
 from visualization_msgs.msg import Marker, MarkerArray
-
-MODES = ('lock_step', 'real_time')
-
-PARAMETERS = (
-    ('model', 'reacher2', 'Shipped model name (reacher2, arm5_3d) or path to an MJCF file.'),
-    ('num_envs', 1, 'Number of arms simulated side by side.'),
-    ('seed', 0, 'Seed of the episode starts; arm i draws from seed + i.'),
-    ('frame_skip', 2, 'Physics steps per control step.'),
-    ('max_episode_steps', 50, 'Control steps after which an episode is truncated.'),
-    ('reward_dist_weight', 1.0, 'Weight of the fingertip distance in the reward.'),
-    ('reward_control_weight', 1.0, 'Weight of the squared command norm in the reward.'),
-    ('mode', 'lock_step', 'lock_step: one control step per command; real_time: wall clock.'),
-    ('lock_step_timeout', 1.0, 'Seconds without a command before the last transition is '
-                               're-sent (lock_step).'),
-    ('command_timeout', 0.5, 'Seconds after which a held command drops to zero torque '
-                             '(real_time).'),
-    ('real_time_factor', 1.0, 'Simulated seconds per wall second (real_time).'),
-    ('start_paused', False, 'Start paused (step with ~/step_simulation).'),
-    ('marker_rate', 10.0, 'MarkerArray rate in Hz of wall time; 0 turns markers off.'),
-    ('marker_spacing', 0.7, 'Distance in m between arms drawn on the marker grid.'),
-    ('frame_id', 'world', 'Frame of the markers.'),
-    ('diagnostics_rate', 1.0, 'Diagnostics rate in Hz of wall time.'),
-)
 
 
 def sim_stamp(seconds: float) -> Time:
@@ -117,10 +93,7 @@ class SimNode(Node):
     def __init__(self):
         """Declare parameters, build the task and the ROS interfaces, publish the start."""
         super().__init__('sim_node')
-        self._declare_parameters()
-        p = {name: self.get_parameter(name).value for name, _, _ in PARAMETERS}
-        if p['mode'] not in MODES:
-            raise ValueError(f'mode must be one of {MODES}, got {p["mode"]!r}')
+        p = declare_params(self, params_for('sim_node'))
         self.mode = p['mode']
         self.task = ArmTask(resolve_model(p['model']), num_envs=p['num_envs'], seed=p['seed'],
                             frame_skip=p['frame_skip'],
@@ -175,11 +148,6 @@ class SimNode(Node):
         self.get_logger().info(
             f'{self.mode}: {n} x {p["model"]} ({self.task.act_dim} actuators, joints '
             f'{", ".join(spec.joint_names)}), dt {self.task.dt:g} s')
-
-    def _declare_parameters(self):
-        """Declare every parameter with its default and a description."""
-        for name, default, text in PARAMETERS:
-            self.declare_parameter(name, default, ParameterDescriptor(description=text))
 
     @property
     def sim_time(self) -> float:
@@ -375,34 +343,10 @@ class SimNode(Node):
         return response
 
 
-def with_default_params(args):
-    """Return ``args`` with ``--params-file config/pg_node.yaml`` unless one is given."""
-    args = list(sys.argv if args is None else args)
-    config = default_config()
-    if '--params-file' in args or not config.is_file():
-        return args
-    # first after --ros-args, so that -p overrides on the command line still win
-    if '--ros-args' not in args:
-        args.append('--ros-args')
-    at = args.index('--ros-args') + 1
-    return args[:at] + ['--params-file', str(config)] + args[at:]
-
-
 def main(args=None):
     """Run sim_node until Ctrl-C or an external shutdown."""
-    rclpy.init(args=with_default_params(args))
-    node = None
-    try:
-        node = SimNode()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.task.close()
-            node.destroy_node()
-        rclpy.try_shutdown()
+    return run(SimNode, 'sim_node', args, cleanup=lambda node: node.task.close())
 
 
 if __name__ == '__main__':
-    main()
+    raise SystemExit(main())

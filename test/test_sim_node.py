@@ -35,7 +35,9 @@ def start_node(tmp_path, *params):
                PYTHONPATH=str(REPO), AMENT_PREFIX_PATH=os.environ.get(
                    'AMENT_PREFIX_PATH', str(Path(sys.executable).parent.parent)))
     args = [sys.executable, '-m', 'pg_node.sim_node', '--ros-args']
-    for param in params:
+    # one arm unless the test says otherwise (the shipped config trains with 64); a later
+    # -p wins over an earlier one
+    for param in ('num_envs:=1',) + params:
         args += ['-p', param]
     log = open(tmp_path / f'sim_node_{time.monotonic_ns()}.log', 'w+')
     proc = subprocess.Popen(args, env=env, cwd=REPO, stdout=log, stderr=subprocess.STDOUT,

@@ -56,8 +56,10 @@ def test_shared_values_reach_every_node_and_node_values_win(tmp_path):
         'actor_node': {'ros__parameters': {'n_steps': 4, 'seed': 5}},
     }))
     sim = {'num_envs': Param(1, 'arms', low=1), 'seed': Param(0, 's')}
-    cfg = load_config(f, ['learning_rate=3e-4'], {'sim_node': sim})
+    cfg = load_config(f, ['learning_rate=3e-4'], {'extra_node': sim})
+    assert cfg['extra_node']['num_envs'] == 8
     assert cfg['critic_node']['num_envs'] == 8 and cfg['sim_node']['num_envs'] == 8
+    assert 'hidden_sizes' not in cfg['sim_node']
     assert cfg['actor_node']['seed'] == 5 and cfg['critic_node']['seed'] == 3
     assert cfg['learner_node']['learning_rate'] == pytest.approx(3e-4)
     assert cfg['actor_node']['n_steps'] == 4
@@ -65,10 +67,9 @@ def test_shared_values_reach_every_node_and_node_values_win(tmp_path):
 
 def test_shipped_config_is_valid():
     from pg_node.paths import default_config
-    from pg_node.sim_node import PARAMETERS
-    sim = {name: Param(default, text) for name, default, text in PARAMETERS}
-    cfg = load_config(default_config(), extra_sections={'sim_node': sim})
+    cfg = load_config(default_config())
     assert cfg['/**']['model'] == 'reacher2'
+    assert cfg['sim_node']['num_envs'] == cfg['actor_node']['num_envs']
 
 
 def test_rollout_buffer_and_message_round_trip():
