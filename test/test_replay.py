@@ -1,0 +1,345 @@
+"""
+replay_node: round trip over DDS, foreign and truncated bags, timing, pause, filters.
+
+The e2e tests start ``python -m pg_node replay`` as a real process in its own session and
+DDS domain and receive what it publishes as serialised bytes (``raw=True``), so a message is
+checked byte for byte against the bag.
+"""
+from collections import defaultdict
+import os
+from pathlib import Path
+import signal
+import subprocess
+import sys
+import time
+
+from pg_node import ros_types
+from pg_node.bag_reader import BagReader
+from pg_node.bag_writer import BagWriter
+from pg_node.replay_node import main, merge_qos, parse_remaps
+import pytest
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.typesys import get_types_from_msg, get_typestore, Stores
+from std_msgs.msg import String
+from std_srvs.srv import SetBool, Trigger
+
+REPO = Path(__file__).resolve().parent.parent
+SAMPLE = REPO / 'bags' / 'sample'
+DOMAIN_ID = 20 + os.getpid() % 80
+T0 = 1_700_000_000_000_000_000
+
+
+def start_replay(tmp_path, *args):
+    """Start ``python -m pg_node replay`` with ``args`` in its own session and domain."""
+    env = dict(os.environ, ROS_DOMAIN_ID=str(DOMAIN_ID), PYTHONUNBUFFERED='1',
+               PYTHONPATH=str(REPO))
+    env.pop('MUJOCO_GL', None)
+    log = open(tmp_path / f'replay_{time.monotonic_ns()}.log', 'w+')
+    proc = subprocess.Popen([sys.executable, '-m', 'pg_node', 'replay', *map(str, args)],
+                            env=env, cwd=REPO, stdout=log, stderr=subprocess.STDOUT,
+                            start_new_session=True)
+    proc.log = log
+    return proc
+
+
+def stop(proc):
+    """Stop with SIGINT, then SIGTERM, then SIGKILL; return the exit code and the log."""
+    for sig, wait in ((signal.SIGINT, 10), (signal.SIGTERM, 5), (signal.SIGKILL, 5)):
+        if proc.poll() is not None:
+            break
+        proc.send_signal(sig)
+        try:
+            proc.wait(wait)
+        except subprocess.TimeoutExpired:
+            pass
+    proc.log.seek(0)
+    text = proc.log.read()
+    proc.log.close()
+    return proc.returncode, text
+
+
+class Listener:
+    """Raw subscriptions to a bag's topics with matching QoS (keep-all), in the test domain."""
+
+    def __init__(self, topics):
+        """Subscribe to ``{name: (type, qos dict)}``."""
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context, domain_id=DOMAIN_ID)
+        self.node = rclpy.create_node('replay_test', context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.got = defaultdict(list)
+        self.times = defaultdict(list)
+        for name, (msg_type, qos) in topics.items():
+            profile = QoSProfile(
+                history=HistoryPolicy.KEEP_ALL, depth=1,
+                reliability=(ReliabilityPolicy.BEST_EFFORT if qos['reliability'] ==
+                             'best_effort' else ReliabilityPolicy.RELIABLE),
+                durability=(DurabilityPolicy.TRANSIENT_LOCAL if qos['durability'] ==
+                            'transient_local' else DurabilityPolicy.VOLATILE))
+            self.node.create_subscription(ros_types.message_class(msg_type), name,
+                                          self._callback(name), profile, raw=True)
+
+    def _callback(self, name):
+        def on_message(data):
+            self.got[name].append(bytes(data))
+            self.times[name].append(time.monotonic())
+        return on_message
+
+    def spin_until(self, done, timeout):
+        """Spin until ``done()`` or ``timeout`` seconds; return ``done()``."""
+        end = time.monotonic() + timeout
+        while time.monotonic() < end and not done():
+            self.executor.spin_once(timeout_sec=0.05)
+        return done()
+
+    def call(self, srv_type, name, request, timeout=10.0):
+        """Call a service and return its response."""
+        client = self.node.create_client(srv_type, name)
+        assert client.wait_for_service(timeout_sec=timeout), name
+        future = client.call_async(request)
+        self.spin_until(future.done, timeout)
+        return future.result()
+
+    def close(self):
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+
+
+def bag_messages(path, topics=None):
+    """Return {topic: [cdr bytes]} and the log-time ordered list of (topic, log time)."""
+    reader = BagReader(path, warn=False)
+    per_topic, order = defaultdict(list), []
+    for m in reader.messages(topics=topics):
+        per_topic[m.topic].append(bytes(m.data))
+        order.append((m.topic, m.log_time_ns))
+    return per_topic, order
+
+
+def same_cdr(got, recorded):
+    """
+    Return whether a received CDR message is the recorded one, byte for byte.
+
+    The DDS layer may pad the payload with up to 3 zero bytes to a multiple of 4.
+    """
+    extra = got[len(recorded):]
+    return got[:len(recorded)] == recorded and len(extra) < 4 and not any(extra)
+
+
+def topic_table(path):
+    return {n: (t.msg_type, merge_qos(t.offered_qos_profiles))
+            for n, t in BagReader(path, warn=False).topics.items()}
+
+
+# -- no processes ----------------------------------------------------------------------------
+def test_merge_qos_and_remaps():
+    a = ros_types.qos_to_dict(None)
+    b = dict(a, reliability='best_effort', depth=50)
+    assert merge_qos([a, a]) == a
+    merged = merge_qos([a, b])
+    assert merged['reliability'] == 'best_effort' and merged['depth'] == 50
+    assert merge_qos([]) == a
+    assert parse_remaps(['/a:=/b']) == {'/a': '/b'}
+    with pytest.raises(ValueError):
+        parse_remaps(['/a=/b'])
+
+
+def test_info_lists_topics(capsys):
+    assert main(['--info', str(SAMPLE)]) == 0
+    out = capsys.readouterr().out
+    assert '/joint_states' in out and 'sensor_msgs/msg/JointState' in out
+    assert 'reliable/transient_local/depth 4' in out  # /target as recorded
+
+
+# -- over DDS ---------------------------------------------------------------------------------
+@pytest.mark.e2e
+def test_round_trip_as_fast_as_possible_equals_the_bag(tmp_path):
+    expected, _ = bag_messages(SAMPLE)
+    total = sum(len(v) for v in expected.values())
+    listener = Listener(topic_table(SAMPLE))
+    proc = start_replay(tmp_path, SAMPLE, '--rate', '0', '--keep-all',
+                        '--wait-for-subscribers', '1', '--delay', '0.5')
+    try:
+        listener.spin_until(lambda: sum(len(v) for v in listener.got.values()) >= total
+                            and proc.poll() is not None, 40)
+        time.sleep(0.2)
+        listener.spin_until(lambda: False, 0.3)  # anything extra would show up here
+    finally:
+        code, log = stop(proc)
+        listener.close()
+    assert code == 0, log
+    assert 'played %d messages' % total in log
+    assert set(listener.got) == set(expected)
+    for topic, msgs in expected.items():
+        assert len(listener.got[topic]) == len(msgs), topic
+        bad = [i for i, (got, sent) in enumerate(zip(listener.got[topic], msgs))
+               if not same_cdr(got, sent)]
+        assert not bad, (topic, bad[:5])  # same bytes, same order
+
+
+def write_rosbags_bag(path):
+    """Write a bag with PyPI rosbags: std_msgs/String and a type nobody has installed."""
+    store = get_typestore(Stores.ROS2_JAZZY)
+    store.register(get_types_from_msg('float64 x\nstring label', 'acme_msgs/msg/Gadget'))
+    strings = []
+    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        conn = writer.add_connection('/chatter', 'std_msgs/msg/String', typestore=store)
+        odd = writer.add_connection('/gadget', 'acme_msgs/msg/Gadget', typestore=store)
+        for i in range(40):
+            msg = store.types['std_msgs/msg/String'](data=f'hello {i}')
+            raw = store.serialize_cdr(msg, 'std_msgs/msg/String')
+            strings.append(bytes(raw))
+            writer.write(conn, T0 + i * 10_000_000, raw)
+            gadget = store.types['acme_msgs/msg/Gadget'](x=float(i), label='g')
+            writer.write(odd, T0 + i * 10_000_000 + 1,
+                         store.serialize_cdr(gadget, 'acme_msgs/msg/Gadget'))
+    return strings
+
+
+@pytest.mark.e2e
+def test_rosbags_written_bag_plays_and_unknown_type_is_skipped(tmp_path):
+    bag = tmp_path / 'foreign'
+    strings = write_rosbags_bag(bag)
+    listener = Listener({'/chatter': ('std_msgs/msg/String', ros_types.qos_to_dict(None)),
+                         '/clock': ('rosgraph_msgs/msg/Clock', ros_types.qos_to_dict(None))})
+    proc = start_replay(tmp_path, bag, '--rate', '4', '--wait-for-subscribers', '1',
+                        '--delay', '0.5', '--clock-rate', '1000')
+    try:
+        listener.spin_until(lambda: len(listener.got['/chatter']) >= 40
+                            and proc.poll() is not None, 30)
+    finally:
+        code, log = stop(proc)
+        listener.close()
+    assert code == 0, log
+    assert 'skipping /gadget: type acme_msgs/msg/Gadget is not installed' in log
+    assert len(listener.got['/chatter']) == 40
+    assert all(map(same_cdr, listener.got['/chatter'], strings))
+    # no /clock in the bag: it is published from the log times (every 1 ms of bag time)
+    from rclpy.serialization import deserialize_message
+    from rosgraph_msgs.msg import Clock
+    clocks = [deserialize_message(d, Clock).clock for d in listener.got['/clock']]
+    stamps = [c.sec * 10**9 + c.nanosec for c in clocks]
+    assert stamps[0] == T0 and stamps == sorted(stamps) and len(stamps) == 40
+    # 40 messages 10 ms apart at rate 4: about 0.1 s from first to last
+    span = listener.times['/chatter'][-1] - listener.times['/chatter'][0]
+    assert 0.05 < span < 0.6
+
+
+@pytest.mark.e2e
+def test_truncated_bag_plays_up_to_the_damage_and_says_where(tmp_path):
+    bag = tmp_path / 'cut'
+    bag.mkdir()
+    data = (SAMPLE / 'sample_0.mcap').read_bytes()
+    (bag / 'cut_0.mcap').write_bytes(data[:int(len(data) * 0.6)])
+    expected, _ = bag_messages(bag)
+    full, _ = bag_messages(SAMPLE)
+    n_expected = sum(len(v) for v in expected.values())
+    assert 0 < n_expected < sum(len(v) for v in full.values())
+    topics = {'/pg_node/metrics/entropy': topic_table(SAMPLE)['/pg_node/metrics/entropy']}
+    listener = Listener(topics)
+    start = time.monotonic()
+    proc = start_replay(tmp_path, bag, '--rate', '0', '--keep-all', '--topics',
+                        '/pg_node/metrics/entropy', '--wait-for-subscribers', '1',
+                        '--delay', '0.3')
+    try:
+        proc.wait(60)
+        listener.spin_until(lambda: len(listener.got['/pg_node/metrics/entropy'])
+                            >= len(expected['/pg_node/metrics/entropy']), 10)
+    finally:
+        code, log = stop(proc)
+        listener.close()
+    assert time.monotonic() - start < 60
+    assert code == 3, log
+    assert 'bag damaged, playback stopped early' in log and 'stopped at byte' in log
+    got = listener.got['/pg_node/metrics/entropy']
+    assert len(got) == len(expected['/pg_node/metrics/entropy'])
+    assert all(map(same_cdr, got, full['/pg_node/metrics/entropy']))
+
+
+def write_slow_bag(path, n=11, step_ns=100_000_000):
+    """``n`` String messages ``step_ns`` apart, by pg_node's writer."""
+    with BagWriter(path) as writer:
+        for i in range(n):
+            writer.write('/chatter', String(data=str(i)), T0 + i * step_ns)
+
+
+@pytest.mark.e2e
+def test_rate_pause_play_next_and_resume(tmp_path):
+    write_slow_bag(tmp_path / 'slow')
+    listener = Listener({'/chatter': ('std_msgs/msg/String', ros_types.qos_to_dict(None))})
+    # the ros2 run form: everything as -p parameters
+    proc = start_replay(tmp_path, '--ros-args', '-p', f'bag:={tmp_path / "slow"}', '-p',
+                        'rate:=2.0', '-p', 'start_paused:=true', '-p', 'topics:=[/chatter]',
+                        '-p', 'wait_for_subscribers:=1')
+    got = listener.got['/chatter']
+    try:
+        resp = listener.call(Trigger, '/replay_node/play_next', Trigger.Request())
+        assert resp.success
+        assert listener.spin_until(lambda: len(got) == 1, 10)
+        listener.spin_until(lambda: False, 0.7)
+        assert len(got) == 1  # still paused
+        resp = listener.call(SetBool, '/replay_node/set_pause', SetBool.Request(data=False))
+        assert resp.success and resp.message == 'playing'
+        assert listener.spin_until(lambda: len(got) == 11, 10)
+        proc.wait(10)
+    finally:
+        code, log = stop(proc)
+        listener.close()
+    assert code == 0, log
+    from rclpy.serialization import deserialize_message
+    assert [deserialize_message(d, String).data for d in got] == [str(i) for i in range(11)]
+    # after resuming, 10 gaps of 0.1 s of bag time at rate 2: 0.5 s of wall time
+    span = listener.times['/chatter'][-1] - listener.times['/chatter'][1]
+    assert 0.35 < span < 1.0, span
+
+
+@pytest.mark.e2e
+def test_topic_filter_remap_and_start_offset(tmp_path):
+    per_topic, order = bag_messages(SAMPLE)
+    first = order[0][1]
+    offset_s = 5.0
+    expected = [d for (topic, t), d in zip(
+        [o for o in order if o[0] == '/pg_node/metrics/policy_loss'],
+        per_topic['/pg_node/metrics/policy_loss']) if t >= first + offset_s * 1e9]
+    assert 0 < len(expected) < len(per_topic['/pg_node/metrics/policy_loss'])
+    qos = topic_table(SAMPLE)['/pg_node/metrics/policy_loss']
+    listener = Listener({'/replayed/policy_loss': qos, '/pg_node/metrics/policy_loss': qos,
+                         '/pg_node/metrics/entropy': qos})
+    proc = start_replay(tmp_path, SAMPLE, '--rate', '0', '--keep-all', '--start-offset',
+                        offset_s, '--topics', '/pg_node/metrics/policy_loss', '--remap',
+                        '/pg_node/metrics/policy_loss:=/replayed/policy_loss',
+                        '--wait-for-subscribers', '1', '--delay', '0.3')
+    try:
+        listener.spin_until(lambda: len(listener.got['/replayed/policy_loss'])
+                            >= len(expected) and proc.poll() is not None, 30)
+        listener.spin_until(lambda: False, 0.3)
+    finally:
+        code, log = stop(proc)
+        listener.close()
+    assert code == 0, log
+    assert len(listener.got['/replayed/policy_loss']) == len(expected)
+    assert all(map(same_cdr, listener.got['/replayed/policy_loss'], expected))
+    assert not listener.got['/pg_node/metrics/policy_loss']
+    assert not listener.got['/pg_node/metrics/entropy']
+
+
+@pytest.mark.e2e
+def test_missing_bag_fails_fast(tmp_path):
+    proc = start_replay(tmp_path, tmp_path / 'nothing-here')
+    try:
+        proc.wait(30)
+    finally:
+        code, log = stop(proc)
+    assert code == 1 and 'no bag at' in log
+
+
+def test_sample_bag_is_small_and_has_the_contract_topics():
+    size = sum(f.stat().st_size for f in SAMPLE.iterdir())
+    assert size < 5 * 2**20
+    topics = BagReader(SAMPLE, warn=False).topics
+    for name in ('/clock', '/joint_states', '/target', '/arm_controller/commands',
+                 '/pg_node/reward', '/pg_node/episode', '/pg_node/metrics/episode_return'):
+        assert topics[name].message_count > 0, name
