@@ -89,6 +89,15 @@ class ActorNode(Node):
             self.get_logger().warning(f'dropped policy weights: {exc}',
                                       throttle_duration_sec=1.0)
             return
+        if header['version'] < self.version:
+            # the learner restarted from an older checkpoint: what we gathered with newer
+            # weights will be refused, so start over with the version it has now
+            self.get_logger().warning(
+                f'policy version went back from {self.version} to {header["version"]} '
+                '(learner restarted): discarding the partial rollout')
+            self.buf.reset()
+            self.counters['rollouts_discarded'] += 1
+            self.wait_for = None
         self.version = header['version']
         self.counters['weights_received'] += 1
         if self.pending_tr is not None and (self.wait_for is None

@@ -168,7 +168,7 @@ LEARNER_PARAMS: Dict[str, Param] = {
     'n_epochs': Param(10, 'ppo: passes over each batch', low=1),
     'batch_size': Param(64, 'ppo: minibatch size', low=1),
     'clip_range': Param(0.2, 'ppo: clip range of the probability ratio', **POSITIVE),
-    'total_steps': Param(3_000_000, 'environment steps (all arms) to train for', low=1),
+    'total_steps': Param(2_000_000, 'environment steps (all arms) to train for', low=1),
     'checkpoint_every': Param(100, 'policy versions between checkpoints', low=1),
     'record_arms': Param(4, 'arms of actor 0 whose every step is written to the bag '
                             '(episode summaries are written for all arms)', low=0),

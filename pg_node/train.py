@@ -1,0 +1,269 @@
+"""
+``python -m pg_node train``: the whole training graph, each node its own process.
+
+Validates the configuration (``--config`` plus ``key=value`` overrides) before anything
+starts, writes the resolved parameters to ``<run_dir>/params.yaml``, starts ``sim_node``,
+``actor_node``, ``critic_node`` and ``learner_node`` (each in its own session, logging to
+``<run_dir>/logs/``), shows a progress bar read from the learner's ``progress.csv``, and
+supervises: a node that dies is restarted (at most ``--max-restarts`` times each, with
+doubling back-off); the learner resumes from its newest checkpoint and the actor picks up
+the latched weights. When the learner has learned ``total_steps`` (or on Ctrl-C) the nodes
+are stopped with SIGINT (then SIGTERM, then SIGKILL), the deterministic policy is evaluated
+over ``--eval-episodes`` episodes, and ``summary.json`` and ``learning_curve.png`` are
+written next to ``checkpoints/``, ``bag/`` and ``progress.csv``.
+"""
+import argparse
+import csv
+from datetime import datetime
+import json
+import os
+from pathlib import Path
+import signal
+import subprocess
+import sys
+import time
+
+from pg_node.params import ConfigError, load_config, SHARED
+import yaml
+
+NODES = ('sim_node', 'critic_node', 'learner_node', 'actor_node')
+STOP_WAITS = ((signal.SIGINT, 10.0), (signal.SIGTERM, 5.0), (signal.SIGKILL, 5.0))
+
+
+def parse_args(argv):
+    """Parse the command line."""
+    parser = argparse.ArgumentParser(
+        prog='python -m pg_node train',
+        description='Train the arm with A2C over the ROS 2 graph (sim, actor, critic, '
+                    'learner nodes as processes).')
+    parser.add_argument('overrides', nargs='*', metavar='key=value',
+                        help='override any parameter (node.key=value for one node only)')
+    parser.add_argument('--config', help='ROS 2 parameter file (default: config/pg_node.yaml)')
+    parser.add_argument('--total-steps', type=int, help='environment steps to learn')
+    parser.add_argument('--seed', type=int, help='seed of everything')
+    parser.add_argument('--run-dir', help='where the run writes everything '
+                                          '(default: runs/<date-time>)')
+    parser.add_argument('--eval-episodes', type=int, default=100, help='default: %(default)s')
+    parser.add_argument('--max-restarts', type=int, default=3,
+                        help='restarts allowed per node (default: %(default)s)')
+    parser.add_argument('--no-progress', action='store_true', help='no progress bar')
+    return parser.parse_args(argv)
+
+
+def resolve_config(args) -> dict:
+    """Return the validated configuration of every node, overrides applied."""
+    from pg_node.paths import default_config
+    overrides = list(args.overrides)
+    if args.total_steps is not None:
+        overrides.append(f'total_steps={args.total_steps}')
+    if args.seed is not None:
+        overrides.append(f'seed={args.seed}')
+    run_dir = args.run_dir or os.path.join('runs', datetime.now().strftime('%Y%m%d-%H%M%S'))
+    overrides.append(f'run_dir={os.path.abspath(run_dir)}')
+    return load_config(args.config or default_config(), overrides)
+
+
+def write_params(cfg: dict, path: Path):
+    """Write the resolved configuration as a ROS 2 parameter file."""
+    sections = {name: {'ros__parameters': values} for name, values in cfg.items()
+                if name != SHARED}
+    path.write_text('# Resolved parameters of this run, written by python -m pg_node train.\n'
+                    + yaml.safe_dump(sections, sort_keys=False))
+
+
+class Supervisor:
+    """Starts, watches, restarts and stops the node processes."""
+
+    def __init__(self, run_dir: Path, params: Path, max_restarts: int):
+        self.run_dir = run_dir
+        self.params = params
+        self.max_restarts = max_restarts
+        self.procs = {}
+        self.restarts = dict.fromkeys(NODES, 0)
+        self.next_start = {}
+        (run_dir / 'logs').mkdir(parents=True, exist_ok=True)
+        self.env = dict(os.environ, PYTHONUNBUFFERED='1')
+        repo = str(Path(__file__).resolve().parent.parent)
+        self.env['PYTHONPATH'] = os.pathsep.join(
+            p for p in (repo, os.environ.get('PYTHONPATH')) if p)
+        self.env.setdefault('AMENT_PREFIX_PATH', sys.prefix)
+
+    def start(self, name: str):
+        """Start one node (own session, so signals reach it alone)."""
+        log = open(self.run_dir / 'logs' / f'{name}.log', 'a')
+        cmd = [sys.executable, '-m', f'pg_node.{name}', '--ros-args',
+               '--params-file', str(self.params)]
+        self.procs[name] = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT,
+                                            env=self.env, start_new_session=True)
+        log.close()
+
+    def start_all(self):
+        """Start every node."""
+        for name in NODES:
+            self.start(name)
+
+    def check(self) -> str:
+        """
+        Restart nodes that died; return 'done', 'failed' or 'running'.
+
+        The learner exiting with 0 means training is done.
+        """
+        for name, proc in list(self.procs.items()):
+            code = proc.poll()
+            if code is None:
+                continue
+            if name == 'learner_node' and code == 0:
+                return 'done'
+            if name in self.next_start:
+                if time.monotonic() >= self.next_start[name]:
+                    del self.next_start[name]
+                    self.start(name)
+                continue
+            if self.restarts[name] >= self.max_restarts:
+                self.failed = f'{name} exited with code {code} {self.restarts[name] + 1} times'
+                return 'failed'
+            self.restarts[name] += 1
+            delay = 2.0 ** (self.restarts[name] - 1)
+            print(f'\n{name} exited with code {code}; restarting in {delay:g} s '
+                  f'({self.restarts[name]}/{self.max_restarts}), see '
+                  f'{self.run_dir / "logs" / (name + ".log")}', file=sys.stderr)
+            self.next_start[name] = time.monotonic() + delay
+        return 'running'
+
+    def stop_all(self):
+        """Stop every node: SIGINT, then SIGTERM, then SIGKILL, waiting between."""
+        for sig, wait in STOP_WAITS:
+            alive = [p for p in self.procs.values() if p.poll() is None]
+            for p in alive:
+                try:
+                    os.killpg(p.pid, sig)
+                except ProcessLookupError:
+                    pass
+            deadline = time.monotonic() + wait
+            while alive and time.monotonic() < deadline:
+                alive = [p for p in alive if p.poll() is None]
+                time.sleep(0.05)
+            if not alive:
+                return
+
+
+def read_progress(path: Path):
+    """Return the rows of ``progress.csv`` as dicts of floats (empty cells NaN)."""
+    if not path.exists():
+        return []
+    with open(path, newline='') as f:
+        rows = list(csv.DictReader(f))
+    return [{k: float(v) if v not in ('', None) else float('nan') for k, v in r.items()}
+            for r in rows]
+
+
+def write_learning_curve(rows, png: Path):
+    """Plot episode return against environment steps and wall time."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4), sharey=True)
+    steps = [r['env_steps'] for r in rows]
+    ret = [r['episode_return'] for r in rows]
+    axes[0].plot(steps, ret)
+    axes[0].set_xlabel('environment steps')
+    axes[0].set_ylabel('episode return (mean of last 100)')
+    axes[1].plot([r['wall_seconds'] for r in rows], ret)
+    axes[1].set_xlabel('wall time (s)')
+    for ax in axes:
+        ax.grid(alpha=0.3)
+    fig.suptitle('pg_node training')
+    fig.tight_layout()
+    fig.savefig(png, dpi=100)
+    plt.close(fig)
+
+
+def evaluate_run(run_dir: Path, episodes: int) -> dict:
+    """Evaluate the newest checkpoint's deterministic policy."""
+    from pg_node.checkpoint import load_latest
+    from pg_node.evaluate import evaluate_policy
+    from pg_node.learner import make_policy
+    state, problems = load_latest(run_dir / 'checkpoints')
+    for p in problems:
+        print(p, file=sys.stderr)
+    if state is None:
+        return {}
+    policy = make_policy(state['obs_dim'], state['act_dim'], state['config'])
+    policy.load_state_dict(state['policy'])
+    res = evaluate_policy(policy, state['config']['model'], episodes, state['config']['seed'])
+    res['policy_version'] = int(state['version'])
+    res['checkpoint'] = str(sorted((run_dir / 'checkpoints').glob('ckpt_*.pt'))[-1])
+    return res
+
+
+def main(argv=None) -> int:
+    """Run ``python -m pg_node train``."""
+    args = parse_args(argv)
+    try:
+        cfg = resolve_config(args)
+    except ConfigError as exc:
+        print(f'configuration error: {exc}', file=sys.stderr)
+        return 2
+    run_dir = Path(cfg[SHARED]['run_dir'])
+    run_dir.mkdir(parents=True, exist_ok=True)
+    params = run_dir / 'params.yaml'
+    write_params(cfg, params)
+    total = cfg['learner_node']['total_steps']
+    print(f'pg_node: training {cfg[SHARED]["num_envs"]} x {cfg[SHARED]["model"]} for {total} '
+          f'steps; run dir {run_dir}')
+    sup = Supervisor(run_dir, params, args.max_restarts)
+    bar = None
+    if not args.no_progress:
+        from tqdm import tqdm
+        # disable=None: no bar when stderr is not a terminal (CI logs stay readable)
+        bar = tqdm(total=total, unit='step', unit_scale=True, dynamic_ncols=True,
+                   disable=None, mininterval=1.0)
+    t0 = time.monotonic()
+    state = 'running'
+    interrupted = False
+    sup.start_all()
+    try:
+        while state == 'running':
+            time.sleep(0.5)
+            state = sup.check()
+            rows = read_progress(run_dir / 'progress.csv')
+            if bar is not None and rows:
+                last = rows[-1]
+                bar.n = min(int(last['env_steps']), total)
+                bar.set_postfix(ret=f"{last['episode_return']:.2f}",
+                                sps=f"{last['steps_per_second']:.0f}",
+                                version=int(last['policy_version']), refresh=False)
+                bar.refresh()
+    except KeyboardInterrupt:
+        interrupted = True
+        print('\ninterrupted: stopping the nodes', file=sys.stderr)
+    finally:
+        sup.stop_all()
+        if bar is not None:
+            bar.close()
+    wall = time.monotonic() - t0
+    if state == 'failed':
+        print(f'training failed: {sup.failed}; logs in {run_dir / "logs"}', file=sys.stderr)
+    rows = read_progress(run_dir / 'progress.csv')
+    summary = {'interrupted': interrupted, 'failed': state == 'failed',
+               'total_steps': int(rows[-1]['env_steps']) if rows else 0,
+               'wall_seconds': rows[-1]['wall_seconds'] if rows else wall,
+               'bringup_seconds': wall, 'restarts': sup.restarts}
+    summary['steps_per_second'] = summary['total_steps'] / max(summary['wall_seconds'], 1e-9)
+    print(f'evaluating the deterministic policy over {args.eval_episodes} episodes ...')
+    summary.update(evaluate_run(run_dir, args.eval_episodes))
+    summary['curve'] = [{'env_steps': r['env_steps'], 'wall_seconds': r['wall_seconds'],
+                         'episode_return': r['episode_return']} for r in rows]
+    summary['config'] = dict(cfg)
+    (run_dir / 'summary.json').write_text(json.dumps(summary, indent=2, default=str))
+    png = run_dir / 'learning_curve.png'
+    if rows:
+        write_learning_curve(rows, png)
+    print(f"eval return {summary.get('eval_return', float('nan')):.2f} +/- "
+          f"{summary.get('eval_return_std', float('nan')):.2f} after {summary['total_steps']} "
+          f"steps in {summary['wall_seconds']:.0f} s ({summary['steps_per_second']:.0f} "
+          f'steps/s)')
+    print(f'run dir:    {run_dir}\nbag:        {run_dir / "bag"}\n'
+          f'checkpoint: {summary.get("checkpoint", "none")}\nsummary:    '
+          f'{run_dir / "summary.json"}\ncurve:      {png}')
+    return 1 if state == 'failed' else 0

@@ -1,0 +1,231 @@
+"""
+End to end: the four nodes as real processes over DDS, trained by ``python -m pg_node train``.
+
+One training run (300k steps, the shipped configuration) is shared by the tests in file
+order: it must learn, equal the in-process reference bit for bit (lock-step synchronous
+mode is deterministic), leave a bag that PyPI ``rosbags`` reads with the expected counts,
+and then resume from its checkpoint, surviving a SIGKILL of the learner while it writes.
+"""
+import csv
+import json
+import os
+from pathlib import Path
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+from pg_node import messages, table_msg
+from pg_node.bag_writer import reindex
+from pg_node.evaluate import evaluate_policy
+from pg_node.learner import make_policy
+from pg_node.params import load_config
+from pg_node.paths import default_config
+from pg_node.train_inprocess import train_inprocess
+import pytest
+from rosbags.rosbag2 import Reader
+from rosbags.typesys import get_typestore, Stores
+
+pytestmark = [pytest.mark.e2e, pytest.mark.slow]
+
+REPO = Path(__file__).resolve().parent.parent
+DOMAIN_ID = 20 + os.getpid() % 80
+STEPS = 300_000
+TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
+
+
+def env():
+    return dict(os.environ, ROS_DOMAIN_ID=str(DOMAIN_ID), PYTHONPATH=str(REPO),
+                PYTHONUNBUFFERED='1',
+                AMENT_PREFIX_PATH=os.environ.get('AMENT_PREFIX_PATH', sys.prefix))
+
+
+def train(run_dir, *args, timeout=600):
+    """Run ``python -m pg_node train`` to the end; return the finished process."""
+    cmd = [sys.executable, '-m', 'pg_node', 'train', '--run-dir', str(run_dir),
+           '--no-progress', *args]
+    return subprocess.run(cmd, env=env(), cwd=REPO, capture_output=True, text=True,
+                          timeout=timeout)
+
+
+def progress(run_dir):
+    with open(Path(run_dir) / 'progress.csv', newline='') as f:
+        return list(csv.DictReader(f))
+
+
+@pytest.fixture(scope='module')
+def run(tmp_path_factory):
+    run_dir = tmp_path_factory.mktemp('graph') / 'run'
+    res = train(run_dir, '--total-steps', str(STEPS))
+    assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
+    return run_dir, json.loads((run_dir / 'summary.json').read_text())
+
+
+def test_graph_learns_and_versions_advance(run):
+    run_dir, summary = run
+    cfg = load_config(default_config())
+    assert summary['total_steps'] >= STEPS
+    n_batch = cfg['/**']['num_envs'] * cfg['actor_node']['n_steps']
+    assert summary['policy_version'] == -(-STEPS // n_batch)
+    versions = [int(float(r['policy_version'])) for r in progress(run_dir)]
+    assert versions == list(range(1, len(versions) + 1))
+    # the untrained policy (version 0) on the same 100 evaluation episodes: paired
+    policy = make_policy(10, 2, {**cfg['learner_node'], **cfg['actor_node']})
+    untrained = evaluate_policy(policy, 'reacher2', 100)
+    diff = np.array(summary['eval_returns']) - np.array(untrained['eval_returns'])
+    se = diff.std(ddof=1) / np.sqrt(diff.size)
+    assert diff.mean() > 6 * se, (untrained['eval_return'], summary['eval_return'], se)
+
+
+def test_graph_equals_inprocess_reference(run):
+    """Lock-step synchronous training over DDS is the in-process computation, exactly."""
+    _, summary = run
+    ref = train_inprocess(load_config(default_config(), [f'total_steps={STEPS}']), STEPS)
+    assert summary['policy_version'] == ref['policy_version']
+    assert summary['eval_returns'] == ref['eval_returns']
+
+
+def test_bag_is_read_by_rosbags_with_expected_counts(run):
+    run_dir, summary = run
+    cfg = load_config(default_config())
+    n = cfg['/**']['num_envs']
+    control_steps = summary['total_steps'] // n
+    with Reader(run_dir / 'bag') as reader:
+        counts = {c.topic: c.msgcount for c in reader.connections}
+        assert counts['/joint_states'] == control_steps
+        assert counts['/arm_controller/commands'] == control_steps
+        assert counts['/pg_node/reward'] == control_steps
+        assert counts['/clock'] == control_steps
+        assert counts['/pg_node/episode'] == n * (control_steps // 50)
+        assert counts['/pg_node/metrics/policy_version'] == summary['policy_version']
+        returns = []
+        for conn, _, raw in reader.messages(
+                [c for c in reader.connections if c.topic == '/pg_node/episode']):
+            msg = TYPESTORE.deserialize_cdr(raw, conn.msgtype)
+            values = {kv.key: kv.value for kv in msg.values}
+            assert values['length'] == '50' and values['truncated'] == 'true'
+            returns.append(float(values['return']))
+        js = next(TYPESTORE.deserialize_cdr(raw, c.msgtype) for c, _, raw in reader.messages(
+            [c for c in reader.connections if c.topic == '/joint_states']))
+        assert js.name[:2] == ['arm0/joint0', 'arm0/joint1']
+    assert len(returns) == counts['/pg_node/episode']
+    # the last 100 episode returns in the bag are the learner's last episode_return metric
+    last = float(progress(run_dir)[-1]['episode_return'])
+    assert np.mean(returns[-100:]) == pytest.approx(last, abs=1e-9)
+
+
+def test_learner_refuses_a_batch_of_the_wrong_version(run, tmp_path):
+    """Synchronous A2C is on-policy: a batch not sampled by the current version is refused."""
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from pg_node.node_utils import LATCHED, RELIABLE
+    from std_msgs.msg import Float64MultiArray
+    from diagnostic_msgs.msg import DiagnosticArray
+    proc = subprocess.Popen(
+        [sys.executable, '-m', 'pg_node.learner_node', '--ros-args', '-p',
+         f'run_dir:={tmp_path}', '-p', 'num_envs:=2'],
+        env=env(), cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+        start_new_session=True, text=True)
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=DOMAIN_ID)
+    try:
+        node = rclpy.create_node('refusal_test', context=ctx)
+        ex = SingleThreadedExecutor(context=ctx)
+        ex.add_node(node)
+        weights, diags = [], []
+        node.create_subscription(Float64MultiArray, '/pg_node/policy_weights',
+                                 lambda m: weights.append(messages.unpack_weights(
+                                     *table_msg.from_msg(m))[0]['version']), LATCHED)
+        node.create_subscription(DiagnosticArray, '/diagnostics', diags.append, 10)
+        pub = node.create_publisher(Float64MultiArray, '/pg_node/batch', RELIABLE)
+
+        def spin_until(cond, timeout=30):
+            end = time.monotonic() + timeout
+            while not cond():
+                assert time.monotonic() < end and proc.poll() is None, 'learner not answering'
+                ex.spin_once(timeout_sec=0.05)
+
+        def batch(version):
+            T, N = 3, 2
+            rng = np.random.default_rng(version)
+            b = messages.Batch(
+                obs=rng.normal(size=(T, N, 10)), act=rng.normal(size=(T, N, 2)),
+                logp=np.zeros((T, N)), adv=rng.normal(size=(T, N)), ret=np.zeros((T, N)),
+                rew=np.zeros((T, N)), terminated=np.zeros((T, N), bool),
+                truncated=np.zeros((T, N), bool), ep_step=np.zeros((T, N), int),
+                episode_id=np.zeros((T, N), int), seq=np.zeros((T, N), int),
+                actor=np.zeros((T, N), int))
+            header = {'version': version, 'n_actors': 1, 'batch_seq': 0, 'n_steps': T,
+                      'num_envs': N, 'value_loss': 0.0, 'explained_variance': 0.0}
+            return table_msg.to_msg(*messages.pack_batch(b, header))
+
+        def rejected():
+            for d in reversed(diags):
+                for s in d.status:
+                    if s.name == 'learner_node':
+                        return int({kv.key: kv.value for kv in s.values}['rejected_batches'])
+            return None
+
+        spin_until(lambda: weights == [0] and node.count_publishers('/pg_node/batch') >= 1
+                   and pub.get_subscription_count() >= 1)
+        pub.publish(batch(3))                  # sampled by a version the learner never had
+        spin_until(lambda: rejected() == 1)
+        assert weights == [0]
+        pub.publish(batch(0))                  # the current version: learned from
+        spin_until(lambda: weights[-1] == 1)
+        pub.publish(batch(0))                  # now stale
+        spin_until(lambda: rejected() == 2)
+        assert weights == [0, 1]
+    finally:
+        rclpy.try_shutdown(context=ctx)
+        os.killpg(proc.pid, signal.SIGINT)
+        out = proc.communicate(timeout=20)[0]
+    assert proc.returncode == 0, out
+    assert 'refused a batch of policy version 3' in out
+
+
+def test_resume_and_survive_a_learner_sigkill(run):
+    """Training resumes from the checkpoint; a killed learner is restarted, its bag readable."""
+    run_dir, summary = run
+    first = summary['policy_version']
+    more = STEPS + 200_000
+    cmd = [sys.executable, '-m', 'pg_node', 'train', '--run-dir', str(run_dir), '--no-progress',
+           '--total-steps', str(more)]
+    proc = subprocess.Popen(cmd, env=env(), cwd=REPO, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    try:
+        # wait until the resumed learner has written into its new bag, then SIGKILL it
+        deadline = time.monotonic() + 240
+        while True:
+            assert time.monotonic() < deadline and proc.poll() is None
+            rows = progress(run_dir)
+            if rows and float(rows[-1]['env_steps']) > STEPS + 60_000:
+                break
+            time.sleep(0.2)
+        out = subprocess.run(['pgrep', '-f', f'pg_node.learner_node.*{run_dir}'],
+                             capture_output=True, text=True).stdout.split()
+        assert len(out) == 1, out
+        os.kill(int(out[0]), signal.SIGKILL)
+        text = proc.communicate(timeout=400)[0]
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 0, text[-3000:]
+    assert 'learner_node exited with code -9; restarting' in text
+    after = json.loads((run_dir / 'summary.json').read_text())
+    assert after['total_steps'] >= more and after['restarts']['learner_node'] == 1
+    versions = [int(float(r['policy_version'])) for r in progress(run_dir)]
+    # the resumed run continued from the saved version, not from scratch
+    assert versions[len(versions) - 1] > first and first + 1 in versions
+    assert versions[versions.index(first) + 1] == first + 1
+    # bag: the first run's, the killed learner's (recoverable), the restarted learner's
+    killed, restarted = run_dir / 'bag_1', run_dir / 'bag_2'
+    reindex(killed)
+    for bag in (run_dir / 'bag', killed, restarted):
+        with Reader(bag) as reader:
+            counts = {c.topic: c.msgcount for c in reader.connections}
+            assert counts['/joint_states'] > 0
+            got = sum(1 for _ in reader.messages(
+                [c for c in reader.connections if c.topic == '/joint_states']))
+            assert got == counts['/joint_states']
