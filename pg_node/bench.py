@@ -52,6 +52,10 @@ LEARNER_NAMES = {
     'sb3_ppo_v5': 'SB3 PPO on Reacher-v5',
 }
 THRESHOLDS = (-10.0, -6.0)
+#: overrides that take the sim's MarkerArray and the bag's per-step records off the graph
+LEAN_GRAPH = ('sim_node.marker_rate=0.0', 'learner_node.record_arms=0')
+#: latency rows: (arms, extra sim_node parameters)
+LATENCY_ROWS = ((1, ()), (64, ()), (64, ('-p', 'marker_rate:=0.0')))
 NOT_AVAILABLE = 'not run: training graph not available'
 
 #: budgets: full run, and --quick
@@ -148,11 +152,14 @@ def run_throughput(b: Dict, log) -> Dict:
         lambda: br.a2c_in_process(b['inprocess_steps'])['steps_per_second'],
         f'{b["inprocess_steps"]:,} steps')
     if br.graph_available():
-        def graph():
+        def graph(overrides=()):
             with tempfile.TemporaryDirectory() as tmp:
-                return br.run_graph(Path(tmp) / 'run', b['graph_steps'], 0)['steps_per_second']
+                return br.run_graph(Path(tmp) / 'run', b['graph_steps'], 0,
+                                    overrides)['steps_per_second']
         add('graph', 'pg_node A2C training, whole ROS graph (64 arms)', graph,
             f'{b["graph_steps"]:,} steps, summary.json steps_per_second')
+        add('graph_lean', 'the same, sim markers and per-step bag recording off',
+            lambda: graph(LEAN_GRAPH), f'overrides: {" ".join(LEAN_GRAPH)}')
     else:
         rows.append({'key': 'graph', 'name': 'pg_node A2C training, whole ROS graph',
                      'steps_per_second': None, 'note': NOT_AVAILABLE})
@@ -166,14 +173,17 @@ def run_latency(b: Dict, log) -> Dict:
     """Measure lock-step round trips for 1 and 64 arms."""
     from pg_node import bench_runs as br
     out = {'rows': [], 'samples_ms': {}}
-    for n in (1, 64):
-        log(f'latency: {n} arms, {b["latency_steps"]:,} steps')
+    for n, extra in LATENCY_ROWS:
+        label = f'{n} arm{"s" if n > 1 else ""}' + (', markers off' if extra else '')
+        log(f'latency: {label}, {b["latency_steps"]:,} steps')
         try:
-            res = br.lock_step_latency(n, b['latency_steps'])
-            out['samples_ms'][str(n)] = res.pop('samples_ms').tolist()
+            res = br.lock_step_latency(n, b['latency_steps'], ros_args=extra)
+            out['samples_ms'][label] = res.pop('samples_ms').tolist()
+            res['label'] = label
             out['rows'].append(res)
         except Exception as exc:  # noqa: B902 - reported in the table
-            out['rows'].append({'num_envs': n, 'error': str(exc).splitlines()[0]})
+            out['rows'].append({'num_envs': n, 'label': label,
+                                'error': str(exc).splitlines()[0]})
             log(traceback.format_exc())
     return out
 
@@ -184,12 +194,13 @@ def run_learning(b: Dict, learners: List[str], out_dir: Path, log) -> Dict:
     steps, seeds = b['learning_steps'], list(range(b['seeds']))
     points = sorted({steps // 4, steps // 2, steps})
     runs = {}
-    for key in learners:
+    for spec in learners:
+        key, _, n_seeds = spec.partition(':')
         runs[key] = []
         if key == 'pg_node_graph' and not br.graph_available():
             runs[key] = NOT_AVAILABLE
             continue
-        for seed in seeds:
+        for seed in (range(int(n_seeds)) if n_seeds else seeds):
             log(f'learning: {LEARNER_NAMES[key]}, seed {seed}, {steps:,} steps')
             try:
                 if key == 'pg_node_graph':
@@ -282,12 +293,10 @@ def targets(results: Dict) -> List[Dict]:
         rows.append(('graph >= 2x SB3 A2C env steps/s', 'not measured'
                      + (f' ({NOT_AVAILABLE})' if 'throughput' in results and not g else ''),
                      None))
-    lat = {r['num_envs']: r for r in results.get('latency', {}).get('rows', [])
-           if 'p99_ms' in r}
-    for n in (64, 1):
-        if n in lat:
-            rows.append((f'lock-step p99 < 2 ms ({n} arm{"s" if n > 1 else ""})',
-                         f'{lat[n]["p99_ms"]:.2f} ms', lat[n]['p99_ms'] < 2.0))
+    lat = [r for r in results.get('latency', {}).get('rows', []) if 'p99_ms' in r]
+    for r in lat:
+        rows.append((f'lock-step p99 < 2 ms ({r.get("label", r["num_envs"])})',
+                     f'{r["p99_ms"]:.2f} ms', r['p99_ms'] < 2.0))
     if not lat:
         rows.append(('lock-step p99 < 2 ms', 'not measured', None))
     learn = results.get('learning')
@@ -372,9 +381,10 @@ def render_markdown(results: Dict, command: str, plots: Dict[str, str]) -> str:
                 'arrival of the command that answers it (one process, one clock: '
                 '`pg_node/latency_probe.py`), with a client that answers at once. First 200 '
                 f'steps are warm-up. Load average {lat["load"]}.', '',
-                _table(['arms', 'round trips', 'median ms', 'p99 ms', 'max ms', 'mean ms',
+                _table(['sim_node', 'round trips', 'median ms', 'p99 ms', 'max ms', 'mean ms',
                         'env steps/s'], [
-                    [r['num_envs'], _fmt(r.get('round_trips')), _fmt(r.get('median_ms'), '.3f'),
+                    [r.get('label', r['num_envs']), _fmt(r.get('round_trips')),
+                     _fmt(r.get('median_ms'), '.3f'),
                      _fmt(r.get('p99_ms'), '.3f'), _fmt(r.get('max_ms'), '.2f'),
                      _fmt(r.get('mean_ms'), '.3f'),
                      _fmt(r.get('steps_per_second')) if 'error' not in r else r['error']]
@@ -386,7 +396,8 @@ def render_markdown(results: Dict, command: str, plots: Dict[str, str]) -> str:
         summ = learning_summary(learn)
         pts = learn['points']
         out += ['## 3. Learning', '',
-                f'{learn["steps"]:,} environment steps per run, seeds {learn["seeds"]}; '
+                f'{learn["steps"]:,} environment steps per run, seeds 0, 1, ... (how many per '
+                'learner: last column); '
                 f'load average {learn["load"]}. Evaluation: the deterministic policy (mean '
                 f'action) over {learn["eval_episodes"]} episodes, mean and std over seeds of '
                 'the per-seed mean. The training graph reports only its final evaluation, so '
@@ -490,7 +501,7 @@ def make_plots(results: Dict, plot_dir: Path) -> Dict[str, str]:
             ms = np.asarray(ms)
             ax.hist(ms, bins=np.logspace(np.log10(max(ms.min(), 1e-3)),
                                          np.log10(ms.max() + 1e-3), 60),
-                    histtype='step', label=f'{n} arm(s)')
+                    histtype='step', label=n)
         ax.axvline(2.0, color='k', ls='--', lw=0.8, label='2 ms target (p99)')
         ax.set_xscale('log')
         ax.set_yscale('log')
@@ -564,7 +575,8 @@ def parse_args(argv):
                         '(default: 1,000,000; quick: 4,096)')
     parser.add_argument('--seeds', type=int, help='seeds per learner (default: 3; quick: 1)')
     parser.add_argument('--learners', default=','.join(LEARNERS),
-                        help=f'comma-separated learners of {", ".join(LEARNERS)}')
+                        help=f'comma-separated learners of {", ".join(LEARNERS)}; '
+                             'learner:N runs that one with N seeds instead of --seeds')
     parser.add_argument('--seconds', type=float,
                         help='seconds per in-process / sim_node throughput row (default: 3)')
     parser.add_argument('--latency-steps', type=int,
@@ -579,7 +591,8 @@ def parse_args(argv):
         parser.error(f'--only takes {", ".join(SECTIONS)}; got {args.only!r}')
     args.only = only
     args.learners = [s.strip() for s in args.learners.split(',') if s.strip()]
-    bad = [s for s in args.learners if s not in LEARNERS]
+    bad = [s for s in args.learners if s.partition(':')[0] not in LEARNERS
+           or not (s.partition(':')[2] or '1').isdigit()]
     if bad or not args.learners:
         parser.error(f'--learners takes {", ".join(LEARNERS)}; got {", ".join(bad)}')
     b = {k: v[1 if args.quick else 0] for k, v in BUDGETS.items()}

@@ -152,7 +152,7 @@ def run_graph(run_dir: Path, steps: int, seed: int, overrides: Sequence[str] = (
     run_dir = Path(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
     cmd = [sys.executable, '-m', 'pg_node', 'train', '--run-dir', str(run_dir),
-           '--total-steps', str(steps), '--seed', str(seed), *overrides]
+           '--total-steps', str(steps), '--seed', str(seed), '--no-progress', *overrides]
     with open(run_dir / 'bench_train.log', 'w') as out:
         proc = subprocess.Popen(cmd, cwd=REPO, env=child_env(domain_id()), stdout=out,
                                 stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
@@ -174,13 +174,15 @@ def run_graph(run_dir: Path, steps: int, seed: int, overrides: Sequence[str] = (
 
 # --- latency -------------------------------------------------------------------------------
 
-def lock_step_latency(n: int, steps: int, warmup: int = 200, timeout: float = 600.0) -> Dict:
+def lock_step_latency(n: int, steps: int, warmup: int = 200, timeout: float = 600.0,
+                      ros_args: Sequence[str] = ()) -> Dict:
     """
     Drive :mod:`pg_node.latency_probe` for ``warmup + steps`` lock-step steps; return stats.
 
     The client answers every new transition with a pre-built command at once, so what is
     measured is the graph's round trip, not a policy. Returns median/p99/max/mean in ms, the
-    number of round trips and the client-side steps/s.
+    number of round trips and the client-side steps/s. ``ros_args`` are added to the
+    probe's ``--ros-args`` (e.g. ``-p marker_rate:=0.0``).
     """
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
@@ -191,7 +193,7 @@ def lock_step_latency(n: int, steps: int, warmup: int = 200, timeout: float = 60
         out = Path(tmp) / 'round_trips.npy'
         proc = subprocess.Popen(
             [sys.executable, '-m', 'pg_node.latency_probe', str(out), '--ros-args',
-             '-p', f'num_envs:={n}'],
+             '-p', f'num_envs:={n}', *ros_args],
             cwd=REPO, env=child_env(domain), stdout=subprocess.DEVNULL,
             stderr=subprocess.DEVNULL, start_new_session=True)
         context = rclpy.Context()
@@ -226,7 +228,8 @@ def lock_step_latency(n: int, steps: int, warmup: int = 200, timeout: float = 60
             start = time.perf_counter()
             first = state['count']
             deadline = time.monotonic() + timeout
-            while state['count'] - first < warmup + steps:
+            # one more: the last command may still be on its way when the probe is stopped
+            while state['count'] - first < warmup + steps + 1:
                 if time.monotonic() > deadline:
                     raise RuntimeError('latency run timed out')
                 executor.spin_once(timeout_sec=0.5)
@@ -240,7 +243,7 @@ def lock_step_latency(n: int, steps: int, warmup: int = 200, timeout: float = 60
         if not out.is_file():
             raise RuntimeError('latency probe wrote no round trips')
         trips = np.load(out)
-    ms = trips[warmup:].astype(np.float64) / 1e6
+    ms = trips[warmup:warmup + steps].astype(np.float64) / 1e6
     if ms.size == 0:
         raise RuntimeError('no round trips measured')
     return {'num_envs': n, 'round_trips': int(ms.size), 'median_ms': float(np.median(ms)),

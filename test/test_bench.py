@@ -1,0 +1,115 @@
+"""
+``python -m pg_node bench`` end to end on a tiny budget, and its report logic on fixed numbers.
+
+Benchmarks are scripts: nothing here asserts a speed, only that every section runs, writes
+its table with the expected rows, and that the numbers in it are finite.
+"""
+import json
+import math
+import os
+from pathlib import Path
+import re
+import subprocess
+import sys
+
+from pg_node import bench
+from pg_node.bench_runs import graph_available
+import pytest
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def fake_results():
+    curve = [{'env_steps': s, 'wall_seconds': s / 1000, 'episode_return': -40 + s / 100}
+             for s in range(512, 4097, 512)]
+    run = {'evals': {1024: -11.0, 2048: -9.0, 4096: -5.5}, 'curve': curve,
+           'wall_seconds': 4.1, 'total_steps': 4096, 'steps_per_second': 1000.0}
+    return {
+        'date': '2026-01-01 00:00', 'quick': True, 'elapsed_seconds': 60.0,
+        'machine': bench.machine_facts(), 'load_start': '1', 'load_end': '1', 'errors': [],
+        'throughput': {'load': '1', 'rows': [
+            {'key': 'mujoco', 'name': 'raw', 'steps_per_second': 40000.0, 'note': ''},
+            {'key': 'graph', 'name': 'graph', 'steps_per_second': 9000.0, 'note': ''},
+            {'key': 'sb3_a2c', 'name': 'sb3', 'steps_per_second': 4000.0, 'note': ''}]},
+        'latency': {'load': '1', 'samples_ms': {}, 'rows': [
+            {'num_envs': 64, 'label': '64 arms', 'round_trips': 10, 'median_ms': 0.5,
+             'p99_ms': 3.0,
+             'max_ms': 4.0, 'mean_ms': 0.6, 'steps_per_second': 100.0}]},
+        'learning': {'load': '1', 'steps': 4096, 'seeds': [0], 'points': [1024, 2048, 4096],
+                     'eval_episodes': 10,
+                     'runs': {'pg_node_graph': [dict(run, seed=0)],
+                              'sb3_a2c': [dict(run, seed=0, evals={4096: -6.0})]}},
+    }
+
+
+def test_targets_from_fixed_numbers():
+    rows = {t['target']: t for t in bench.targets(fake_results())}
+    assert rows['graph >= 2x SB3 A2C env steps/s']['met'] is True
+    assert rows['lock-step p99 < 2 ms (64 arms)']['met'] is False
+    ret = [t for name, t in rows.items() if name.startswith('pg_node eval return')]
+    assert ret[0]['met'] is True and '-5.50 vs -6.00' in ret[0]['value']
+    # both curves are the same: time to -6 ties, which meets "no longer than"
+    assert rows['pg_node time to -6 <= that of SB3 A2C']['met'] is True
+
+
+def test_time_to_threshold_and_value_at():
+    from pg_node.bench_runs import first_time_at, value_at
+    curve = fake_results()['learning']['runs']['pg_node_graph'][0]['curve']
+    assert first_time_at(curve, -10.0) == pytest.approx(3.072)
+    assert first_time_at(curve, 100.0) is None
+    assert value_at(curve, 2100) == pytest.approx(-40 + 2048 / 100)
+
+
+def test_markdown_marks_missing_graph():
+    res = fake_results()
+    res['learning']['runs']['pg_node_graph'] = bench.NOT_AVAILABLE
+    text = bench.render_markdown(res, 'python -m pg_node bench --quick', {})
+    assert bench.NOT_AVAILABLE in text
+    assert '| SB3 A2C |' in text
+
+
+def test_rejects_unknown_section():
+    res = subprocess.run([sys.executable, '-m', 'pg_node', 'bench', '--only', 'nope'],
+                         capture_output=True, text=True, cwd=REPO)
+    assert res.returncode == 2 and '--only takes' in res.stderr
+
+
+def numbers(line):
+    return [float(x.replace(',', '')) for x in re.findall(r'-?[\d,]*\.?\d+(?:e[+-]?\d+)?',
+                                                          line)]
+
+
+@pytest.mark.slow
+@pytest.mark.e2e
+def test_quick_bench_writes_every_table(tmp_path):
+    env = dict(os.environ, PYTHONPATH=str(REPO))
+    cmd = [sys.executable, '-m', 'pg_node', 'bench', '--quick', '--out', str(tmp_path),
+           '--seconds', '0.2', '--latency-steps', '100', '--graph-steps', '2048',
+           '--learning-steps', '2048', '--learners', 'pg_node_graph,pg_node_inprocess,sb3_a2c']
+    res = subprocess.run(cmd, capture_output=True, text=True, cwd=REPO, env=env, timeout=900)
+    assert res.returncode == 0, res.stderr[-3000:]
+    text = (tmp_path / 'BENCHMARKS.md').read_text()
+    data = json.loads((tmp_path / 'bench_results.json').read_text())
+    for heading in ('## Machine', '## Targets', '## 1. Throughput ladder',
+                    '## 2. Lock-step latency', '## 3. Learning',
+                    '## 4. Estimator variance on the arm'):
+        assert heading in text
+    assert 'python -m pg_node bench --quick' in text
+    graph = graph_available()
+    for key in ('mujoco', 'task1', 'task16', 'task64', 'sim_node1', 'sim_node64', 'inprocess',
+                'sb3_a2c') + (('graph',) if graph else ()):
+        row = [r for r in data['throughput']['rows'] if r['key'] == key]
+        assert row and row[0]['steps_per_second'] > 0, (key, row)
+        assert f'| {row[0]["name"]} | ' in text
+    if not graph:
+        assert bench.NOT_AVAILABLE in text
+    for row in data['latency']['rows']:
+        assert row['round_trips'] >= 100
+        assert all(math.isfinite(row[k]) for k in ('median_ms', 'p99_ms', 'max_ms'))
+    sb3 = [line for line in text.splitlines() if line.startswith('| SB3 A2C |')]
+    assert len(sb3) == 2 and all(math.isfinite(x) for x in numbers(sb3[0]))
+    var = data['variance']['rows']
+    assert [r['estimator'] for r in var][0] == 'total_return' and len(var) == 11
+    assert all(math.isfinite(r['variance']) and r['variance'] > 0 for r in var)
+    for name in ('throughput', 'latency', 'learning', 'variance'):
+        assert (tmp_path / 'bench_plots' / f'{name}.png').stat().st_size > 1000
