@@ -1,0 +1,128 @@
+"""
+plot and render from the sample bag: images of the expected size that are not blank.
+
+``render`` runs as its own process: it selects MuJoCo's OSMesa backend before importing
+MuJoCo, which must not happen in a process that also loads torch's triton (both bring an
+LLVM; the process crashes).
+"""
+import json
+import os
+from pathlib import Path
+import shutil
+import subprocess
+import sys
+
+import numpy as np
+from pg_node.bag_reader import BagReader
+from pg_node.bag_writer import BagWriter
+from pg_node.episode_recorder import parse_episode
+from pg_node.plot import main as plot_main, RunData
+from pg_node.render import recorded_episodes
+from PIL import Image
+import pytest
+from std_msgs.msg import String
+
+REPO = Path(__file__).resolve().parent.parent
+SAMPLE = REPO / 'bags' / 'sample'
+
+
+def not_blank(image: np.ndarray):
+    """Assert an image is not uniform: many distinct colours, spread pixel values."""
+    flat = image.reshape(-1, image.shape[-1])
+    assert flat.std(axis=0).max() > 10.0
+    assert len(np.unique(flat, axis=0)) > 20
+
+
+def test_plot_sample_bag(tmp_path):
+    out = tmp_path / 'curve.png'
+    assert plot_main([str(SAMPLE), '-o', str(out)]) == 0
+    image = np.asarray(Image.open(out).convert('RGB'))
+    assert image.shape == (800, 1500, 3)
+    not_blank(image)
+
+
+def test_plot_run_dir_with_summary_and_custom_size(tmp_path):
+    run = tmp_path / 'run'
+    shutil.copytree(SAMPLE, run / 'bag')
+    (run / 'summary.json').write_text(json.dumps({'eval_return': -6.5, 'total_steps': 1}))
+    out = tmp_path / 'sub' / 'run.png'
+    assert plot_main([str(run), '-o', str(out), '--width', '900', '--height', '600']) == 0
+    assert Image.open(out).size == (900, 600)
+    not_blank(np.asarray(Image.open(out).convert('RGB')))
+    data = RunData(run)
+    assert data.summary['eval_return'] == -6.5
+    steps, minutes, returns, label = data.returns()
+    assert label.startswith('episode_return')
+    assert steps[-1] == 600064 and np.all(np.diff(steps) > 0)
+    assert returns[-1] > returns[0] + 10  # the sample run learned
+
+
+def test_plot_from_episode_summaries_only(tmp_path):
+    bag = tmp_path / 'episodes'
+    with BagWriter(bag) as writer:
+        for m in BagReader(SAMPLE, warn=False).messages(topics=['/pg_node/episode'],
+                                                        deserialize=True):
+            writer.write(m.topic, m.msg, m.log_time_ns)
+    data = RunData(bag)
+    steps, _, returns, label = data.returns()
+    assert label.startswith('episode return') and len(returns) == 12
+    assert steps[-1] == 12 * 50
+    out = tmp_path / 'eps.png'
+    assert plot_main([str(bag), '-o', str(out)]) == 0
+    not_blank(np.asarray(Image.open(out).convert('RGB')))
+
+
+def test_plot_refuses_a_bag_without_metrics(tmp_path):
+    with BagWriter(tmp_path / 'chat') as writer:
+        writer.write('/chatter', String(data='hi'), 1)
+    assert plot_main([str(tmp_path / 'chat'), '-o', str(tmp_path / 'x.png')]) == 1
+    assert not (tmp_path / 'x.png').exists()
+
+
+def test_recorded_episodes_match_the_episode_summaries():
+    episodes = recorded_episodes(SAMPLE)
+    assert len(episodes) == 12 and all(len(ep.stamps) == 50 for ep in episodes)
+    summaries = [parse_episode(m.msg) for m in BagReader(SAMPLE, warn=False).messages(
+        topics=['/pg_node/episode'], deserialize=True)]
+    by_arm = {}
+    for s in summaries:
+        by_arm.setdefault(int(s['arm']), []).append(s['return'])
+    for arm, returns in by_arm.items():
+        mine = [ep.ret for ep in episodes if ep.arm == arm]
+        np.testing.assert_allclose(mine, returns, rtol=0, atol=1e-9)
+
+
+def run_render(tmp_path, *args):
+    env = dict(os.environ, PYTHONPATH=str(REPO))
+    env.pop('MUJOCO_GL', None)
+    return subprocess.run([sys.executable, '-m', 'pg_node', 'render', *map(str, args)],
+                          env=env, cwd=REPO, capture_output=True, text=True, timeout=120)
+
+
+@pytest.mark.e2e
+def test_render_sample_episode(tmp_path):
+    out = tmp_path / 'ep.gif'
+    done = run_render(tmp_path, SAMPLE, '--episode', 1, '-o', out, '--width', 320,
+                      '--height', 240)
+    assert done.returncode == 0, done.stderr
+    gif = Image.open(out)
+    assert gif.size == (320, 240) and gif.n_frames == 50
+    frames = []
+    for k in (0, 25, 49):
+        gif.seek(k)
+        frames.append(np.asarray(gif.convert('RGB')).astype(int))
+    for f in frames:
+        not_blank(f)
+        # the caption strip at the bottom is black with white text
+        strip = f[-40:]
+        assert (strip.sum(axis=2) == 0).mean() > 0.8 and strip.max() > 200
+        # the target: red pixels (the arena's walls are pink, the arm blue-green)
+        red = (f[..., 0] > 80) & (f[..., 0] > 2 * f[..., 1]) & (f[..., 0] > 2 * f[..., 2])
+        assert red.sum() > 30
+    assert np.abs(frames[0] - frames[2])[:-40].sum() > 0  # the arm moved
+
+
+@pytest.mark.e2e
+def test_render_rejects_missing_episode(tmp_path):
+    done = run_render(tmp_path, SAMPLE, '--episode', 99, '-o', tmp_path / 'x.gif')
+    assert done.returncode == 1 and 'out of range' in done.stderr
