@@ -40,7 +40,7 @@ from typing import Dict, List
 
 import numpy as np
 
-SECTIONS = ('throughput', 'latency', 'learning', 'variance')
+SECTIONS = ('throughput', 'latency', 'variance', 'learning')
 LEARNERS = ('pg_node_graph', 'pg_node_inprocess', 'sb3_a2c', 'sb3_ppo', 'sb3_a2c_v5',
             'sb3_ppo_v5')
 LEARNER_NAMES = {
@@ -188,8 +188,12 @@ def run_latency(b: Dict, log) -> Dict:
     return out
 
 
-def run_learning(b: Dict, learners: List[str], out_dir: Path, log) -> Dict:
-    """Train every learner over the seeds; evaluations at fixed points and curves."""
+def run_learning(b: Dict, learners: List[str], log, progress=None) -> Dict:
+    """
+    Train every learner over the seeds; evaluations at fixed points and curves.
+
+    ``progress(partial)`` is called after every run with the results so far.
+    """
     from pg_node import bench_runs as br
     steps, seeds = b['learning_steps'], list(range(b['seeds']))
     points = sorted({steps // 4, steps // 2, steps})
@@ -204,8 +208,8 @@ def run_learning(b: Dict, learners: List[str], out_dir: Path, log) -> Dict:
             log(f'learning: {LEARNER_NAMES[key]}, seed {seed}, {steps:,} steps')
             try:
                 if key == 'pg_node_graph':
-                    res = br.graph_learning(out_dir / 'bench_runs' / f'graph_seed{seed}',
-                                            steps, seed, points)
+                    with tempfile.TemporaryDirectory() as tmp:  # bag and checkpoints: gone
+                        res = br.graph_learning(Path(tmp) / 'run', steps, seed, points)
                 elif key == 'pg_node_inprocess':
                     res = br.inprocess_learning(steps, seed, points, b['eval_episodes'])
                 else:
@@ -218,6 +222,10 @@ def run_learning(b: Dict, learners: List[str], out_dir: Path, log) -> Dict:
                 res = {'error': str(exc).splitlines()[0]}
             res['seed'] = seed
             runs[key].append(res)
+            if progress is not None:
+                progress({'steps': steps, 'seeds': seeds, 'points': points, 'runs': runs,
+                          'eval_episodes': b['eval_episodes'], 'load': load_average(),
+                          'partial': True})
     return {'steps': steps, 'seeds': seeds, 'points': points, 'runs': runs,
             'eval_episodes': b['eval_episodes']}
 
@@ -344,7 +352,10 @@ def render_markdown(results: Dict, command: str, plots: Dict[str, str]) -> str:
     m = results['machine']
     out = ['# pg_node benchmarks', '',
            'Produced by one invocation of', '', '```', command, '```', '',
-           f'on {results["date"]} (UTC), {results["elapsed_seconds"] / 60:.1f} min. '
+           ('' if results.get('complete') else
+            '**Incomplete: written while the run was still going; sections or learning runs '
+            'missing below had not finished.**\n\n')
+           + f'on {results["date"]} (UTC), {results["elapsed_seconds"] / 60:.1f} min. '
            + ('**Quick smoke run: budgets far too small to measure anything.**'
               if results['quick'] else ''), '',
            '## Machine', '',
@@ -628,10 +639,23 @@ def main(argv=None) -> int:
     def save():
         json_path.write_text(json.dumps(results, indent=1, default=str))
 
+    def write_report():
+        results['load_end'] = load_average()
+        results['elapsed_seconds'] = time.perf_counter() - start
+        plots = make_plots(results, out_dir / 'bench_plots')
+        (out_dir / 'BENCHMARKS.md').write_text(render_markdown(results, command, plots))
+        save()
+        return plots
+
+    def learning_progress(partial):
+        # an interrupted run still leaves a report of the runs that finished
+        results['learning'] = partial
+        write_report()
+
     runners = {
         'throughput': lambda: run_throughput(budgets, log),
         'latency': lambda: run_latency(budgets, log),
-        'learning': lambda: run_learning(budgets, args.learners, out_dir, log),
+        'learning': lambda: run_learning(budgets, args.learners, log, learning_progress),
         'variance': lambda: run_variance(budgets, log),
     }
     for section in SECTIONS:
@@ -644,12 +668,9 @@ def main(argv=None) -> int:
         except Exception as exc:  # noqa: B902 - the report says which section failed
             log(traceback.format_exc())
             results['errors'].append(f'{section}: {exc}'.splitlines()[0])
-        save()
-    results['load_end'] = load_average()
-    results['elapsed_seconds'] = time.perf_counter() - start
-    plots = make_plots(results, out_dir / 'bench_plots')
+        write_report()
+    results['complete'] = True
+    plots = write_report()
     report = out_dir / 'BENCHMARKS.md'
-    report.write_text(render_markdown(results, command, plots))
-    save()
     log(f'wrote {report}, {json_path} and {len(plots)} plot(s) in {out_dir / "bench_plots"}')
     return 1 if results['errors'] else 0
