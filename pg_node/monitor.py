@@ -1,0 +1,226 @@
+"""
+``python -m pg_node monitor``: a live terminal view of a running training (rich).
+
+It subscribes to every ``/pg_node/metrics/<name>`` topic (``std_msgs/Float64``, looked for on
+the graph every half second, so metrics that appear later are picked up), to
+``/pg_node/episode`` (the per-episode summaries) and to ``/diagnostics``, and shows:
+
+* **training**: each metric's latest value, a sparkline of its recent values and how long
+  ago it came (the usual ones first: ``episode_return``, losses, entropy, steps per second,
+  policy version, environment steps);
+* **episodes**: how many summaries arrived, the mean return of the recent ones with its
+  sparkline, how many were cut short;
+* **nodes**: each diagnostic status (name, level, message, age); a status not refreshed for
+  ``--stale`` seconds is shown as STALE.
+
+``--duration S`` quits after S seconds; ``--once`` listens for ``--duration`` seconds
+(default 3) and prints the view once, without the live screen, for scripts and tests.
+Works as well on a bag replayed with ``python -m pg_node replay``.
+"""
+import argparse
+from collections import deque
+import math
+import sys
+import threading
+import time
+from typing import Deque, Dict, Tuple
+
+METRICS_PREFIX = '/pg_node/metrics/'
+EPISODE_TOPIC = '/pg_node/episode'
+ORDER = ('episode_return', 'episode_length', 'eval_return', 'policy_loss', 'value_loss',
+         'entropy', 'explained_variance', 'approx_kl', 'grad_norm', 'steps_per_second',
+         'policy_version', 'env_steps')
+BARS = '▁▂▃▄▅▆▇█'
+LEVELS = {0: ('OK', 'green'), 1: ('WARN', 'yellow'), 2: ('ERROR', 'red'), 3: ('STALE', 'dim')}
+
+
+def sparkline(values, width: int = 32) -> str:
+    """
+    Return the last ``width`` finite values as a line of block characters.
+
+    >>> sparkline([0, 1, 2, 3, 4, 5, 6, 7])
+    '▁▂▃▄▅▆▇█'
+    >>> sparkline([3, 3, 3])
+    '▄▄▄'
+    """
+    vals = [v for v in list(values)[-width:] if v is not None and math.isfinite(v)]
+    if not vals:
+        return ''
+    lo, hi = min(vals), max(vals)
+    if hi - lo < 1e-12:
+        return BARS[len(BARS) // 2 - 1] * len(vals)
+    scale = (len(BARS) - 1) / (hi - lo)
+    return ''.join(BARS[int(round((v - lo) * scale))] for v in vals)
+
+
+def _fmt(v: float) -> str:
+    if not math.isfinite(v):
+        return str(v)
+    if v == int(v) and abs(v) < 1e12:
+        return f'{int(v):d}'
+    return f'{v:.4g}'
+
+
+class MonitorState:
+    """What the monitor has heard, and its rendering; no ROS here."""
+
+    def __init__(self, history: int = 64, stale: float = 5.0):
+        """Keep ``history`` values per metric; diagnostics older than ``stale`` s are STALE."""
+        self.history = history
+        self.stale = stale
+        self.metrics: Dict[str, Deque[Tuple[float, float]]] = {}
+        self.episode_returns: Deque[float] = deque(maxlen=history)
+        self.episodes = 0
+        self.cut_short = 0
+        self.statuses: Dict[str, tuple] = {}
+        self.lock = threading.Lock()
+        self.started = time.monotonic()
+
+    def on_metric(self, name: str, value: float, now: float = None):
+        """Record one metric value."""
+        with self.lock:
+            self.metrics.setdefault(name, deque(maxlen=self.history)).append(
+                (now if now is not None else time.monotonic(), float(value)))
+
+    def on_episode(self, status, now: float = None):
+        """Record one ``/pg_node/episode`` summary (a DiagnosticStatus)."""
+        values = {kv.key: kv.value for kv in status.values}
+        with self.lock:
+            self.episodes += 1
+            if values.get('cut_short') == 'true':
+                self.cut_short += 1
+                return
+            try:
+                self.episode_returns.append(float(values['return']))
+            except (KeyError, ValueError):
+                pass
+
+    def on_diagnostics(self, array, now: float = None):
+        """Record the statuses of a ``/diagnostics`` DiagnosticArray."""
+        now = now if now is not None else time.monotonic()
+        with self.lock:
+            for s in array.status:
+                level = s.level[0] if isinstance(s.level, bytes) else int(s.level)
+                self.statuses[s.name] = (level, s.message, s.hardware_id, now)
+
+    def render(self, now: float = None):
+        """Return the view as a rich renderable."""
+        from rich.console import Group
+        from rich.table import Table
+        now = now if now is not None else time.monotonic()
+        with self.lock:
+            metrics = {k: list(v) for k, v in self.metrics.items()}
+            returns = list(self.episode_returns)
+            episodes, cut = self.episodes, self.cut_short
+            statuses = dict(self.statuses)
+        train = Table(title='training', title_justify='left', expand=False)
+        for col, justify in (('metric', 'left'), ('value', 'right'), ('recent', 'left'),
+                             ('age (s)', 'right')):
+            train.add_column(col, justify=justify)
+        names = [n for n in ORDER if n in metrics] + sorted(set(metrics) - set(ORDER))
+        for name in names:
+            series = metrics[name]
+            train.add_row(name, _fmt(series[-1][1]), sparkline([v for _, v in series]),
+                          f'{now - series[-1][0]:.1f}')
+        if not names:
+            train.add_row('(no /pg_node/metrics/* heard yet)', '', '', '')
+        eps = Table(title='episodes', title_justify='left')
+        for col in ('summaries', 'mean return (recent)', 'recent returns', 'cut short'):
+            eps.add_column(col)
+        mean = f'{sum(returns) / len(returns):.3f}' if returns else '-'
+        eps.add_row(str(episodes), mean, sparkline(returns), str(cut))
+        nodes = Table(title='nodes (/diagnostics)', title_justify='left')
+        for col in ('name', 'level', 'message', 'age (s)'):
+            nodes.add_column(col)
+        for name, (level, message, hw, t) in sorted(statuses.items()):
+            if now - t > self.stale:
+                level = 3
+            text, style = LEVELS.get(level, (str(level), ''))
+            nodes.add_row(name, f'[{style}]{text}[/]', message, f'{now - t:.1f}')
+        if not statuses:
+            nodes.add_row('(no /diagnostics heard yet)', '', '', '')
+        return Group(train, eps, nodes)
+
+
+class MonitorNode:
+    """The ROS side: subscriptions feeding a :class:`MonitorState`."""
+
+    def __init__(self, state: MonitorState, context=None):
+        """Create the node and the fixed subscriptions; metric topics are found later."""
+        import rclpy
+        from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+        from rclpy.qos import QoSProfile, ReliabilityPolicy
+        self.state = state
+        self.node = rclpy.create_node('pg_node_monitor', context=context,
+                                      start_parameter_services=False)
+        self.qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT)
+        self.node.create_subscription(DiagnosticArray, '/diagnostics',
+                                      state.on_diagnostics, self.qos)
+        self.node.create_subscription(DiagnosticStatus, EPISODE_TOPIC, state.on_episode,
+                                      self.qos)
+        self.subscribed = set()
+        self.discover()
+        self.node.create_timer(0.5, self.discover)
+
+    def discover(self):
+        """Subscribe to metric topics that appeared on the graph."""
+        from std_msgs.msg import Float64
+        for name, types in self.node.get_topic_names_and_types():
+            if (name.startswith(METRICS_PREFIX) and name not in self.subscribed
+                    and 'std_msgs/msg/Float64' in types):
+                metric = name[len(METRICS_PREFIX):]
+                self.node.create_subscription(
+                    Float64, name, lambda msg, m=metric: self.state.on_metric(m, msg.data),
+                    self.qos)
+                self.subscribed.add(name)
+
+
+def main(argv=None) -> int:
+    """Show the live view (or print it once); return the exit status."""
+    parser = argparse.ArgumentParser(prog='python -m pg_node monitor',
+                                     description='Live terminal view of a running training.')
+    parser.add_argument('--duration', type=float,
+                        help='quit after this many seconds (with --once: listen this long)')
+    parser.add_argument('--once', action='store_true',
+                        help='listen, print the view once and exit (no live screen)')
+    parser.add_argument('--stale', type=float, default=5.0,
+                        help='seconds after which a diagnostic status is STALE')
+    parser.add_argument('--refresh', type=float, default=4.0, help='screen updates per second')
+    args = parser.parse_args(argv)
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from rich.console import Console
+    from rich.live import Live
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    state = MonitorState(stale=args.stale)
+    mon = MonitorNode(state, context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(mon.node)
+    duration = args.duration if args.duration is not None else (3.0 if args.once else None)
+    end = None if duration is None else time.monotonic() + duration
+    console = Console()
+    try:
+        if args.once:
+            while time.monotonic() < end:
+                executor.spin_once(timeout_sec=0.05)
+            console.print(state.render())
+        else:
+            with Live(state.render(), console=console, refresh_per_second=args.refresh,
+                      screen=False) as live:
+                next_draw = 0.0
+                while end is None or time.monotonic() < end:
+                    executor.spin_once(timeout_sec=0.05)
+                    if time.monotonic() >= next_draw:
+                        live.update(state.render())
+                        next_draw = time.monotonic() + 1.0 / max(args.refresh, 0.1)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        mon.node.destroy_node()
+        rclpy.try_shutdown(context=context)
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,164 @@
+"""
+monitor and topics: the view's content from known messages, headless runs over DDS.
+
+The e2e tests publish metrics, episode summaries and diagnostics from the test process at
+known rates, and run ``python -m pg_node monitor --once`` and ``python -m pg_node topics
+--json`` as processes in the same (test-only) DDS domain.
+"""
+import json
+import os
+from pathlib import Path
+import subprocess
+import sys
+import threading
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from pg_node.monitor import MonitorState, sparkline
+import pytest
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rich.console import Console
+from std_msgs.msg import Float64
+
+REPO = Path(__file__).resolve().parent.parent
+DOMAIN_ID = 110 + os.getpid() % 100
+
+
+def text_of(renderable) -> str:
+    console = Console(record=True, width=160, file=open(os.devnull, 'w'))
+    console.print(renderable)
+    return console.export_text()
+
+
+def cells(line):
+    """Return the stripped cells of a rich table row."""
+    return [c.strip() for c in line.split('│')[1:-1]]
+
+
+def episode(ret, cut_short=False):
+    status = DiagnosticStatus(name='episode')
+    status.values = [KeyValue(key='return', value=repr(ret)),
+                     KeyValue(key='cut_short', value='true' if cut_short else 'false')]
+    return status
+
+
+def test_sparkline_scales_to_the_range():
+    assert sparkline([]) == ''
+    assert sparkline([float('nan'), 1.0, 2.0]) == '▁█'
+    assert sparkline(range(100), width=5) == '▁▃▅▆█'
+
+
+def test_state_renders_metrics_episodes_and_stale_nodes():
+    state = MonitorState(stale=5.0)
+    for i in range(10):
+        state.on_metric('episode_return', -40.0 + i, now=100.0 + i)
+    state.on_metric('policy_loss', 0.25, now=109.0)
+    state.on_metric('zzz_custom', 7.0, now=109.0)
+    for r in (-10.0, -8.0):
+        state.on_episode(episode(r))
+    state.on_episode(episode(-3.0, cut_short=True))
+    diag = DiagnosticArray()
+    diag.status = [DiagnosticStatus(level=DiagnosticStatus.WARN, name='sim_node: arms',
+                                    message='2 commands dropped'),
+                   DiagnosticStatus(level=DiagnosticStatus.OK, name='learner_node',
+                                    message='learning')]
+    state.on_diagnostics(diag, now=100.0)
+    diag.status = diag.status[1:]
+    state.on_diagnostics(diag, now=108.0)
+    text = text_of(state.render(now=110.0))
+    lines = text.splitlines()
+    row = cells(next(line for line in lines if 'episode_return' in line))
+    assert row[:3] == ['episode_return', '-31', sparkline(range(10))]
+    # the usual metrics first, others after
+    assert text.index('episode_return') < text.index('policy_loss') < text.index('zzz_custom')
+    assert cells(next(line for line in lines if 'policy_loss' in line))[1] == '0.25'
+    eps = cells(next(line for line in lines if '-9.000' in line))
+    assert eps[0] == '3' and eps[1] == '-9.000' and eps[3] == '1'
+    sim = next(line for line in lines if 'sim_node: arms' in line)
+    assert 'STALE' in sim  # 10 s old
+    assert 'OK' in next(line for line in lines if 'learner_node' in line)
+
+
+class Publisher:
+    """Publish metrics (20 Hz), episode summaries and diagnostics (2 Hz) in a thread."""
+
+    def __init__(self):
+        """Create the node and start spinning."""
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context, domain_id=DOMAIN_ID)
+        self.node = rclpy.create_node('fake_training', context=self.context)
+        self.ret = self.node.create_publisher(Float64, '/pg_node/metrics/episode_return', 10)
+        self.loss = self.node.create_publisher(Float64, '/pg_node/metrics/policy_loss', 10)
+        self.eps = self.node.create_publisher(DiagnosticStatus, '/pg_node/episode', 10)
+        self.diag = self.node.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        self.i = 0
+        self.node.create_timer(0.05, self.fast)
+        self.node.create_timer(0.5, self.slow)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
+        self.thread.start()
+
+    def fast(self):
+        self.i += 1
+        self.ret.publish(Float64(data=-40.0 + 0.1 * self.i))
+        self.loss.publish(Float64(data=0.125))
+
+    def slow(self):
+        self.eps.publish(episode(-12.5))
+        array = DiagnosticArray()
+        array.status = [DiagnosticStatus(level=DiagnosticStatus.WARN, name='fake_node: test',
+                                         message='hello from the test')]
+        self.diag.publish(array)
+
+    def close(self):
+        self.executor.shutdown()
+        self.thread.join(5)
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+
+
+def run(*args, timeout=60):
+    env = dict(os.environ, ROS_DOMAIN_ID=str(DOMAIN_ID), PYTHONPATH=str(REPO),
+               COLUMNS='160')
+    env.pop('MUJOCO_GL', None)
+    return subprocess.run([sys.executable, '-m', 'pg_node', *args], env=env, cwd=REPO,
+                          capture_output=True, text=True, timeout=timeout,
+                          start_new_session=True)
+
+
+@pytest.fixture(scope='module')
+def publisher():
+    pub = Publisher()
+    yield pub
+    pub.close()
+
+
+@pytest.mark.e2e
+def test_monitor_once_shows_live_metrics_and_nodes(publisher):
+    done = run('monitor', '--once', '--duration', '3')
+    assert done.returncode == 0, done.stderr
+    out = done.stdout
+    row = cells(next(line for line in out.splitlines() if 'episode_return' in line))
+    value = float(row[1])
+    assert -40.0 < value < 0.0
+    assert '0.125' in next(line for line in out.splitlines() if 'policy_loss' in line)
+    node = next(line for line in out.splitlines() if 'fake_node: test' in line)
+    assert 'WARN' in node and 'hello from the test' in node
+    assert '-12.500' in out  # mean return of the episode summaries
+
+
+@pytest.mark.e2e
+def test_topics_lists_types_endpoints_and_rates(publisher):
+    done = run('topics', '--json', '--discovery', '2', '--duration', '3')
+    assert done.returncode == 0, done.stderr
+    rows = {r['name']: r for r in json.loads(done.stdout)}
+    ret = rows['/pg_node/metrics/episode_return']
+    assert ret['types'] == ['std_msgs/msg/Float64']
+    assert ret['publishers'] == 1 and ret['subscribers'] == 0
+    assert 12.0 < ret['rate_hz'] < 28.0  # published at 20 Hz
+    diag = rows['/diagnostics']
+    assert diag['types'] == ['diagnostic_msgs/msg/DiagnosticArray']
+    assert 1.0 < diag['rate_hz'] < 3.5  # 2 Hz
+    plain = run('topics', '--duration', '0.5')
+    assert plain.returncode == 0 and '/pg_node/metrics/policy_loss' in plain.stdout
