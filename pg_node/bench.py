@@ -20,7 +20,9 @@ Sections (``--only``, comma-separated; default all):
 * ``learning``: pg_node A2C through the graph and in-process, SB3 A2C and SB3 PPO on
   ``pg_node/Reacher2-v0``, and SB3 A2C/PPO on Gymnasium's ``Reacher-v5``, over seeds:
   deterministic evaluation return at fixed step counts, wall-clock time to -10 and -6;
-* ``variance``: the gradient-estimator lab on the arm (:mod:`pg_node.arm_lab`).
+* ``variance``: the gradient-estimator lab on the arm (:mod:`pg_node.arm_lab`);
+* ``profile`` (only when asked for): the training graph with every node under cProfile, and
+  where each node's time goes (``--only profile --report PROFILE.md`` keeps it apart).
 
 ``--quick`` shrinks every budget to a smoke run (seconds, not a measurement). The numbers
 of the measurement functions come from :mod:`pg_node.bench_runs`.
@@ -40,7 +42,8 @@ from typing import Dict, List
 
 import numpy as np
 
-SECTIONS = ('throughput', 'latency', 'variance', 'learning')
+SECTIONS = ('throughput', 'latency', 'variance', 'learning', 'profile')
+DEFAULT_SECTIONS = ('throughput', 'latency', 'variance', 'learning')
 LEARNERS = ('pg_node_graph', 'pg_node_inprocess', 'sb3_a2c', 'sb3_ppo', 'sb3_a2c_v5',
             'sb3_ppo_v5')
 LEARNER_NAMES = {
@@ -73,6 +76,7 @@ BUDGETS = {
     'var_train_steps': (100_000, 4_096),
     'var_true_episodes': (32_768, 256),
     'var_value_episodes': (4_096, 128),
+    'profile_steps': (100_000, 4_096),
 }
 
 
@@ -228,6 +232,15 @@ def run_learning(b: Dict, learners: List[str], log, progress=None) -> Dict:
                           'partial': True})
     return {'steps': steps, 'seeds': seeds, 'points': points, 'runs': runs,
             'eval_episodes': b['eval_episodes']}
+
+
+def run_profile(b: Dict, log) -> Dict:
+    """Profile every node of the training graph with cProfile."""
+    from pg_node import bench_runs as br
+    if not br.graph_available():
+        return {'note': NOT_AVAILABLE}
+    log(f'profile: training graph under cProfile, {b["profile_steps"]:,} steps')
+    return br.profile_graph(b['profile_steps'])
 
 
 def run_variance(b: Dict, log) -> Dict:
@@ -477,9 +490,35 @@ def render_markdown(results: Dict, command: str, plots: Dict[str, str]) -> str:
                     for r in var['rows']]), '']
         if 'variance' in plots:
             out += [f'![variance]({plots["variance"]})', '']
+    if 'profile' in results:
+        out += render_profile(results['profile'])
     if results.get('errors'):
         out += ['## Errors', ''] + [f'- {e}' for e in results['errors']] + ['']
     return '\n'.join(out)
+
+
+def render_profile(prof: Dict) -> List[str]:
+    """Return the lines of the profile section."""
+    from pg_node.bench_runs import PROFILE_GROUPS
+    out = ['## Profile of the training graph', '']
+    if 'nodes' not in prof:
+        return out + [prof.get('note', 'not run'), '']
+    groups = [g for g, _ in PROFILE_GROUPS] + ['other Python']
+    out += [f'`python -m pg_node train` for {prof["steps"]:,} steps with every node process '
+            'under cProfile (a `sitecustomize` hook; the nodes are unchanged), '
+            f'{prof["steps_per_second"]:,.0f} env steps/s under the profiler; load average '
+            f'{prof.get("load", "?")}. Seconds of each process by the function that spent '
+            'them (tottime), then the pg_node functions with the most cumulative time.', '',
+            _table(['process', 'profiled s'] + groups, [
+                [name, f'{n["total_seconds"]:.1f}'] + [f'{n["groups"][g]:.2f}' for g in groups]
+                for name, n in prof['nodes'].items()]), '']
+    for name, n in prof['nodes'].items():
+        if name.startswith('train'):
+            continue
+        out += [f'**{name}**: ' + '; '.join(
+            f'`{t["function"]}` {t["cumulative_seconds"]:.2f} s / {t["calls"]:,} calls'
+            for t in n['top']), '']
+    return out
 
 
 def make_plots(results: Dict, plot_dir: Path) -> Dict[str, str]:
@@ -577,9 +616,11 @@ def parse_args(argv):
                     'writes BENCHMARKS.md and plots.')
     parser.add_argument('--out', default='.', help='directory of BENCHMARKS.md, '
                         'bench_plots/ and bench_results.json (default: current directory)')
-    parser.add_argument('--only', default=','.join(SECTIONS),
+    parser.add_argument('--only', default=','.join(DEFAULT_SECTIONS),
                         help=f'comma-separated sections of {", ".join(SECTIONS)} '
-                             '(default: all)')
+                             f'(default: {",".join(DEFAULT_SECTIONS)})')
+    parser.add_argument('--report', default='BENCHMARKS.md',
+                        help='file name of the report in --out (default: %(default)s)')
     parser.add_argument('--quick', action='store_true',
                         help='smoke-sized budgets (seconds); numbers mean nothing')
     parser.add_argument('--learning-steps', type=int, help='env steps per learning run '
@@ -634,7 +675,8 @@ def main(argv=None) -> int:
     results = {'command': command, 'quick': args.quick, 'budgets': budgets,
                'date': datetime.now(timezone.utc).strftime('%Y-%m-%d %H:%M'),
                'machine': machine_facts(), 'load_start': load_average(), 'errors': []}
-    json_path = out_dir / 'bench_results.json'
+    json_path = out_dir / ('bench_results.json' if args.report == 'BENCHMARKS.md'
+                           else f'{Path(args.report).stem.lower()}_results.json')
 
     def save():
         json_path.write_text(json.dumps(results, indent=1, default=str))
@@ -643,7 +685,7 @@ def main(argv=None) -> int:
         results['load_end'] = load_average()
         results['elapsed_seconds'] = time.perf_counter() - start
         plots = make_plots(results, out_dir / 'bench_plots')
-        (out_dir / 'BENCHMARKS.md').write_text(render_markdown(results, command, plots))
+        (out_dir / args.report).write_text(render_markdown(results, command, plots))
         save()
         return plots
 
@@ -657,6 +699,7 @@ def main(argv=None) -> int:
         'latency': lambda: run_latency(budgets, log),
         'learning': lambda: run_learning(budgets, args.learners, log, learning_progress),
         'variance': lambda: run_variance(budgets, log),
+        'profile': lambda: run_profile(budgets, log),
     }
     for section in SECTIONS:
         if section not in args.only:
@@ -671,6 +714,6 @@ def main(argv=None) -> int:
         write_report()
     results['complete'] = True
     plots = write_report()
-    report = out_dir / 'BENCHMARKS.md'
+    report = out_dir / args.report
     log(f'wrote {report}, {json_path} and {len(plots)} plot(s) in {out_dir / "bench_plots"}')
     return 1 if results['errors'] else 0

@@ -375,3 +375,90 @@ def graph_learning(run_dir: Path, steps: int, seed: int, eval_points: Sequence[i
             'wall_seconds': float(summary['wall_seconds']),
             'total_steps': int(summary['total_steps']),
             'steps_per_second': float(summary['steps_per_second'])}
+
+
+# --- profile -------------------------------------------------------------------------------
+
+#: Written as ``sitecustomize.py`` into a directory put first on the children's PYTHONPATH:
+#: every ``python -m pg_node...`` process profiles itself with cProfile and writes its stats
+#: at exit (after Ctrl-C too), so the nodes are profiled without changing their code.
+_PROFILE_HOOK = """
+import atexit, cProfile, os, sys
+_out = os.environ.get('PG_NODE_PROFILE_DIR')
+_argv = getattr(sys, 'orig_argv', [])
+_mod = next((a for a in _argv if a.startswith('pg_node')), None)
+if _out and _mod:
+    _prof = cProfile.Profile()
+    _prof.enable()
+
+    def _dump():
+        _prof.disable()
+        _prof.dump_stats(os.path.join(_out, f'{_mod}.{os.getpid()}.prof'))
+    atexit.register(_dump)
+"""
+
+#: what each node's wall time goes to, by the function that spends it (cProfile ``tottime``)
+PROFILE_GROUPS = (
+    ('waiting (rclpy wait: idle)', ('_rclpy_pybind11.wait',)),
+    ('publish (serialise + DDS write)',
+     ('_rclpy_pybind11.publish', '_rclpy_pybind11.rclpy_serialize')),
+    ('take (DDS read + deserialise)', ('_rclpy_pybind11.take',)),
+    ('message objects (Python)', ('/msg/_',)),
+    ('torch', ('torch/', "method 'run_backward'", 'torch._C')),
+    ('physics (mj_step, thread-pool waits)', ('mujoco', "'acquire' of '_thread.lock'")),
+    ('start-up (imports, loading)', ('importlib', "'marshal.loads'", 'create_dynamic',
+                                     'exec_dynamic', '_ctypes.dlopen')),
+)
+
+
+def profile_graph(steps: int, seed: int = 0, overrides: Sequence[str] = (),
+                  top: int = 8) -> Dict:
+    """
+    Run the training graph with every node under cProfile; return where each node's time went.
+
+    Per node: total profiled seconds split into :data:`PROFILE_GROUPS` (the rest is
+    'other Python'), and the ``top`` pg_node functions by cumulative time.
+    """
+    import pstats
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        hook, prof_dir = tmp / 'hook', tmp / 'prof'
+        hook.mkdir()
+        prof_dir.mkdir()
+        (hook / 'sitecustomize.py').write_text(_PROFILE_HOOK)
+        saved = {k: os.environ.get(k) for k in ('PYTHONPATH', 'PG_NODE_PROFILE_DIR')}
+        os.environ['PYTHONPATH'] = os.pathsep.join(
+            [str(hook)] + ([saved['PYTHONPATH']] if saved['PYTHONPATH'] else []))
+        os.environ['PG_NODE_PROFILE_DIR'] = str(prof_dir)
+        try:
+            summary = run_graph(tmp / 'run', steps, seed, overrides)
+        finally:
+            for k, v in saved.items():
+                if v is None:
+                    os.environ.pop(k, None)
+                else:
+                    os.environ[k] = v
+        nodes = {}
+        for path in sorted(prof_dir.glob('*.prof')):
+            module = path.name.rsplit('.', 2)[0]  # pg_node.<node> or pg_node (train)
+            name = module.partition('.')[2] or 'train (bring-up, progress)'
+            stats = pstats.Stats(str(path))
+            total = stats.total_tt
+            groups = {g: 0.0 for g, _ in PROFILE_GROUPS}
+            for (file, line, func), (_, _, tt, _, _) in stats.stats.items():
+                where = f'{file}:{func}'
+                for g, keys in PROFILE_GROUPS:
+                    if any(k in where for k in keys):
+                        groups[g] += tt
+                        break
+            groups['other Python'] = total - sum(groups.values())
+            funcs = sorted(
+                ((ct, nc, f'{Path(file).name}:{func}')
+                 for (file, line, func), (_, nc, _, ct, _) in stats.stats.items()
+                 if '/pg_node/' in file and func not in ('<module>', 'main', 'run')),
+                reverse=True)[:top]
+            nodes[name] = {'total_seconds': total, 'groups': groups,
+                           'top': [{'function': f, 'calls': n, 'cumulative_seconds': c}
+                                   for c, n, f in funcs]}
+    return {'steps': steps, 'overrides': list(overrides),
+            'steps_per_second': summary['steps_per_second'], 'nodes': nodes}
