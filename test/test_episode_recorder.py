@@ -245,3 +245,10 @@ def test_closed_recorder_refuses_batches(tmp_path):
     with pytest.raises(RuntimeError):
         rec.record_batch(src.batch(1), 0, T0)
     src.close()
+
+
+def test_docstring_examples():
+    import doctest
+    import pg_node.episode_recorder
+    failures, tried = doctest.testmod(pg_node.episode_recorder)
+    assert tried >= 1 and failures == 0

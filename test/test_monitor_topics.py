@@ -162,3 +162,10 @@ def test_topics_lists_types_endpoints_and_rates(publisher):
     assert 1.0 < diag['rate_hz'] < 3.5  # 2 Hz
     plain = run('topics', '--duration', '0.5')
     assert plain.returncode == 0 and '/pg_node/metrics/policy_loss' in plain.stdout
+
+
+def test_docstring_examples():
+    import doctest
+    import pg_node.monitor
+    failures, tried = doctest.testmod(pg_node.monitor)
+    assert tried >= 2 and failures == 0

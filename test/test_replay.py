@@ -343,3 +343,27 @@ def test_sample_bag_is_small_and_has_the_contract_topics():
     for name in ('/clock', '/joint_states', '/target', '/arm_controller/commands',
                  '/pg_node/reward', '/pg_node/episode', '/pg_node/metrics/episode_return'):
         assert topics[name].message_count > 0, name
+
+
+@pytest.mark.e2e
+def test_loop_plays_again_until_sigint(tmp_path):
+    write_slow_bag(tmp_path / 'slow', n=5, step_ns=10_000_000)
+    listener = Listener({'/chatter': ('std_msgs/msg/String', ros_types.qos_to_dict(None))})
+    proc = start_replay(tmp_path, tmp_path / 'slow', '--loop', '--rate', '1',
+                        '--wait-for-subscribers', '1')
+    try:
+        assert listener.spin_until(lambda: len(listener.got['/chatter']) >= 12, 20)
+    finally:
+        code, log = stop(proc)  # SIGINT first
+        listener.close()
+    assert code == 0, log
+    from rclpy.serialization import deserialize_message
+    data = [deserialize_message(d, String).data for d in listener.got['/chatter'][:12]]
+    assert data == [str(i % 5) for i in range(12)]
+
+
+def test_docstring_examples():
+    import doctest
+    import pg_node.replay_node
+    failures, tried = doctest.testmod(pg_node.replay_node)
+    assert tried >= 2 and failures == 0
