@@ -126,8 +126,8 @@ def arm_lab():
     from pg_node.params import load_config
     cfg = load_config(None, [])
     torch.set_num_threads(1)
-    lab = ArmLab(make_policy(10, 2, {**cfg['learner_node'], **cfg['actor_node']}), value_episodes=16, true_episodes=32, chunk=16,
-                 value_epochs=1)
+    policy = make_policy(10, 2, {**cfg['learner_node'], **cfg['actor_node']})
+    lab = ArmLab(policy, value_episodes=16, true_episodes=32, chunk=16, value_epochs=1)
     yield lab
     lab.close()
 
