@@ -237,7 +237,7 @@ class EpisodeRecorder:
             self._last_t = t_end
             self.batches_written += 1
             if ended:
-                self.writer.flush()
+                self.writer.flush(metadata=False)
 
     def _write_step(self, t_log, obs, act, rew, ep_id, ep_step, arms, seq):
         n, k = self.n_joints, self.target_dim
@@ -279,30 +279,40 @@ class EpisodeRecorder:
     def _accumulate(self, rew, term, trunc, ep_step, ep_id, actors, arm_of, version, t_ns):
         """Update the running sums of every arm; write the episodes that end. Return count."""
         T, N = rew.shape
-        ended = 0
-        for t in range(T):
-            for col in range(N):
-                key = (int(actors[col]), int(arm_of[col]))
-                eid = int(ep_id[t, col])
+        done = term | trunc
+        # a segment of a column is a run of steps of one episode, ended by a step that ends
+        # the episode or by a change of episode id
+        starts = np.zeros((T, N), dtype=bool)
+        starts[0] = True
+        starts[1:] = (ep_id[1:] != ep_id[:-1]) | done[:-1]
+        pending = []  # (step, column, key, episode, terminated, truncated, cut_short)
+        for col in range(N):
+            key = (int(actors[col]), int(arm_of[col]))
+            bounds = np.flatnonzero(starts[:, col]).tolist() + [T]
+            for a, b in zip(bounds[:-1], bounds[1:]):
+                eid = int(ep_id[a, col])
                 cur = self._open.get(key)
-                if cur is None or cur.episode_id != eid:
-                    if cur is not None:
-                        # the arm moved on before its episode ended: a reset cut it short
-                        del self._open[key]
-                        self._summary(key, cur, version, t_ns, cut_short=True)
-                        ended += 1
-                    if eid in self._closed_recently.get(key, ()):
-                        continue  # a step of an episode already summarised: ignore
-                    cur = self._open[key] = _Open(eid)
-                cur.ret += float(rew[t, col])
-                cur.recorded += 1
-                cur.last_ep_step = int(ep_step[t, col])
-                if term[t, col] or trunc[t, col]:
+                if cur is not None and cur.episode_id != eid:
+                    # the arm moved on before its episode ended: a reset cut it short
                     del self._open[key]
-                    self._summary(key, cur, version, t_ns, terminated=bool(term[t, col]),
-                                  truncated=bool(trunc[t, col]))
-                    ended += 1
-        return ended
+                    pending.append((a, col, key, cur, False, False, True))
+                    cur = None
+                if cur is None:
+                    if eid in self._closed_recently.get(key, ()):
+                        continue  # steps of an episode already summarised: ignore
+                    cur = self._open[key] = _Open(eid)
+                cur.ret += float(rew[a:b, col].sum())
+                cur.recorded += b - a
+                cur.last_ep_step = int(ep_step[b - 1, col])
+                if done[b - 1, col]:
+                    del self._open[key]
+                    pending.append((b - 1, col, key, cur, bool(term[b - 1, col]),
+                                    bool(trunc[b - 1, col]), False))
+        pending.sort(key=lambda p: (p[0], p[1]))
+        for _, _, key, cur, terminated, truncated, cut_short in pending:
+            self._summary(key, cur, version, t_ns, terminated=terminated,
+                          truncated=truncated, cut_short=cut_short)
+        return len(pending)
 
     def _summary(self, key, cur: Optional[_Open], version, t_ns, terminated=False,
                  truncated=False, cut_short=False, episode_id=None):
