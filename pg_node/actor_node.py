@@ -186,7 +186,7 @@ class ActorNode(Node):
 
 def main(args=None):
     """Run actor_node until Ctrl-C or an external shutdown."""
-    return run(ActorNode, 'actor_node', args)
+    return run(ActorNode, args)
 
 
 if __name__ == '__main__':

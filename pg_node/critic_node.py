@@ -167,7 +167,7 @@ class CriticNode(Node):
 
 def main(args=None):
     """Run critic_node until Ctrl-C or an external shutdown."""
-    return run(CriticNode, 'critic_node', args, cleanup=lambda node: node.save())
+    return run(CriticNode, args, cleanup=lambda node: node.save())
 
 
 if __name__ == '__main__':

@@ -194,7 +194,7 @@ class LearnerNode(Node):
 
 def main(args=None):
     """Run learner_node until done, Ctrl-C or an external shutdown."""
-    return run(LearnerNode, 'learner_node', args, cleanup=lambda node: node.close())
+    return run(LearnerNode, args, cleanup=lambda node: node.close())
 
 
 if __name__ == '__main__':

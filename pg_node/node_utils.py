@@ -9,7 +9,6 @@ from typing import Callable, Dict, Optional
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from pg_node.params import ConfigError, Param
-from pg_node.paths import default_config
 from rcl_interfaces.msg import ParameterDescriptor
 import rclpy
 from rclpy.executors import ExternalShutdownException
@@ -23,39 +22,6 @@ LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
 #: Reliable, volatile, a few deep: the rollouts and batches between training nodes.
 RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
                       durability=DurabilityPolicy.VOLATILE, history=HistoryPolicy.KEEP_LAST)
-
-
-def with_default_params(args, node_name: str):
-    """
-    Return ``args`` with ``--params-file config/pg_node.yaml`` unless one is given.
-
-    In ROS 2 a plain ``-p key:=value`` is a wildcard (``/**``) value, and a node's own
-    section of a parameter file beats wildcards. So that a value typed on the command line
-    still beats the implicit default file, plain ``-p key:=value`` is rewritten as
-    ``-p <node_name>:key:=value`` when the default file is added.
-    """
-    args = list(sys.argv if args is None else args)
-    config = default_config()
-    if '--params-file' in args or not config.is_file():
-        return args
-    if '--ros-args' not in args:
-        args.append('--ros-args')
-    for i, arg in enumerate(args):
-        if arg.startswith('__node:=') and i > 0 and args[i - 1] in ('-r', '--remap'):
-            node_name = arg.split(':=', 1)[1]
-    out, in_ros = [], False
-    for i, arg in enumerate(args):
-        if arg == '--ros-args':
-            in_ros = True
-        elif arg == '--':
-            in_ros = False
-        elif in_ros and i > 0 and args[i - 1] in ('-p', '--param') and ':=' in arg:
-            key = arg.split(':=', 1)[0]
-            if ':' not in key:
-                arg = f'{node_name}:{arg}'
-        out.append(arg)
-    at = out.index('--ros-args') + 1
-    return out[:at] + ['--params-file', str(config)] + out[at:]
 
 
 def declare_params(node: Node, table: Dict[str, Param]) -> Dict:
@@ -113,7 +79,7 @@ class RateCounter:
         return r
 
 
-def run(make_node: Callable[[], Node], node_name: str, args=None,
+def run(make_node: Callable[[], Node], args=None,
         cleanup: Optional[Callable[[Node], None]] = None) -> int:
     """
     Init rclpy, spin the node until Ctrl-C / shutdown, clean up; return an exit code.
@@ -121,7 +87,7 @@ def run(make_node: Callable[[], Node], node_name: str, args=None,
     The node style of ``ros2/demos``' talker; a bad configuration is reported in one line
     (exit code 2) instead of a traceback.
     """
-    rclpy.init(args=with_default_params(args, node_name))
+    rclpy.init(args=args)
     node = None
     code = 0
     try:

@@ -311,5 +311,20 @@ def _read_sections(path) -> Dict[str, Dict[str, Any]]:
         params = section.get('ros__parameters') if isinstance(section, dict) else None
         if not isinstance(params, dict):
             raise ConfigError(f'section {name!r} in {path} must hold a ros__parameters: map')
-        out[str(name)] = params
+        out[node_key(str(name))] = params
     return out
+
+
+def node_key(name: str) -> str:
+    """
+    Return the section a parameter-file key addresses: ``/**/sim_node`` and ``sim_node``.
+
+    ``/**`` stays itself; ``/**/x``, ``/x`` and ``x`` all mean node ``x`` (pg_node's files use
+    ``/**/x``, which reaches node ``x`` in any namespace).
+    """
+    if name == SHARED:
+        return name
+    for prefix in ('/**/', '/'):
+        if name.startswith(prefix):
+            return name[len(prefix):]
+    return name

@@ -50,9 +50,9 @@ Topic names other than ``/diagnostics`` are relative: started in a namespace
 ``/arm1/pg_node/transition``... and listens on ``/arm1/arm_controller/commands``, so several
 simulator/actor pairs can share one graph; in the root namespace the names are as above.
 
-Parameters come from ``config/pg_node.yaml`` (section ``sim_node``) unless the command line
-gives a ``--params-file``; :data:`pg_node.params.SIM_PARAMS` lists them with their
-descriptions and allowed values.
+Parameters: :data:`pg_node.params.SIM_PARAMS` (and the shared ``model``, ``num_envs``,
+``seed``) list them with their defaults, descriptions and allowed values; the shipped
+``config/pg_node.yaml`` holds the same defaults, as a file to copy and edit.
 """
 import array
 import math
@@ -345,7 +345,7 @@ class SimNode(Node):
 
 def main(args=None):
     """Run sim_node until Ctrl-C or an external shutdown."""
-    return run(SimNode, 'sim_node', args, cleanup=lambda node: node.task.close())
+    return run(SimNode, args, cleanup=lambda node: node.task.close())
 
 
 if __name__ == '__main__':

@@ -26,7 +26,6 @@ import time
 from pg_node.params import ConfigError, load_config, SHARED
 import yaml
 
-NODES = ('sim_node', 'critic_node', 'learner_node', 'actor_node')
 STOP_WAITS = ((signal.SIGINT, 10.0), (signal.SIGTERM, 5.0), (signal.SIGKILL, 5.0))
 
 
@@ -64,22 +63,53 @@ def resolve_config(args) -> dict:
 
 
 def write_params(cfg: dict, path: Path):
-    """Write the resolved configuration as a ROS 2 parameter file."""
-    sections = {name: {'ros__parameters': values} for name, values in cfg.items()
+    """Write the resolved configuration as a ROS 2 parameter file (``/**/<node>`` keys)."""
+    sections = {f'/**/{name}': {'ros__parameters': values} for name, values in cfg.items()
                 if name != SHARED}
     path.write_text('# Resolved parameters of this run, written by python -m pg_node train.\n'
                     + yaml.safe_dump(sections, sort_keys=False))
 
 
+def node_commands(params: Path, cfg: dict) -> dict:
+    """
+    Return ``{process name: command}`` for the whole graph.
+
+    With ``num_actors`` > 1 each simulator/actor pair runs in its own namespace ``/arm<i>``
+    (its topics become ``/arm<i>/pg_node/transition``...), actor ``i`` gets ``actor_id`` i,
+    and simulator ``i`` seeds its arms from ``seed + i * num_envs`` so that no two arms of
+    the run draw the same episodes.
+    """
+    base = [sys.executable, '-m']
+    ros = ['--ros-args', '--params-file', str(params)]
+    n = cfg[SHARED]['num_actors']
+    cmds = {'critic_node': base + ['pg_node.critic_node'] + ros,
+            'learner_node': base + ['pg_node.learner_node'] + ros}
+    if n == 1:
+        cmds['sim_node'] = base + ['pg_node.sim_node'] + ros
+        cmds['actor_node'] = base + ['pg_node.actor_node'] + ros
+        return cmds
+    for i in range(n):
+        # a later parameter file wins, and only a node's full name reaches one namespace
+        pair = params.with_name(f'params_arm{i}.yaml')
+        pair.write_text(yaml.safe_dump({
+            f'/arm{i}/sim_node': {'ros__parameters': {
+                'seed': cfg[SHARED]['seed'] + i * cfg[SHARED]['num_envs']}},
+            f'/arm{i}/actor_node': {'ros__parameters': {'actor_id': i}}}))
+        extra = ['--params-file', str(pair), '-r', f'__ns:=/arm{i}']
+        cmds[f'sim_node_{i}'] = base + ['pg_node.sim_node'] + ros + extra
+        cmds[f'actor_node_{i}'] = base + ['pg_node.actor_node'] + ros + extra
+    return cmds
+
+
 class Supervisor:
     """Starts, watches, restarts and stops the node processes."""
 
-    def __init__(self, run_dir: Path, params: Path, max_restarts: int):
+    def __init__(self, run_dir: Path, commands: dict, max_restarts: int):
         self.run_dir = run_dir
-        self.params = params
+        self.commands = commands
         self.max_restarts = max_restarts
         self.procs = {}
-        self.restarts = dict.fromkeys(NODES, 0)
+        self.restarts = dict.fromkeys(commands, 0)
         self.next_start = {}
         (run_dir / 'logs').mkdir(parents=True, exist_ok=True)
         self.env = dict(os.environ, PYTHONUNBUFFERED='1')
@@ -91,15 +121,14 @@ class Supervisor:
     def start(self, name: str):
         """Start one node (own session, so signals reach it alone)."""
         log = open(self.run_dir / 'logs' / f'{name}.log', 'a')
-        cmd = [sys.executable, '-m', f'pg_node.{name}', '--ros-args',
-               '--params-file', str(self.params)]
-        self.procs[name] = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT,
-                                            env=self.env, start_new_session=True)
+        self.procs[name] = subprocess.Popen(self.commands[name], stdout=log,
+                                            stderr=subprocess.STDOUT, env=self.env,
+                                            start_new_session=True)
         log.close()
 
     def start_all(self):
         """Start every node."""
-        for name in NODES:
+        for name in self.commands:
             self.start(name)
 
     def check(self) -> str:
@@ -209,9 +238,10 @@ def main(argv=None) -> int:
     params = run_dir / 'params.yaml'
     write_params(cfg, params)
     total = cfg['learner_node']['total_steps']
-    print(f'pg_node: training {cfg[SHARED]["num_envs"]} x {cfg[SHARED]["model"]} for {total} '
-          f'steps; run dir {run_dir}')
-    sup = Supervisor(run_dir, params, args.max_restarts)
+    n_act = cfg[SHARED]['num_actors']
+    print(f'pg_node: training {n_act} x {cfg[SHARED]["num_envs"]} x {cfg[SHARED]["model"]} '
+          f'({cfg[SHARED]["sync_mode"]}) for {total} steps; run dir {run_dir}')
+    sup = Supervisor(run_dir, node_commands(params, cfg), args.max_restarts)
     bar = None
     if not args.no_progress:
         from tqdm import tqdm

@@ -65,11 +65,18 @@ def test_shared_values_reach_every_node_and_node_values_win(tmp_path):
     assert cfg['actor_node']['n_steps'] == 4
 
 
-def test_shipped_config_is_valid():
+def test_shipped_config_is_valid_and_equals_the_defaults():
+    """config/pg_node.yaml documents the defaults: every node's values equal the table's."""
+    from pg_node.params import defaults, SCHEMA, SHARED_PARAMS
     from pg_node.paths import default_config
+    raw = yaml.safe_load(default_config().read_text())
+    assert set(raw) == {'/**'} | {f'/**/{name}' for name in SCHEMA}
+    assert raw['/**']['ros__parameters'] == {k: p.default for k, p in SHARED_PARAMS.items()}
     cfg = load_config(default_config())
-    assert cfg['/**']['model'] == 'reacher2'
-    assert cfg['sim_node']['num_envs'] == cfg['actor_node']['num_envs']
+    for name in SCHEMA:
+        assert cfg[name] == defaults(name), name
+        given = raw[f'/**/{name}']['ros__parameters']
+        assert set(given) == set(SCHEMA[name]), name
 
 
 def test_rollout_buffer_and_message_round_trip():

@@ -115,6 +115,37 @@ def test_bag_is_read_by_rosbags_with_expected_counts(run):
     assert np.mean(returns[-100:]) == pytest.approx(last, abs=1e-9)
 
 
+@pytest.mark.parametrize('mode', ['sync', 'async'])
+def test_two_simulator_actor_pairs_feed_one_learner(tmp_path, mode):
+    """Two pairs in namespaces /arm0 and /arm1: batched A2C (sync) or A3C-style (async)."""
+    steps, n = 60_000, 16
+    res = train(tmp_path / 'run', '--total-steps', str(steps), 'num_actors=2',
+                f'num_envs={n}', f'sync_mode={mode}')
+    assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
+    summary = json.loads((tmp_path / 'run' / 'summary.json').read_text())
+    rows = progress(tmp_path / 'run')
+    lags = [int(float(r['policy_lag'])) for r in rows]
+    per_rollout = n * 8
+    if mode == 'sync':
+        # every batch holds one rollout of each pair, all of the current version
+        assert summary['policy_version'] == -(-steps // (2 * per_rollout))
+        assert set(lags) == {0}
+        assert {float(r['env_steps']) % (2 * per_rollout) for r in rows} == {0.0}
+    else:
+        # every rollout is a batch; the lag is reported and bounded by max_policy_lag
+        assert summary['policy_version'] == -(-steps // per_rollout)
+        assert max(lags) <= 4
+    with Reader(tmp_path / 'run' / 'bag') as reader:
+        actors = set()
+        for conn, _, raw in reader.messages(
+                [c for c in reader.connections if c.topic == '/pg_node/episode']):
+            msg = TYPESTORE.deserialize_cdr(raw, conn.msgtype)
+            actors.add({kv.key: kv.value for kv in msg.values}['actor'])
+    assert actors == {'0', '1'}
+    for name in ('sim_node_0', 'sim_node_1', 'actor_node_0', 'actor_node_1'):
+        assert (tmp_path / 'run' / 'logs' / f'{name}.log').is_file()
+
+
 def test_learner_refuses_a_batch_of_the_wrong_version(run, tmp_path):
     """Synchronous A2C is on-policy: a batch not sampled by the current version is refused."""
     import rclpy
