@@ -17,13 +17,22 @@ export MUJOCO_GL ?= osmesa
 ARGS ?=
 PYTEST_ARGS ?=
 
-.PHONY: all venv train test test-fast lint bench variance lock clean
+.PHONY: all venv train test test-fast lint bench bench-sim variance lock clean
 
 all: test
 
 venv: $(STAMP)
 
+# Debian packages: libosmesa6 lets MuJoCo render offscreen (python -m pg_node render).
+SYSTEM_PACKAGES := libosmesa6
+
 $(STAMP): requirements.lock
+	@for pkg in $(SYSTEM_PACKAGES); do dpkg -s $$pkg >/dev/null 2>&1 || missing="$$missing $$pkg"; done; \
+	if [ -n "$$missing" ]; then \
+	  echo "Installing Debian packages:$$missing"; \
+	  SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
+	  $$SUDO apt-get update -qq && $$SUDO apt-get install -y -qq --no-install-recommends $$missing >/dev/null; \
+	fi
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	@$(PY) -m pip install --quiet --disable-pip-version-check --upgrade pip==26.3
 	@echo "Installing pinned dependencies into $(VENV) (first run: a few minutes, about 6 GB)"
@@ -48,6 +57,9 @@ variance: $(STAMP)
 
 bench: $(STAMP)
 	$(PY) -m pg_node bench $(ARGS)
+
+bench-sim: $(STAMP)
+	$(PY) bench/bench_sim.py $(ARGS)
 
 # Regenerate requirements.lock after editing requirements.in.
 lock:
