@@ -9,9 +9,9 @@ The return is ``/pg_node/metrics/episode_return`` (the mean over recent episodes
 learner reports) against ``/pg_node/metrics/env_steps`` logged at the same time; a bag
 without those metrics is plotted from its ``/pg_node/episode`` summaries instead (each
 episode's return against the steps of all episodes summarised so far, with a moving
-average). A run directory holds ``bag/`` and may hold ``summary.json``, whose
-``eval_return`` is drawn as a horizontal line. Wall time is the bag's log time, in minutes
-from its first message. Drawn with matplotlib's Agg backend (no display needed).
+average). A run directory holds ``bag/`` (and ``bag_1/``, ... after learner restarts, read
+as one) and may hold ``summary.json``, whose ``eval_return`` is drawn as a horizontal line.
+Wall time is the bag's log time, in minutes from its first message. Drawn with matplotlib's Agg backend (no display needed).
 """
 import argparse
 import json
@@ -33,35 +33,44 @@ class RunData:
         from pg_node.episode_recorder import EPISODE_TOPIC, METRICS_PREFIX, parse_episode
         path = Path(path)
         self.summary: Optional[Dict] = None
+        bags = [path]
         if (path / 'bag').exists():
             if (path / 'summary.json').is_file():
                 self.summary = json.loads((path / 'summary.json').read_text())
-            path = path / 'bag'
-        self.bag = path
-        reader = BagReader(path, warn=False)
+            # a restarted learner goes on in bag_1, bag_2, ... beside bag/
+            extra = sorted((p for p in path.glob('bag_*') if p.name[4:].isdigit()),
+                           key=lambda p: int(p.name[4:]))
+            bags = [path / 'bag'] + extra
+        self.bag = bags[0]
         self.metrics: Dict[str, tuple] = {}
         self.episodes = []
+        self.problems = []
         series = {}
         self.t0 = None
-        wanted = [t for t in reader.topics
-                  if t.startswith(METRICS_PREFIX) or t == EPISODE_TOPIC]
-        for m in reader.messages(topics=wanted, deserialize=True):
-            if self.t0 is None:
-                self.t0 = m.log_time_ns
-            if m.msg is None:
-                continue
-            if m.topic == EPISODE_TOPIC:
-                ep = parse_episode(m.msg)
-                ep['log_time_ns'] = m.log_time_ns
-                self.episodes.append(ep)
-            elif hasattr(m.msg, 'data'):
-                name = m.topic[len(METRICS_PREFIX):]
-                series.setdefault(name, ([], []))
-                series[name][0].append(m.log_time_ns)
-                series[name][1].append(float(m.msg.data))
-        self.metrics = {k: (np.array(t, dtype=np.int64), np.array(v))
-                        for k, (t, v) in series.items()}
-        self.problems = list(reader.problems)
+        for bag in bags:
+            reader = BagReader(bag, warn=False)
+            wanted = [t for t in reader.topics
+                      if t.startswith(METRICS_PREFIX) or t == EPISODE_TOPIC]
+            for m in reader.messages(topics=wanted, deserialize=True):
+                if self.t0 is None or m.log_time_ns < self.t0:
+                    self.t0 = m.log_time_ns
+                if m.msg is None:
+                    continue
+                if m.topic == EPISODE_TOPIC:
+                    ep = parse_episode(m.msg)
+                    ep['log_time_ns'] = m.log_time_ns
+                    self.episodes.append(ep)
+                elif hasattr(m.msg, 'data'):
+                    name = m.topic[len(METRICS_PREFIX):]
+                    series.setdefault(name, ([], []))
+                    series[name][0].append(m.log_time_ns)
+                    series[name][1].append(float(m.msg.data))
+            self.problems += reader.problems
+        self.episodes.sort(key=lambda e: e['log_time_ns'])
+        self.metrics = {}
+        for k, (t, v) in series.items():
+            order = np.argsort(np.array(t, dtype=np.int64), kind='stable')
+            self.metrics[k] = (np.array(t, dtype=np.int64)[order], np.array(v)[order])
 
     def minutes(self, t_ns):
         """Return log times as minutes from the first message."""

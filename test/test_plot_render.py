@@ -51,6 +51,25 @@ def test_plot_run_dir_with_summary_and_custom_size(tmp_path):
     not_blank(np.asarray(Image.open(out).convert('RGB')))
     data = RunData(run)
     assert data.summary['eval_return'] == -6.5
+    # a restarted learner's second bag is read with the first
+    (run / 'bag_1').mkdir()
+    first_half = len(data.metrics['env_steps'][0]) // 2
+    t_cut = int(data.metrics['env_steps'][0][first_half])
+    shutil.rmtree(run / 'bag')
+    metric_topics = [t for t in BagReader(SAMPLE).topics if t.startswith('/pg_node/metrics/')]
+    for target, keep in ((run / 'bag', lambda t: t < t_cut),
+                         (run / 'bag_1', lambda t: t >= t_cut)):
+        shutil.rmtree(target, ignore_errors=True)
+        with BagWriter(target) as writer:
+            for topic in metric_topics:
+                writer.add_topic(topic, 'std_msgs/msg/Float64')
+            for m in BagReader(SAMPLE, warn=False).messages(topics=metric_topics):
+                if keep(m.log_time_ns):
+                    writer.write(m.topic, m.data, m.log_time_ns)
+    split = RunData(run)
+    for name, (t, v) in data.metrics.items():
+        np.testing.assert_array_equal(split.metrics[name][0], t)
+        np.testing.assert_array_equal(split.metrics[name][1], v)
     steps, minutes, returns, label = data.returns()
     assert label.startswith('episode_return')
     assert steps[-1] == 600064 and np.all(np.diff(steps) > 0)
