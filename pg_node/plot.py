@@ -11,7 +11,8 @@ without those metrics is plotted from its ``/pg_node/episode`` summaries instead
 episode's return against the steps of all episodes summarised so far, with a moving
 average). A run directory holds ``bag/`` (and ``bag_1/``, ... after learner restarts, read
 as one) and may hold ``summary.json``, whose ``eval_return`` is drawn as a horizontal line.
-Wall time is the bag's log time, in minutes from its first message. Drawn with matplotlib's Agg backend (no display needed).
+Wall time is the bag's log time, in minutes from its first message. Drawn with
+matplotlib's Agg backend (no display needed).
 """
 import argparse
 import json
