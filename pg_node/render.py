@@ -132,7 +132,7 @@ def render_episode(ep: Episode, model_path: str, width=480, height=480, every=1,
     camera = mujoco.MjvCamera()
     mujoco.mjv_defaultFreeCamera(model, camera)
     camera.lookat[:] = [0.0, 0.0, 0.0]
-    camera.distance = 2.2 * max(float(model.stat.extent), 0.1) if spec.target_dim > 2 else 0.75
+    camera.distance = 1.4 * max(float(model.stat.extent), 0.1) if spec.target_dim > 2 else 0.75
     camera.elevation = -60.0 if spec.target_dim > 2 else -90.0
     camera.azimuth = 90.0
     goal = ep.target[:spec.target_dim]
