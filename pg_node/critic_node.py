@@ -9,7 +9,10 @@ In ``sync`` mode a batch holds one rollout of each of the ``num_actors`` actors,
 by the same policy version, side by side in actor-id order: batched A2C across processes,
 and reproducible because the order never depends on which message came first. In ``async``
 mode every rollout is annotated and sent as it comes. A rollout seen before (an actor's
-re-send) is dropped; a malformed one is dropped and counted.
+re-send) is not annotated again: the batch made from it is sent again instead (the batch or
+the new weights may have been lost, and the learner answers a repeated batch by publishing
+its weights again), so no single lost message stalls synchronous training. A malformed
+rollout is dropped and counted.
 
 V is checkpointed to ``<run_dir>/critic`` every ``checkpoint_every`` batches and on exit, and
 a restarted critic resumes from the newest valid checkpoint.
@@ -49,8 +52,9 @@ class CriticNode(Node):
         self.batches = 0
         self.seen = OrderedDict()
         self.groups = {}
+        self.sent = {}                         # version -> last batch sent (for re-sends)
         self.counters = {'rollouts': 0, 'rollouts_dropped': 0, 'duplicates': 0,
-                         'batches': 0, 'stale_groups_dropped': 0}
+                         'batches': 0, 'batches_resent': 0, 'stale_groups_dropped': 0}
         self.steps = RateCounter()
         self.last_stats = {}
         self.pub_batch = self.create_publisher(Float64MultiArray, '/pg_node/batch', RELIABLE)
@@ -101,7 +105,13 @@ class CriticNode(Node):
             return
         key = (header['actor_id'], header['rollout_seq'], header['version'])
         if key in self.seen:
+            # an actor sends a rollout again when no new weights came: the batch or the
+            # weights may have been lost, so send the batch made from it again
             self.counters['duplicates'] += 1
+            sent = self.sent.get(header['version'])
+            if sent is not None:
+                self.pub_batch.publish(sent)
+                self.counters['batches_resent'] += 1
             return
         self.seen[key] = True
         while len(self.seen) > SEEN_MAX:
@@ -146,7 +156,11 @@ class CriticNode(Node):
                   'n_steps': ro.n_steps, 'num_envs': ro.num_envs,
                   'value_loss': stats['value_loss'],
                   'explained_variance': stats['explained_variance']}
-        self.pub_batch.publish(table_msg.to_msg(*messages.pack_batch(batch, header)))
+        msg = table_msg.to_msg(*messages.pack_batch(batch, header))
+        self.pub_batch.publish(msg)
+        self.sent[version] = msg
+        while len(self.sent) > 4:
+            del self.sent[min(self.sent)]
         self.batches += 1
         self.counters['batches'] += 1
         self.steps.add(ro.rew.size)

@@ -8,11 +8,15 @@ Subscribes ``/pg_node/batch`` (from ``critic_node``); publishes ``/pg_node/polic
 ``approx_kl``, ``grad_norm``, ``steps_per_second``, ``policy_version``, ``env_steps``,
 ``policy_lag``, ``rejected_batches``, ``skipped_updates``) and ``/diagnostics``.
 
-Each accepted batch is one update and one new policy version. In ``sync`` mode a batch
-sampled by any version other than the current one is refused and counted (on-policy A2C);
-in ``async`` mode batches up to ``max_policy_lag`` versions old are learned from and the lag
-is reported. Everything the run makes goes under ``run_dir``: ``checkpoints/`` (atomic, the
-newest valid one resumed on restart), ``bag/`` (the episodes learned from, see
+Each accepted batch is one update and one new policy version. A batch received again (the
+same version and number: the critic re-sends when the actor's rollout comes again) is not
+learned from twice; the weights are published again instead, in case they were lost. In
+``sync`` mode a batch sampled by any version other than the current one is refused and
+counted (on-policy A2C); in ``async`` mode batches up to ``max_policy_lag`` versions old
+are learned from and the lag is reported.
+
+Everything the run makes goes under ``run_dir``: ``checkpoints/`` (atomic, the newest valid
+one resumed on restart), ``bag/`` (the episodes learned from, see
 :mod:`pg_node.episode_recorder`) and ``progress.csv`` (one row per update). When
 ``total_steps`` environment steps are learned the learner writes a final checkpoint,
 closes the bag and, with ``exit_when_done``, exits with code 0.
@@ -63,7 +67,8 @@ class LearnerNode(Node):
         self.stats = EpisodeStats()
         self.steps = RateCounter()
         self.counters = {'batches': 0, 'rejected_batches': 0, 'dropped_batches': 0,
-                         'skipped_updates': 0}
+                         'repeated_batches': 0, 'skipped_updates': 0}
+        self.last_batch = None
         self.t0 = time.monotonic()
         self.last_metrics = {}
         self.done = False
@@ -113,6 +118,12 @@ class LearnerNode(Node):
             self.counters['dropped_batches'] += 1
             self.get_logger().warning(f'dropped a batch: {exc}', throttle_duration_sec=1.0)
             return
+        key = (header['version'], header['batch_seq'])
+        if key == self.last_batch:
+            # the critic sent a batch again: our weights were probably lost on the way
+            self.counters['repeated_batches'] += 1
+            self.publish_weights()
+            return
         lag = self.learner.version - header['version']
         max_lag = self.cfg['max_policy_lag'] if self.cfg['sync_mode'] == 'async' else 0
         if not self.learner.accepts(header['version'], max_lag):
@@ -123,6 +134,7 @@ class LearnerNode(Node):
                 f'{max_lag})', throttle_duration_sec=1.0)
             return
         stats = self.learner.learn(batch.obs, batch.act, batch.logp, batch.adv)
+        self.last_batch = key
         self.counters['batches'] += 1
         self.counters['skipped_updates'] += int(stats['skipped_updates'])
         self.steps.add(batch.rew.size)

@@ -146,7 +146,7 @@ def test_two_simulator_actor_pairs_feed_one_learner(tmp_path, mode):
         assert (tmp_path / 'run' / 'logs' / f'{name}.log').is_file()
 
 
-def test_learner_refuses_a_batch_of_the_wrong_version(run, tmp_path):
+def test_learner_refuses_a_batch_of_the_wrong_version(tmp_path):
     """Synchronous A2C is on-policy: a batch not sampled by the current version is refused."""
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
@@ -177,7 +177,7 @@ def test_learner_refuses_a_batch_of_the_wrong_version(run, tmp_path):
                 assert time.monotonic() < end and proc.poll() is None, 'learner not answering'
                 ex.spin_once(timeout_sec=0.05)
 
-        def batch(version):
+        def batch(version, batch_seq=0):
             T, N = 3, 2
             rng = np.random.default_rng(version)
             b = messages.Batch(
@@ -187,7 +187,7 @@ def test_learner_refuses_a_batch_of_the_wrong_version(run, tmp_path):
                 truncated=np.zeros((T, N), bool), ep_step=np.zeros((T, N), int),
                 episode_id=np.zeros((T, N), int), seq=np.zeros((T, N), int),
                 actor=np.zeros((T, N), int))
-            header = {'version': version, 'n_actors': 1, 'batch_seq': 0, 'n_steps': T,
+            header = {'version': version, 'n_actors': 1, 'batch_seq': batch_seq, 'n_steps': T,
                       'num_envs': N, 'value_loss': 0.0, 'explained_variance': 0.0}
             return table_msg.to_msg(*messages.pack_batch(b, header))
 
@@ -205,9 +205,11 @@ def test_learner_refuses_a_batch_of_the_wrong_version(run, tmp_path):
         assert weights == [0]
         pub.publish(batch(0))                  # the current version: learned from
         spin_until(lambda: weights[-1] == 1)
-        pub.publish(batch(0))                  # now stale
+        pub.publish(batch(0))                  # the same batch again (a critic re-send):
+        spin_until(lambda: weights == [0, 1, 1])   # not learned twice, weights sent again
+        pub.publish(batch(0, batch_seq=1))     # another batch of version 0: now stale
         spin_until(lambda: rejected() == 2)
-        assert weights == [0, 1]
+        assert weights == [0, 1, 1]
     finally:
         rclpy.try_shutdown(context=ctx)
         os.killpg(proc.pid, signal.SIGINT)
