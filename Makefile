@@ -12,7 +12,6 @@ STAMP := $(VENV)/.installed-$(LOCK_HASH)
 export AMENT_PREFIX_PATH := $(abspath $(VENV))
 export PYTHONPATH := $(abspath .)
 export PYTHONUNBUFFERED := 1
-export MUJOCO_GL ?= osmesa
 
 ARGS ?=
 PYTEST_ARGS ?=
