@@ -39,7 +39,9 @@ logged at ``t_wall_ns``. Log times never go back: a ``t_wall_ns`` earlier than w
 already written is moved up to it. The open chunk is flushed whenever an episode ends.
 
 An episode is cut short when its arm starts a new episode before the old one ended (a world
-reset, an actor restart) or when the owner calls :meth:`EpisodeRecorder.mark_cut_short`.
+reset, an actor restart), when the owner calls :meth:`EpisodeRecorder.mark_cut_short`, or
+when it calls :meth:`EpisodeRecorder.cut_short_actor` because that actor's simulator
+restarted (the learner sees its transition numbers start again).
 Episodes still open at :meth:`EpisodeRecorder.close` get no summary.
 
 The bag's ``metadata.yaml`` ``custom_data`` holds ``pg_node.model`` (the MJCF path),
@@ -364,6 +366,29 @@ class EpisodeRecorder:
             self._last_t = t_ns
             self.writer.flush()
             return True
+
+    def cut_short_actor(self, actor: int, t_wall_ns: int, policy_version: int = -1) -> int:
+        """
+        Close every open episode of ``actor``'s arms as cut short; return how many.
+
+        For a restarted simulator: its episodes start again at id 0, so the ids seen before
+        are forgotten too (an old id that comes again is a new episode, not a repeat).
+        """
+        with self._lock:
+            if self.writer.closed:
+                return 0
+            t_ns = self._clamp(t_wall_ns)
+            keys = sorted(k for k in self._open if k[0] == int(actor))
+            for key in keys:
+                self._summary(key, self._open.pop(key), policy_version, t_ns, cut_short=True)
+            for key in [k for k in self._closed_recently if k[0] == int(actor)]:
+                del self._closed_recently[key]
+            if int(actor) == self.record_actor:
+                self._target_for.clear()
+            self._last_t = t_ns
+            if keys:
+                self.writer.flush(metadata=False)
+            return len(keys)
 
     # -- metrics ---------------------------------------------------------------------------
     def record_metrics(self, metrics: Dict[str, float], t_wall_ns: int):

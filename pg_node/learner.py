@@ -122,6 +122,13 @@ class EpisodeStats:
         self.finished += n_done
         return n_done
 
+    def forget_actor(self, actor: int) -> int:
+        """Drop the open sums of ``actor``'s arms (its simulator restarted); return how many."""
+        keys = [k for k in self.open if k[0] == int(actor)]
+        for k in keys:
+            del self.open[k]
+        return len(keys)
+
     def mean_return(self) -> float:
         """Return the mean return of the last ``window`` finished episodes (NaN if none)."""
         return float(np.mean(self.returns)) if self.returns else float('nan')

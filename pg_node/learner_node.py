@@ -13,7 +13,10 @@ same version and number: the critic re-sends when the actor's rollout comes agai
 learned from twice; the weights are published again instead, in case they were lost. In
 ``sync`` mode a batch sampled by any version other than the current one is refused and
 counted (on-policy A2C); in ``async`` mode batches up to ``max_policy_lag`` versions old
-are learned from and the lag is reported.
+are learned from and the lag is reported. A malformed batch (layout, non-finite or absurd
+values) is dropped, counted (``dropped_batches``) and warned about at most once a second.
+When an actor's transition numbers start again (its simulator restarted), the episodes its
+arms had open are written to the bag as cut short (``sim_restarts_seen`` counts this).
 
 Everything the run makes goes under ``run_dir``: ``checkpoints/`` (atomic, the newest valid
 one resumed on restart), ``bag/`` (the episodes learned from, see
@@ -26,6 +29,7 @@ import math
 from pathlib import Path
 import time
 
+import numpy as np
 from pg_node import messages, table_msg
 from pg_node.episode_recorder import EpisodeRecorder
 from pg_node.learner import EpisodeStats, Learner
@@ -67,8 +71,9 @@ class LearnerNode(Node):
         self.stats = EpisodeStats()
         self.steps = RateCounter()
         self.counters = {'batches': 0, 'rejected_batches': 0, 'dropped_batches': 0,
-                         'repeated_batches': 0, 'skipped_updates': 0}
+                         'repeated_batches': 0, 'skipped_updates': 0, 'sim_restarts_seen': 0}
         self.last_batch = None
+        self.last_seq = {}                     # actor -> last transition number learned
         self.t0 = time.monotonic()
         self.last_metrics = {}
         self.done = False
@@ -139,9 +144,10 @@ class LearnerNode(Node):
         self.counters['skipped_updates'] += int(stats['skipped_updates'])
         self.steps.add(batch.rew.size)
         self.publish_weights()
+        now_ns = time.time_ns()
+        self.check_sim_restarts(batch, now_ns)
         self.stats.update(batch.rew, batch.terminated, batch.truncated, batch.episode_id,
                           batch.actor)
-        now_ns = time.time_ns()
         self.recorder.record_batch(batch, header['version'], now_ns)
         metrics = {
             'episode_return': self.stats.mean_return(),
@@ -168,6 +174,28 @@ class LearnerNode(Node):
             self.save()
         if self.learner.env_steps >= self.cfg['total_steps']:
             self.finish()
+
+    def check_sim_restarts(self, batch, now_ns: int):
+        """
+        Notice a restarted simulator: its transition numbers (``seq``) start again at 0.
+
+        The episodes its arms had open were cut short: they are written to the bag as such,
+        dropped from the running returns, and the episode ids seen before are forgotten
+        (the new simulator numbers its episodes from 0 again). The actor never mixes two
+        simulator lives in one rollout (it discards a partial rollout when ``seq`` jumps).
+        """
+        for a in np.unique(batch.actor[0]):
+            cols = batch.actor[0] == a
+            first, last = int(batch.seq[0, cols].min()), int(batch.seq[-1, cols].max())
+            prev = self.last_seq.get(int(a))
+            if prev is not None and first <= prev:
+                self.counters['sim_restarts_seen'] += 1
+                n = self.recorder.cut_short_actor(int(a), now_ns, self.learner.version)
+                self.stats.forget_actor(int(a))
+                self.get_logger().warning(
+                    f'the simulator of actor {int(a)} restarted (transition {first} after '
+                    f'{prev}): {n} open episodes marked cut short')
+            self.last_seq[int(a)] = last
 
     def save(self):
         """Write an atomic checkpoint of the current version."""

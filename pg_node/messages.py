@@ -13,6 +13,9 @@ num_envs, value_loss, explained_variance``; fields ``obs[D] act[A] logp adv ret 
 terminated truncated ep_step episode_id seq actor``. ``num_envs`` counts the arms of all
 actors, side by side in actor-id order.
 
+Unpacking refuses (``ValueError``) a layout that does not match, non-finite values, flags
+other than 0/1, ids that are not whole, and real values beyond :data:`MAX_ABS`.
+
 ``/pg_node/policy_weights`` (learner -> actors, critic; transient-local), header
 ``version, env_steps``; one row whose fields are the policy's tensors in ``state_dict``
 order, each labelled ``name[shape]`` (e.g. ``mu.weight[2x64]``) with its element count as
@@ -32,6 +35,10 @@ BATCH_HEADER = ('version', 'n_actors', 'batch_seq', 'n_steps', 'num_envs', 'valu
 WEIGHTS_HEADER = ('version', 'env_steps')
 BOOL_FIELDS = ('terminated', 'truncated')
 INT_FIELDS = ('ep_step', 'episode_id', 'seq', 'actor')
+#: Largest magnitude a real-valued field may hold: observations, actions, log-probabilities,
+#: rewards and advantages of the arm stay far below; 1e300 is a bug upstream, and one such
+#: value would poison the running observation statistics for good.
+MAX_ABS = 1e6
 
 
 def _rollout_widths(obs_dim=None, act_dim=None):
@@ -73,6 +80,8 @@ def _fields(table: Dict[str, np.ndarray], T: int, N: int) -> Dict[str, np.ndarra
             if np.any(block != np.round(block)):
                 raise ValueError(f'field {name!r} must hold whole numbers')
             value = block[:, 0].astype(np.int64)
+        elif np.any(np.abs(block) > MAX_ABS):
+            raise ValueError(f'field {name!r} holds absurd values (|x| > {MAX_ABS:g})')
         elif block.shape[1] == 1:
             value = block[:, 0].copy()
         else:

@@ -8,7 +8,7 @@ import time
 from typing import Callable, Dict, Optional
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from pg_node.params import ConfigError, Param
+from pg_node.params import ConfigError, known_keys, Param
 from rcl_interfaces.msg import ParameterDescriptor
 import rclpy
 from rclpy.executors import ExternalShutdownException
@@ -29,8 +29,15 @@ def declare_params(node: Node, table: Dict[str, Param]) -> Dict:
     Declare every parameter of ``table`` on ``node`` and return the checked values.
 
     Raises :class:`~pg_node.params.ConfigError` naming the parameter when a value given in
-    the parameter file or on the command line is not allowed.
+    the parameter file or on the command line is not allowed, or when a parameter given
+    there is known to no pg_node node (a typo: ROS would silently ignore it). A key that
+    another node reads is accepted, as a shared parameter file gives every node all of them.
     """
+    allowed = known_keys() | set(table) | {'use_sim_time', 'start_type_description_service'}
+    for name in sorted(getattr(node, '_parameter_overrides', {})):
+        if name not in allowed and not name.startswith('qos_overrides.'):
+            raise ConfigError(f'unknown parameter {node.get_name()}.{name!r}; allowed: '
+                              f'{", ".join(table)}')
     values = {}
     for name, param in table.items():
         node.declare_parameter(name, param.default,

@@ -222,6 +222,11 @@ def params_for(section: str) -> Dict[str, Param]:
     return {**shared, **SCHEMA[section]}
 
 
+def known_keys() -> set:
+    """Return every parameter name some pg_node node reads."""
+    return set(SHARED_PARAMS).union(*(set(t) for t in SCHEMA.values()))
+
+
 def parse_override(text: str):
     """Split ``key=value`` (value parsed as YAML: ``3``, ``0.5``, ``true``, ``[64, 64]``)."""
     if '=' not in text:

@@ -23,13 +23,19 @@ Topics published:
   ``marker_spacing`` between arms (frame ``arm<i>`` is ``frame_id`` shifted so);
 * ``/diagnostics`` (``diagnostic_msgs/DiagnosticArray``) at ``diagnostics_rate`` Hz: mode,
   paused, steps, simulated time, steps per second, commands received / dropped (wrong size,
-  non-finite) / clipped, lock-step timeouts.
+  non-finite, absurd) / clipped, lock-step timeouts.
 
 Subscribed: ``/arm_controller/commands`` (``std_msgs/Float64MultiArray``, as ros2_control's
 forward_command_controller): ``num_envs * n_actuators`` values, arm-major (arm 0's
 actuators in model order, then arm 1's...); the layout is not read. A message of another
-size or with a non-finite value is dropped, counted and warned about (throttled); values
-are clipped to the actuators' control range.
+size, with a non-finite value or with an absurd one (beyond ``ABSURD_COMMAND``, e.g. 1e300)
+is dropped, counted and warned about (at most once a second); other values outside the
+actuators' control range are clipped to it, counted (``commands_clipped``) and warned about.
+In lock-step every accepted command is a control step, so dropping an absurd command (rather
+than clipping it) also keeps the actor's command/outcome pairing intact.
+
+No node subscribes ``joint_states``: it is an output for tools (RViz, Foxglove, the bag);
+the simulator takes input only on ``arm_controller/commands`` and its services.
 
 Modes (parameter ``mode``):
 
@@ -75,6 +81,10 @@ from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import SetBool, Trigger
 from visualization_msgs.msg import Marker, MarkerArray
 
+#: A command value beyond this (N m before gear) is not a torque but a bug: dropped, not
+#: clipped. Values between the control range and this are clipped (counted, warned).
+ABSURD_COMMAND = 1e6
+
 
 def sim_stamp(seconds: float) -> Time:
     """Return ``seconds`` of simulated time as a ``builtin_interfaces/Time``."""
@@ -108,7 +118,8 @@ class SimNode(Node):
         self.offsets = np.array([[(i % cols) * p['marker_spacing'],
                                   (i // cols) * p['marker_spacing'], 0.0] for i in range(n)])
         self.counters = {'steps': 0, 'commands_received': 0, 'commands_dropped_size': 0,
-                         'commands_dropped_nonfinite': 0, 'commands_clipped': 0,
+                         'commands_dropped_nonfinite': 0, 'commands_dropped_absurd': 0,
+                         'commands_clipped': 0,
                          'lock_step_timeouts': 0, 'transitions_resent': 0}
         self.paused = bool(p['start_paused'])
         self.held = np.zeros((n, self.task.act_dim))
@@ -172,10 +183,21 @@ class SimNode(Node):
             self.get_logger().warning('dropped a command with a non-finite value',
                                       throttle_duration_sec=1.0)
             return
+        if np.any(np.abs(cmd) > ABSURD_COMMAND):
+            self.counters['commands_dropped_absurd'] += 1
+            self.get_logger().warning(
+                f'dropped a command with an absurd value ({np.abs(cmd).max():g}, more than '
+                f'{ABSURD_COMMAND:g}): a bug upstream, not a torque to clip',
+                throttle_duration_sec=1.0)
+            return
         cmd = cmd.reshape(self.task.num_envs, self.task.act_dim)
         clipped = np.clip(cmd, self.task.spec.ctrl_low, self.task.spec.ctrl_high)
         if not np.array_equal(clipped, cmd):
             self.counters['commands_clipped'] += 1
+            self.get_logger().warning(
+                f'clipped a command to the control range [{self.task.spec.ctrl_low.min():g}, '
+                f'{self.task.spec.ctrl_high.max():g}] (largest value {np.abs(cmd).max():g})',
+                throttle_duration_sec=1.0)
         self.held = clipped
         self.held_time = time.monotonic()
         if self.mode == 'lock_step' and not self.paused:
@@ -298,7 +320,8 @@ class SimNode(Node):
         rate = (self.counters['steps'] - self._diag_steps) / max(now - self._diag_time, 1e-9)
         self._diag_steps, self._diag_time = self.counters['steps'], now
         dropped = (self.counters['commands_dropped_size']
-                   + self.counters['commands_dropped_nonfinite'])
+                   + self.counters['commands_dropped_nonfinite']
+                   + self.counters['commands_dropped_absurd'])
         status = DiagnosticStatus()
         status.name = 'sim_node: simulated arms'
         status.hardware_id = f'{self.params["model"]} x {self.task.num_envs}'

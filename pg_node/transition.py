@@ -53,6 +53,8 @@ FIELDS = (
 )
 BOOL_FIELDS = ('terminated', 'truncated')
 INT_FIELDS = ('episode_id', 'episode_step')
+#: Largest magnitude of an observation or reward (the arm's stay far below).
+MAX_ABS = 1e6
 
 
 @dataclass
@@ -110,7 +112,8 @@ def unpack(dims, data_offset: int, data) -> Transition:
     Check a ``(dims, data_offset, data)`` layout and return the :class:`Transition`.
 
     Raise ``ValueError`` naming the first mismatch: wrong labels or order, inconsistent
-    sizes or strides, a data length that does not match, non-whole ids or flags not 0/1.
+    sizes or strides, a data length that does not match, non-whole ids or flags not 0/1,
+    non-finite values or values beyond :data:`MAX_ABS`.
     """
     dims = [(str(label), int(size), int(stride)) for label, size, stride in dims]
     data = np.asarray(data, dtype=np.float64)
@@ -149,6 +152,9 @@ def unpack(dims, data_offset: int, data) -> Transition:
             if not np.all(np.isfinite(block)) or np.any(block != np.round(block)):
                 raise ValueError(f'field {name!r} must hold whole numbers')
             fields[name] = block[:, 0].astype(np.int64)
+        elif not np.all(np.isfinite(block)) or np.any(np.abs(block) > MAX_ABS):
+            raise ValueError(f'field {name!r} holds non-finite or absurd values '
+                             f'(|x| > {MAX_ABS:g})')
         elif size == 1:
             fields[name] = block[:, 0].copy()
         else:
