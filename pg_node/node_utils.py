@@ -11,6 +11,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from pg_node.params import ConfigError, known_keys, Param
 from rcl_interfaces.msg import ParameterDescriptor
 import rclpy
+from rclpy.exceptions import InvalidParameterTypeException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -36,13 +37,20 @@ def declare_params(node: Node, table: Dict[str, Param]) -> Dict:
     allowed = known_keys() | set(table) | {'use_sim_time', 'start_type_description_service'}
     for name in sorted(getattr(node, '_parameter_overrides', {})):
         if name not in allowed and not name.startswith('qos_overrides.'):
-            raise ConfigError(f'unknown parameter {node.get_name()}.{name!r}; allowed: '
+            raise ConfigError(f"unknown parameter '{node.get_name()}.{name}'; allowed: "
                               f'{", ".join(table)}')
     values = {}
     for name, param in table.items():
-        node.declare_parameter(name, param.default,
-                               ParameterDescriptor(description=param.description))
-        values[name] = param.check(f'{node.get_name()}.{name}', node.get_parameter(name).value)
+        key = f'{node.get_name()}.{name}'
+        descriptor = ParameterDescriptor(description=param.description)
+        try:
+            node.declare_parameter(name, param.default, descriptor)
+        except InvalidParameterTypeException:
+            # a value of another type than the default's (n_steps:=eight, gamma:=1): say
+            # what is allowed, or take it where the table converts it (an int for a float)
+            value = param.check(key, node._parameter_overrides[name].value)
+            node.declare_parameter(name, value, descriptor, ignore_override=True)
+        values[name] = param.check(key, node.get_parameter(name).value)
     return values
 
 
