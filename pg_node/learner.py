@@ -49,11 +49,17 @@ class Learner:
         return ok
 
     def learn(self, obs, act, logp, adv) -> Dict[str, float]:
-        """Apply one update from a batch; return its metrics (version advanced if applied)."""
+        """
+        Apply one update from a batch; return its metrics.
+
+        The version advances with every batch learned from, also when the gradient step was
+        skipped for a non-finite loss or gradient (weights kept): the actors wait for the
+        next version in sync mode, and must get one to go on sampling.
+        """
         stats = self.update.update(PolicyBatch.from_numpy(obs, act, logp, adv))
         if stats['skipped_updates'] == 0 or self.cfg['algo'] == 'ppo':
             self.policy.obs_norm.update(np.asarray(obs).reshape(-1, self.policy.obs_dim))
-            self.version += 1
+        self.version += 1
         self.env_steps += int(np.asarray(adv).size)
         stats['policy_version'] = float(self.version)
         return stats

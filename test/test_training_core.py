@@ -168,6 +168,13 @@ def test_learner_versions_and_refuses_wrong_version():
                           np.random.default_rng(0).normal(size=(3, 2)))
     assert learner.version == 1 and stats['policy_version'] == 1
     assert not learner.accepts(0) and learner.accepts(0, max_lag=1)
+    # a batch whose step is not finite: skipped, weights and statistics kept, version moves on
+    before = {k: v.clone() for k, v in learner.policy.state_dict().items()}
+    stats = learner.learn(np.zeros((3, 2, 4)), np.zeros((3, 2, 1)), np.zeros((3, 2)),
+                          np.full((3, 2), np.nan))
+    assert stats['skipped_updates'] == 1 and learner.version == 2
+    for k, v in learner.policy.state_dict().items():
+        assert torch.equal(v, before[k]), k
 
 
 def test_learner_checkpoint_resume(tmp_path):
