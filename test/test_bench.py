@@ -49,7 +49,10 @@ def test_targets_from_fixed_numbers():
     ret = [t for name, t in rows.items() if name.startswith('pg_node eval return')]
     assert ret[0]['met'] is True and '-5.50 vs -6.00' in ret[0]['value']
     # both curves are the same: time to -6 ties, which meets "no longer than"
-    assert rows['pg_node time to -6 <= that of SB3 A2C']['met'] is True
+    assert rows['pg_node time to -6 <= that of SB3 A2C (training return)']['met'] is True
+    by_eval = rows['pg_node time to -6 <= that of SB3 A2C (deterministic eval at the fixed '
+                   'points)']
+    assert by_eval['met'] is True and 'pg_node by 4 s' in by_eval['value']
 
 
 def test_time_to_threshold_and_value_at():
