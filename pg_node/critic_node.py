@@ -52,7 +52,7 @@ class CriticNode(Node):
         self.batches = 0
         self.seen = OrderedDict()
         self.groups = {}
-        self.sent = {}                         # version -> last batch sent (for re-sends)
+        self.sent = OrderedDict()              # version -> last batch sent (for re-sends)
         self.counters = {'rollouts': 0, 'rollouts_dropped': 0, 'duplicates': 0,
                          'batches': 0, 'batches_resent': 0, 'stale_groups_dropped': 0}
         self.steps = RateCounter()
@@ -159,8 +159,11 @@ class CriticNode(Node):
         msg = table_msg.to_msg(*messages.pack_batch(batch, header))
         self.pub_batch.publish(msg)
         self.sent[version] = msg
+        self.sent.move_to_end(version)
         while len(self.sent) > 4:
-            del self.sent[min(self.sent)]
+            # the oldest *sent*, not the lowest version: after a learner restart the
+            # versions go back, and the batch just sent must stay ready for a re-send
+            self.sent.popitem(last=False)
         self.batches += 1
         self.counters['batches'] += 1
         self.steps.add(ro.rew.size)
