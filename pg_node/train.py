@@ -8,10 +8,11 @@ starts, writes the resolved parameters to ``<run_dir>/params.yaml``, starts ``si
 supervises: a node that dies is restarted (at most ``--max-restarts`` times each, with
 doubling back-off); the learner resumes from its newest checkpoint, the critic V from its
 own, the actor picks up the latched weights, and a restarted simulator starts fresh episodes
-(the learner writes the ones it cut short to the bag as such). When the learner has learned ``total_steps`` (or on Ctrl-C) the nodes
-are stopped with SIGINT (then SIGTERM, then SIGKILL), the deterministic policy is evaluated
-over ``--eval-episodes`` episodes, and ``summary.json`` and ``learning_curve.png`` are
-written next to ``checkpoints/``, ``bag/`` and ``progress.csv``.
+(the learner writes the ones it cut short to the bag as such). When the learner has
+learned ``total_steps`` (or on Ctrl-C) the nodes are stopped with SIGINT (then SIGTERM,
+then SIGKILL), the deterministic policy is evaluated over ``--eval-episodes`` episodes, and
+``summary.json`` and ``learning_curve.png`` are written next to ``checkpoints/``, ``bag/``
+and ``progress.csv``.
 """
 import argparse
 import csv
