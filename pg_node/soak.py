@@ -420,7 +420,7 @@ def run_soak(args) -> dict:
         'malformed_sent': garbage_sent, 'malformed_reported_dropped': dropped,
         'bags': bags, 'all_bags_readable': bool(bags) and all(b['readable'] for b in bags),
         'memory': mem, 'memory_per_node': per_node,
-        'max_growth_pct': args.max_growth,
+        'max_growth_pct': args.max_growth, 'warmup_s': args.warmup,
         'memory_ok': all(m.get('ok', True) for m in mem),
     }
     report['ok'] = (not report['failed'] and report['all_bags_readable']
@@ -460,8 +460,8 @@ def format_report(r: dict) -> str:
             ' after reindex' if b['reindexed'] else '')
         lines.append(f'  {b["bag"]}: {how}, {b.get("messages", 0)} messages, '
                      f'{b.get("episodes", 0)} episode summaries')
-    lines.append(f'resident memory (baseline {r["memory"] and "after warm-up"}; growth '
-                 f'allowed {r["max_growth_pct"]:g}%):')
+    lines.append(f'resident memory (baseline {r["warmup_s"]:g} s after each process started; '
+                 f'growth allowed {r["max_growth_pct"]:g}%):')
     for m in r['memory']:
         growth = ('-' if m['growth_pct'] is None else f'{m["growth_pct"]:+.1f}%')
         judged = '' if m['judged'] else ' (lived too short to judge)'
