@@ -122,6 +122,11 @@ class CriticNode(Node):
             self.annotate(header['version'], [(header['actor_id'], ro)])
             return
         version = header['version']
+        for newer in [v for v in self.groups if v > version]:
+            # a new rollout of an older version: the learner restarted from a checkpoint,
+            # and those groups of the versions it lost can never be completed
+            del self.groups[newer]
+            self.counters['stale_groups_dropped'] += 1
         group = self.groups.setdefault(version, {})
         group[header['actor_id']] = ro
         if len(group) >= self.cfg['num_actors']:

@@ -233,29 +233,39 @@ class Injector:
         msg.data = array.array('d', data)
         return msg
 
-    def garbage(self) -> int:
-        """Publish malformed messages on every input topic; return how many were sent."""
-        for pub in self.latched_pubs:               # the previous round's latched ones
-            self.node.destroy_publisher(pub)
-        self.latched_pubs = []
-        sent = 0
+    def garbage(self) -> dict:
+        """
+        Publish malformed messages on every input topic; return how many of each were sent.
+
+        The actor reads transitions with keep-last-1 (the newest wins), so a malformed one
+        can be superseded by the simulator's next transition before the actor reads it: it
+        is then never processed at all. Five are sent, 20 ms apart; the report counts those
+        the actor did see and drop.
+        """
+        sent = {}
         for data in ([1.0, 2.0, 3.0], [float('nan')] * self.n_cmd, [1e300] * self.n_cmd):
             self.pub_cmd.publish(self._msg(data))
-            sent += 1
-        for pub in (self.pub_rollout, self.pub_batch):
+        sent['commands'] = 3
+        for kind, pub in (('rollouts', self.pub_rollout), ('batches', self.pub_batch)):
             pub.publish(self._msg([float('nan')] * 12, offset=5))
-            sent += 1
-        for topic in (self.ns + 'pg_node/transition', '/pg_node/policy_weights'):
-            # latched subscribers need a latched publisher; it goes away next round so that
-            # a node started later does not get the garbage as its first message
+            sent[kind] = 1
+        for kind, topic, n in (('transitions', self.ns + 'pg_node/transition', 5),
+                               ('weights', '/pg_node/policy_weights', 1)):
+            # latched subscribers need a latched publisher
             pub = self.node.create_publisher(self.Msg, topic, self.latched)
             self.latched_pubs.append(pub)
             end = time.monotonic() + 2.0
             while pub.get_subscription_count() < 1 and time.monotonic() < end:
                 self.spin(0.05)
-            pub.publish(self._msg([0.0] * 7, offset=3))
-            sent += 1
-        self.spin(0.2)
+            for _ in range(n):
+                pub.publish(self._msg([0.0] * 7, offset=3))
+                self.spin(0.02)
+            sent[kind] = n
+        self.spin(0.5)
+        for pub in self.latched_pubs:
+            # gone before a node restarts, which would get it as its first message
+            self.node.destroy_publisher(pub)
+        self.latched_pubs = []
         return sent
 
     def close(self):
@@ -335,7 +345,7 @@ def run_soak(args) -> dict:
     memory = MemoryLog(args.warmup)
     progress = run_dir / 'progress.csv'
     faults, stalled = [], []       # stalled: (pid, resume at)
-    garbage_sent = 0
+    garbage_sent = {}
     t0 = time.monotonic()
     next_fault = t0 + args.warmup
     last_sample = 0.0
@@ -366,8 +376,9 @@ def run_soak(args) -> dict:
                 action, _, name = kind.partition(' ')
                 if action == 'garbage':
                     n = injector.garbage()
-                    garbage_sent += n
-                    fault['messages'] = n
+                    for k, v in n.items():
+                        garbage_sent[k] = garbage_sent.get(k, 0) + v
+                    fault['messages'] = sum(n.values())
                 else:
                     proc = sup.procs.get(name)
                     if proc is None or proc.poll() is not None:
@@ -451,7 +462,8 @@ def format_report(r: dict) -> str:
     lines.append(f'steps lost: {sl["learner_since_checkpoint"]} learned after the newest '
                  f'checkpoint of a killed learner; {sl["partial_rollouts_discarded"]} partial '
                  f'rollouts discarded by actors (at most {sl["upper_bound"]} steps in all)')
-    lines.append(f'malformed messages sent: {r["malformed_sent"]}; reported dropped: '
+    lines.append('malformed messages sent: ' + ', '.join(
+        f'{k} {v}' for k, v in r['malformed_sent'].items()) + '; reported dropped: '
                  + ', '.join(f'{k} {v}' for k, v in r['malformed_reported_dropped'].items()
                              if v))
     lines.append('bags:')
