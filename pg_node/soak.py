@@ -209,7 +209,7 @@ class Injector:
             old = self.counters.get(status.name, {})
             carried = self.carried.setdefault(status.name, {})
             for key, value in values.items():
-                if value < old.get(key, 0.0):      # a new process counts from 0 again
+                if key in old and value < old[key]:    # a new process counts from 0 again
                     carried[key] = carried.get(key, 0.0) + old[key]
             self.counters[status.name] = values
 
