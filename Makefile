@@ -16,7 +16,7 @@ export PYTHONUNBUFFERED := 1
 ARGS ?=
 PYTEST_ARGS ?=
 
-.PHONY: all venv train test test-fast lint bench bench-sim variance lock clean
+.PHONY: all venv train test test-fast lint bench bench-quick bench-sim profile variance lock clean
 
 all: test
 
@@ -57,8 +57,14 @@ variance: $(STAMP)
 bench: $(STAMP)
 	$(PY) -m pg_node bench $(ARGS)
 
+bench-quick: $(STAMP)
+	$(PY) -m pg_node bench --quick --out /tmp/pg_node_bench $(ARGS)
+
 bench-sim: $(STAMP)
 	$(PY) bench/bench_sim.py $(ARGS)
+
+profile: $(STAMP)
+	$(PY) -m pg_node bench --only profile --report PROFILE.md $(ARGS)
 
 # Regenerate requirements.lock after editing requirements.in.
 lock:

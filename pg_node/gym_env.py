@@ -39,14 +39,24 @@ MAX_EPISODE_STEPS = 50
 class ArmEnv(gymnasium.Env):
     """One arm of :class:`~pg_node.arm_task.ArmTask` behind Gymnasium's ``Env`` API."""
 
-    metadata = {'render_modes': []}
+    metadata = {'render_modes': ['rgb_array']}
 
     def __init__(self, model: str = 'reacher2', frame_skip: int = 2,
                  reward_dist_weight: float = 1.0, reward_control_weight: float = 1.0,
-                 render_mode: Optional[str] = None):
-        """Load ``model`` (a shipped model's name or an MJCF path)."""
-        if render_mode is not None:
-            raise ValueError('pg_node environments do not render')
+                 render_mode: Optional[str] = None, width: int = 320, height: int = 240):
+        """
+        Load ``model`` (a shipped model's name or an MJCF path).
+
+        ``render_mode='rgb_array'`` (what SB3's ``make_vec_env`` asks for) makes
+        :meth:`render` return the arm drawn by MuJoCo's offscreen renderer; the renderer is
+        created on the first call, so an environment that is never rendered needs no OpenGL.
+        """
+        if render_mode not in (None, 'rgb_array'):
+            raise ValueError(f'render_mode {render_mode!r} is not supported; use None or '
+                             "'rgb_array'")
+        self.render_mode = render_mode
+        self._render_size = (int(height), int(width))
+        self._renderer = None
         self.task = ArmTask(resolve_model(model), num_envs=1, frame_skip=frame_skip,
                             max_episode_steps=None, reward_dist_weight=reward_dist_weight,
                             reward_control_weight=reward_control_weight, num_threads=1)
@@ -56,7 +66,8 @@ class ArmEnv(gymnasium.Env):
         # as Gymnasium's MujocoEnv: float32 bounds from the actuators' control ranges
         self.action_space = spaces.Box(spec.ctrl_low.astype(np.float32),
                                        spec.ctrl_high.astype(np.float32), dtype=np.float32)
-        self.metadata = {'render_modes': [], 'render_fps': int(np.round(1.0 / self.task.dt))}
+        self.metadata = {'render_modes': ['rgb_array'],
+                         'render_fps': int(np.round(1.0 / self.task.dt))}
 
     def reset(self, *, seed: Optional[int] = None, options: Optional[dict] = None):
         """Start an episode drawn from ``self.np_random``; return ``(obs, info)``."""
@@ -73,8 +84,21 @@ class ArmEnv(gymnasium.Env):
                 {'reward_dist': float(info['reward_dist'][0]),
                  'reward_ctrl': float(info['reward_ctrl'][0])})
 
+    def render(self):
+        """Return the current frame as an ``(height, width, 3)`` uint8 array (rgb_array)."""
+        if self.render_mode != 'rgb_array':
+            return None
+        if self._renderer is None:
+            import mujoco
+            self._renderer = mujoco.Renderer(self.task.model, *self._render_size)
+        self._renderer.update_scene(self.task.datas[0])
+        return self._renderer.render()
+
     def close(self):
-        """Release the task."""
+        """Release the task and the renderer."""
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
         self.task.close()
 
 

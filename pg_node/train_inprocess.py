@@ -57,7 +57,7 @@ def train_inprocess(cfg: Dict[str, Dict], total_steps: int,
             if callback is not None:
                 callback({'env_steps': steps, 'wall_seconds': time.perf_counter() - t0,
                           'episode_return': float(np.mean(recent)) if recent else float('nan'),
-                          **c_stats, **l_stats})
+                          'learner': learner, 'critic': critic, **c_stats, **l_stats})
     finally:
         task.close()
     wall = time.perf_counter() - t0

@@ -64,3 +64,17 @@ def test_model_kwarg_and_vector_env(tmp_path):
     assert obs.shape == (2, 10)
     obs, reward, *_ = venv.step(np.zeros((2, 2)))
     assert reward.shape == (2,)
+
+
+def test_sb3_make_vec_env_default_render_mode_is_accepted():
+    """SB3's make_vec_env asks for rgb_array; the env accepts it and renders only on request."""
+    from stable_baselines3.common.env_util import make_vec_env
+    venv = make_vec_env('pg_node/Reacher2-v0', n_envs=2, seed=0)
+    try:
+        assert venv.reset().shape == (2, 10)
+        assert venv.get_attr('render_mode') == ['rgb_array', 'rgb_array']
+    finally:
+        venv.close()
+    from pg_node.gym_env import ArmEnv
+    with pytest.raises(ValueError, match="render_mode 'human' is not supported"):
+        ArmEnv(render_mode='human')
