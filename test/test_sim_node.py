@@ -162,16 +162,21 @@ def test_joint_states_commands_rejections_and_clean_shutdown(tmp_path, client):
         for field in (first.position, first.velocity, first.effort):
             assert len(field) == 4 and np.all(np.isfinite(field))
         assert client.transitions[-1].obs.shape == (2, 10)
-        # the targets (latched, one per arm) and the markers: links, fingertip, target per arm
+        # the targets (latched, one per arm) and the markers: all links, fingertips, targets
         client.spin_until(lambda: len(client.targets) >= 2 and client.markers)
         assert [t.header.frame_id for t in client.targets[:2]] == ['arm0', 'arm1']
         goals = client.transitions[-1].obs[:, 4:6]
         for i, target in enumerate(client.targets[:2]):
             np.testing.assert_allclose([target.point.x, target.point.y], goals[i], atol=1e-12)
-        markers = client.markers[-1].markers
-        assert sorted((m.ns, m.id) for m in markers) == sorted(
-            (ns, i) for ns in ('links', 'fingertip', 'target') for i in range(2))
-        assert all(np.isfinite([p.x for m in markers for p in m.points]))
+        markers = {m.ns: m for m in client.markers[-1].markers}
+        assert sorted(markers) == ['fingertips', 'links', 'targets']
+        assert len(markers['fingertips'].points) == len(markers['targets'].points) == 2
+        # two links per reacher2 arm, two points per segment of the LINE_LIST
+        assert len(markers['links'].points) % 2 == 0 and len(markers['links'].points) >= 8
+        assert all(np.isfinite([p.x for m in markers.values() for p in m.points]))
+        # arm 1's target is drawn shifted by its grid offset from arm 0's
+        shift = markers['targets'].points[1].x - markers['targets'].points[0].x
+        assert shift == pytest.approx(0.7 + goals[1, 0] - goals[0, 0], abs=1e-9)
 
         n_js = len(client.joint_states)
         tr = client.step([1.0, -1.0, -1.0, 1.0])
