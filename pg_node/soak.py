@@ -189,6 +189,13 @@ class Injector:
         self.counters = {}      # status name -> {counter: value}
         self.carried = {}       # status name -> {counter: sum over earlier processes}
         self.node.create_subscription(DiagnosticArray, '/diagnostics', self.on_diag, 50)
+        from std_msgs.msg import Float64
+        self.batch_steps = (cfg['actor_node']['n_steps'] * cfg[SHARED]['num_envs']
+                            * cfg[SHARED]['num_actors'])
+        self.env_steps = None       # the learner's newest env_steps metric
+        self.learner_lost = 0
+        self.node.create_subscription(Float64, '/pg_node/metrics/env_steps',
+                                      self.on_env_steps, 100)
         self.pub_cmd = self.node.create_publisher(Float64MultiArray,
                                                   self.ns + 'arm_controller/commands', 10)
         self.pub_rollout = self.node.create_publisher(Float64MultiArray, '/pg_node/rollout',
@@ -196,6 +203,18 @@ class Injector:
         self.pub_batch = self.node.create_publisher(Float64MultiArray, '/pg_node/batch',
                                                     RELIABLE)
         self.latched_pubs = []
+
+    def on_env_steps(self, msg):
+        """
+        Count the steps a restarted learner lost: it goes back to its newest checkpoint.
+
+        The metric is published with every update, so the last value before the crash is
+        what the learner had learned, also when its ``progress.csv`` was not yet flushed.
+        """
+        steps = int(msg.data)
+        if self.env_steps is not None and steps <= self.env_steps:
+            self.learner_lost += self.env_steps - (steps - self.batch_steps)
+        self.env_steps = steps
 
     def on_diag(self, msg):
         """Keep each node's newest counters, carrying them over a restart."""
@@ -408,7 +427,8 @@ def run_soak(args) -> dict:
                         max_growth=args.max_growth)
     dropped = {k: int(injector.total(k)) for k in DROP_COUNTERS}
     discarded = int(injector.total('rollouts_discarded'))
-    learner_lost = steps_lost_by_learner(progress, batch_steps)
+    # the metric stream sees what progress.csv may not have flushed before a SIGKILL
+    learner_lost = max(injector.learner_lost, steps_lost_by_learner(progress, batch_steps))
     per_node = {}
     for name in commands:
         recs = [m for m in mem if m['node'] == name]
