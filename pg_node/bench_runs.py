@@ -19,7 +19,6 @@ import importlib.util
 import json
 import os
 from pathlib import Path
-import signal
 import subprocess
 import sys
 import tempfile
@@ -27,6 +26,7 @@ import time
 from typing import Dict, List, Optional, Sequence
 
 import numpy as np
+from pg_node.processes import child_env, stop
 
 REPO = Path(__file__).resolve().parent.parent
 _domain_counter = [0]
@@ -36,26 +36,6 @@ def domain_id() -> int:
     """Return a ROS domain id for one run, unique within this process (1..99)."""
     _domain_counter[0] += 1
     return 1 + (os.getpid() * 7 + _domain_counter[0]) % 99
-
-
-def child_env(domain: int) -> Dict[str, str]:
-    """Return the environment of a node process on ``domain``."""
-    path = os.environ.get('PYTHONPATH', '')
-    return dict(os.environ, ROS_DOMAIN_ID=str(domain), PYTHONUNBUFFERED='1',
-                PYTHONPATH=f'{REPO}{os.pathsep}{path}' if path else str(REPO))
-
-
-def stop(proc: subprocess.Popen, wait: float = 10.0) -> Optional[int]:
-    """Stop a process started in its own session: SIGINT, then SIGTERM, then SIGKILL."""
-    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
-        if proc.poll() is not None:
-            break
-        proc.send_signal(sig)
-        try:
-            proc.wait(wait)
-        except subprocess.TimeoutExpired:
-            pass
-    return proc.poll()
 
 
 # --- throughput ----------------------------------------------------------------------------

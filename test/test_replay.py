@@ -8,12 +8,11 @@ checked byte for byte against the bag.
 from collections import defaultdict
 import os
 from pathlib import Path
-import signal
 import subprocess
 import sys
 import time
 
-from pg_node import ros_types
+from pg_node import processes, ros_types
 from pg_node.bag_reader import BagReader
 from pg_node.bag_writer import BagWriter
 from pg_node.replay_node import main, merge_qos, parse_remaps
@@ -47,14 +46,7 @@ def start_replay(tmp_path, *args):
 
 def stop(proc):
     """Stop with SIGINT, then SIGTERM, then SIGKILL; return the exit code and the log."""
-    for sig, wait in ((signal.SIGINT, 10), (signal.SIGTERM, 5), (signal.SIGKILL, 5)):
-        if proc.poll() is not None:
-            break
-        proc.send_signal(sig)
-        try:
-            proc.wait(wait)
-        except subprocess.TimeoutExpired:
-            pass
+    processes.stop(proc)
     proc.log.seek(0)
     text = proc.log.read()
     proc.log.close()

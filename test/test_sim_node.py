@@ -1,7 +1,6 @@
 """sim_node as a real process over DDS: joint states, commands, lock-step, services."""
 import os
 from pathlib import Path
-import signal
 import subprocess
 import sys
 import time
@@ -9,7 +8,7 @@ import time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PointStamped
 import numpy as np
-from pg_node import transition
+from pg_node import processes, transition
 from pg_node.arm_task import ArmTask
 from pg_node.paths import resolve_model
 import pytest
@@ -48,14 +47,7 @@ def start_node(tmp_path, *params):
 
 def stop_node(proc):
     """Stop with SIGINT, then SIGTERM, then SIGKILL; return the exit code and the log."""
-    for sig, wait in ((signal.SIGINT, 10), (signal.SIGTERM, 5), (signal.SIGKILL, 5)):
-        if proc.poll() is not None:
-            break
-        proc.send_signal(sig)
-        try:
-            proc.wait(wait)
-        except subprocess.TimeoutExpired:
-            pass
+    processes.stop(proc)
     proc.log.seek(0)
     text = proc.log.read()
     proc.log.close()
