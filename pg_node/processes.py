@@ -31,12 +31,28 @@ def child_env(domain_id: Optional[int] = None) -> Dict[str, str]:
     return env
 
 
+def signal_process(proc: subprocess.Popen, sig) -> None:
+    """
+    Send ``sig`` to ``proc``, and to its whole process group when it leads one.
+
+    A process started with ``start_new_session=True`` leads its own group, so a bring-up's
+    node children get the signal too.
+    """
+    try:
+        if os.getpgid(proc.pid) == proc.pid:
+            os.killpg(proc.pid, sig)
+        else:
+            proc.send_signal(sig)
+    except ProcessLookupError:
+        pass
+
+
 def stop(proc: subprocess.Popen, waits=STOP_WAITS) -> Optional[int]:
     """Stop ``proc``: each signal of ``waits`` in turn until it exits; return its exit code."""
     for sig, wait in waits:
         if proc.poll() is not None:
             break
-        proc.send_signal(sig)
+        signal_process(proc, sig)
         try:
             proc.wait(wait)
         except subprocess.TimeoutExpired:

@@ -20,15 +20,13 @@ from datetime import datetime
 import json
 import os
 from pathlib import Path
-import signal
 import subprocess
 import sys
 import time
 
 from pg_node.params import ConfigError, load_config, SHARED
+from pg_node.processes import signal_process, STOP_WAITS
 import yaml
-
-STOP_WAITS = ((signal.SIGINT, 10.0), (signal.SIGTERM, 5.0), (signal.SIGKILL, 5.0))
 
 
 def parse_args(argv):
@@ -166,10 +164,7 @@ class Supervisor:
         for sig, wait in STOP_WAITS:
             alive = [p for p in self.procs.values() if p.poll() is None]
             for p in alive:
-                try:
-                    os.killpg(p.pid, sig)
-                except ProcessLookupError:
-                    pass
+                signal_process(p, sig)
             deadline = time.monotonic() + wait
             while alive and time.monotonic() < deadline:
                 alive = [p for p in alive if p.poll() is None]

@@ -17,7 +17,7 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
-from pg_node import messages, table_msg, transition
+from pg_node import messages, processes, table_msg, transition
 from pg_node.bag_writer import reindex
 from pg_node.episode_recorder import EpisodeRecorder, parse_episode
 from pg_node.learner import EpisodeStats, Learner, make_policy
@@ -66,14 +66,7 @@ def start(module, domain, log_path, *params):
 
 def stop(proc):
     """Stop with SIGINT, then SIGTERM, then SIGKILL; return the exit code and the log."""
-    for sig, wait in ((signal.SIGINT, 10), (signal.SIGTERM, 5), (signal.SIGKILL, 5)):
-        if proc.poll() is not None:
-            break
-        os.killpg(proc.pid, sig)
-        try:
-            proc.wait(wait)
-        except subprocess.TimeoutExpired:
-            pass
+    processes.stop(proc)
     proc.log.seek(0)
     text = proc.log.read()
     proc.log.close()
