@@ -183,27 +183,6 @@ def read_progress(path: Path):
             for r in rows]
 
 
-def write_learning_curve(rows, png: Path):
-    """Plot episode return against environment steps and wall time."""
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4), sharey=True)
-    steps = [r['env_steps'] for r in rows]
-    ret = [r['episode_return'] for r in rows]
-    axes[0].plot(steps, ret)
-    axes[0].set_xlabel('environment steps')
-    axes[0].set_ylabel('episode return (mean of last 100)')
-    axes[1].plot([r['wall_seconds'] for r in rows], ret)
-    axes[1].set_xlabel('wall time (s)')
-    for ax in axes:
-        ax.grid(alpha=0.3)
-    fig.suptitle('pg_node training')
-    fig.tight_layout()
-    fig.savefig(png, dpi=100)
-    plt.close(fig)
-
-
 def evaluate_run(run_dir: Path, episodes: int) -> dict:
     """Evaluate the newest checkpoint's deterministic policy."""
     from pg_node.checkpoint import load_latest
@@ -285,7 +264,9 @@ def main(argv=None) -> int:
     (run_dir / 'summary.json').write_text(json.dumps(summary, indent=2, default=str))
     png = run_dir / 'learning_curve.png'
     if rows:
-        write_learning_curve(rows, png)
+        # the same figure as python -m pg_node plot <run dir>: returns, speed, losses, entropy
+        from pg_node.plot import plot_run, RunData
+        plot_run(RunData(run_dir), png)
     print(f"eval return {summary.get('eval_return', float('nan')):.2f} +/- "
           f"{summary.get('eval_return_std', float('nan')):.2f} after {summary['total_steps']} "
           f"steps in {summary['wall_seconds']:.0f} s ({summary['steps_per_second']:.0f} "

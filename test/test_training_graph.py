@@ -64,6 +64,10 @@ def run(tmp_path_factory):
 
 def test_graph_learns_and_versions_advance(run):
     run_dir, summary = run
+    from PIL import Image
+    with Image.open(run_dir / 'learning_curve.png') as img:
+        assert img.size == (1500, 800)
+        assert len(set(img.convert('L').getdata())) > 10      # not a blank image
     cfg = load_config(default_config())
     assert summary['total_steps'] >= STEPS
     n_batch = cfg['/**']['num_envs'] * cfg['actor_node']['n_steps']
