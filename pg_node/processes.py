@@ -58,3 +58,25 @@ def stop(proc: subprocess.Popen, waits=STOP_WAITS) -> Optional[int]:
         except subprocess.TimeoutExpired:
             pass
     return proc.poll()
+
+
+def start_logged(args, log_path, env=None, cwd=REPO) -> subprocess.Popen:
+    """
+    Start ``args`` in its own session, its output going to ``log_path``.
+
+    The log stays open as ``proc.log`` so that :func:`stop_logged` can read it back.
+    """
+    log = open(log_path, 'w+')
+    proc = subprocess.Popen(list(map(str, args)), env=env, cwd=cwd, stdout=log,
+                            stderr=subprocess.STDOUT, start_new_session=True)
+    proc.log = log
+    return proc
+
+
+def stop_logged(proc: subprocess.Popen):
+    """Stop a process of :func:`start_logged`; return ``(exit code, its whole log)``."""
+    stop(proc)
+    proc.log.seek(0)
+    text = proc.log.read()
+    proc.log.close()
+    return proc.returncode, text

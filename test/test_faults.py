@@ -57,20 +57,10 @@ def start(module, domain, log_path, *params):
     args = [sys.executable, '-m', f'pg_node.{module}', '--ros-args']
     for p in params:
         args += ['-p', p]
-    log = open(log_path, 'w+')
-    proc = subprocess.Popen(args, env=env(domain), cwd=REPO, stdout=log,
-                            stderr=subprocess.STDOUT, start_new_session=True)
-    proc.log = log
-    return proc
+    return processes.start_logged(args, log_path, env(domain))
 
 
-def stop(proc):
-    """Stop with SIGINT, then SIGTERM, then SIGKILL; return the exit code and the log."""
-    processes.stop(proc)
-    proc.log.seek(0)
-    text = proc.log.read()
-    proc.log.close()
-    return proc.returncode, text
+stop = processes.stop_logged
 
 
 class Client:

@@ -8,7 +8,6 @@ checked byte for byte against the bag.
 from collections import defaultdict
 import os
 from pathlib import Path
-import subprocess
 import sys
 import time
 
@@ -36,21 +35,11 @@ def start_replay(tmp_path, *args):
     env = dict(os.environ, ROS_DOMAIN_ID=str(DOMAIN_ID), PYTHONUNBUFFERED='1',
                PYTHONPATH=str(REPO))
     env.pop('MUJOCO_GL', None)
-    log = open(tmp_path / f'replay_{time.monotonic_ns()}.log', 'w+')
-    proc = subprocess.Popen([sys.executable, '-m', 'pg_node', 'replay', *map(str, args)],
-                            env=env, cwd=REPO, stdout=log, stderr=subprocess.STDOUT,
-                            start_new_session=True)
-    proc.log = log
-    return proc
+    return processes.start_logged([sys.executable, '-m', 'pg_node', 'replay', *args],
+                                  tmp_path / f'replay_{time.monotonic_ns()}.log', env)
 
 
-def stop(proc):
-    """Stop with SIGINT, then SIGTERM, then SIGKILL; return the exit code and the log."""
-    processes.stop(proc)
-    proc.log.seek(0)
-    text = proc.log.read()
-    proc.log.close()
-    return proc.returncode, text
+stop = processes.stop_logged
 
 
 class Listener:

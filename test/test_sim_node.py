@@ -1,7 +1,6 @@
 """sim_node as a real process over DDS: joint states, commands, lock-step, services."""
 import os
 from pathlib import Path
-import subprocess
 import sys
 import time
 
@@ -38,20 +37,10 @@ def start_node(tmp_path, *params):
     # -p wins over an earlier one
     for param in ('num_envs:=1',) + params:
         args += ['-p', param]
-    log = open(tmp_path / f'sim_node_{time.monotonic_ns()}.log', 'w+')
-    proc = subprocess.Popen(args, env=env, cwd=REPO, stdout=log, stderr=subprocess.STDOUT,
-                            start_new_session=True)
-    proc.log = log
-    return proc
+    return processes.start_logged(args, tmp_path / f'sim_node_{time.monotonic_ns()}.log', env)
 
 
-def stop_node(proc):
-    """Stop with SIGINT, then SIGTERM, then SIGKILL; return the exit code and the log."""
-    processes.stop(proc)
-    proc.log.seek(0)
-    text = proc.log.read()
-    proc.log.close()
-    return proc.returncode, text
+stop_node = processes.stop_logged
 
 
 class Client:
