@@ -77,12 +77,20 @@ class Listener:
             self.executor.spin_once(timeout_sec=0.05)
         return done()
 
-    def call(self, srv_type, name, request, timeout=10.0):
-        """Call a service and return its response."""
+    def call(self, srv_type, name, request, timeout=20.0):
+        """
+        Call a service and return its response.
+
+        ``wait_for_service`` is true as soon as the server's request reader is matched; the
+        path back (its response writer to our reader) can match a moment later, and a
+        response sent before that is lost. So the client spins for a moment after
+        discovery before it asks (the calls here are not idempotent: no retry).
+        """
         client = self.node.create_client(srv_type, name)
         assert client.wait_for_service(timeout_sec=timeout), name
+        self.spin_until(lambda: False, 1.0)
         future = client.call_async(request)
-        self.spin_until(future.done, timeout)
+        assert self.spin_until(future.done, timeout), f'no response from {name}'
         return future.result()
 
     def close(self):
