@@ -35,10 +35,7 @@ BATCH_HEADER = ('version', 'n_actors', 'batch_seq', 'n_steps', 'num_envs', 'valu
 WEIGHTS_HEADER = ('version', 'env_steps')
 BOOL_FIELDS = ('terminated', 'truncated')
 INT_FIELDS = ('ep_step', 'episode_id', 'seq', 'actor')
-#: Largest magnitude a real-valued field may hold: observations, actions, log-probabilities,
-#: rewards and advantages of the arm stay far below; 1e300 is a bug upstream, and one such
-#: value would poison the running observation statistics for good.
-MAX_ABS = 1e6
+MAX_ABS = table_msg.MAX_ABS
 
 
 def _rollout_widths(obs_dim=None, act_dim=None):

@@ -69,7 +69,7 @@ from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Point, PointStamped
 import numpy as np
-from pg_node import transition
+from pg_node import table_msg, transition
 from pg_node.arm_task import ArmTask
 from pg_node.node_utils import declare_params, run
 from pg_node.params import params_for
@@ -84,7 +84,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 #: A command value beyond this (N m before gear) is not a torque but a bug: dropped, not
 #: clipped. Values between the control range and this are clipped (counted, warned).
-ABSURD_COMMAND = 1e6
+ABSURD_COMMAND = table_msg.MAX_ABS
 
 
 def sim_stamp(seconds: float) -> Time:

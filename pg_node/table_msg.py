@@ -19,6 +19,10 @@ from typing import Dict, Mapping, Optional, Sequence, Tuple
 import numpy as np
 
 ROWS_LABEL = 'rows'
+#: Largest magnitude a real value on pg_node's wire may have (observations, actions,
+#: rewards, advantages and torque commands of the arm stay far below): 1e300 is a bug
+#: upstream, and one such value would poison the running observation statistics for good.
+MAX_ABS = 1e6
 
 
 def pack(header: Sequence[float], fields: Mapping[str, np.ndarray], rows_label=ROWS_LABEL

@@ -38,6 +38,7 @@ import array
 from dataclasses import dataclass
 
 import numpy as np
+from pg_node import table_msg
 
 HEADER_SIZE = 1
 ENV_LABEL = 'env'
@@ -53,8 +54,7 @@ FIELDS = (
 )
 BOOL_FIELDS = ('terminated', 'truncated')
 INT_FIELDS = ('episode_id', 'episode_step')
-#: Largest magnitude of an observation or reward (the arm's stay far below).
-MAX_ABS = 1e6
+MAX_ABS = table_msg.MAX_ABS
 
 
 @dataclass
