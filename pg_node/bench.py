@@ -41,6 +41,7 @@ import traceback
 from typing import Dict, List
 
 import numpy as np
+from pg_node.processes import terminate_as_interrupt
 
 SECTIONS = ('throughput', 'latency', 'variance', 'learning', 'profile')
 DEFAULT_SECTIONS = ('throughput', 'latency', 'variance', 'learning')
@@ -761,17 +762,18 @@ def main(argv=None) -> int:
         'variance': lambda: run_variance(budgets, log),
         'profile': lambda: run_profile(budgets, log),
     }
-    for section in SECTIONS:
-        if section not in args.only:
-            continue
-        try:
-            res = runners[section]()
-            res['load'] = load_average()
-            results[section] = res
-        except Exception as exc:  # noqa: B902 - the report says which section failed
-            log(traceback.format_exc())
-            results['errors'].append(f'{section}: {exc}'.splitlines()[0])
-        write_report()
+    with terminate_as_interrupt():  # kill/timeout stop the children as Ctrl-C does
+        for section in SECTIONS:
+            if section not in args.only:
+                continue
+            try:
+                res = runners[section]()
+                res['load'] = load_average()
+                results[section] = res
+            except Exception as exc:  # noqa: B902 - the report says which section failed
+                log(traceback.format_exc())
+                results['errors'].append(f'{section}: {exc}'.splitlines()[0])
+            write_report()
     results['complete'] = True
     plots = write_report()
     report = out_dir / args.report

@@ -6,11 +6,12 @@ A node started from a non-interactive shell or a script must run in its own sess
 own keeps a Ctrl-C meant for the parent from reaching it twice. It is stopped the way
 ``ros2 launch`` stops nodes: SIGINT, then SIGTERM, then SIGKILL, waiting between.
 """
+import contextlib
 import os
 from pathlib import Path
 import signal
 import subprocess
-from typing import Dict, Optional
+from typing import Dict, Iterator, Optional
 
 REPO = Path(__file__).resolve().parent.parent
 STOP_WAITS = ((signal.SIGINT, 10.0), (signal.SIGTERM, 5.0), (signal.SIGKILL, 5.0))
@@ -29,6 +30,38 @@ def child_env(domain_id: Optional[int] = None) -> Dict[str, str]:
     if domain_id is not None:
         env['ROS_DOMAIN_ID'] = str(domain_id)
     return env
+
+
+@contextlib.contextmanager
+def signals_handled(signals, handler) -> Iterator[None]:
+    """Handle ``signals`` with ``handler`` inside the block (main thread only), then restore."""
+    old = {sig: signal.signal(sig, handler) for sig in signals}
+    try:
+        yield
+    finally:
+        for sig, previous in old.items():
+            signal.signal(sig, previous)
+
+
+def _interrupt(signum, frame):
+    raise KeyboardInterrupt(f'signal {signal.Signals(signum).name}')
+
+
+def terminate_as_interrupt():
+    """
+    Turn SIGTERM and SIGHUP into KeyboardInterrupt inside the block.
+
+    A supervisor (``train``, ``soak``, ``bench``) starts its nodes in sessions of their own,
+    so a signal sent to the supervisor alone (``timeout``, ``kill``, a closed terminal) does
+    not reach them: without this it dies at once and leaves them running. With it the
+    signal takes the Ctrl-C path, which stops the nodes.
+    """
+    return signals_handled((signal.SIGTERM, signal.SIGHUP), _interrupt)
+
+
+def shutting_down():
+    """Ignore SIGINT, SIGTERM and SIGHUP inside the block: the nodes are being stopped."""
+    return signals_handled((signal.SIGINT, signal.SIGTERM, signal.SIGHUP), signal.SIG_IGN)
 
 
 def signal_process(proc: subprocess.Popen, sig) -> None:

@@ -42,6 +42,7 @@ import sys
 import time
 
 from pg_node.params import ConfigError, load_config, SHARED
+from pg_node.processes import terminate_as_interrupt
 
 NODES = ('sim_node', 'actor_node', 'critic_node', 'learner_node')
 FAULTS = ('kill sim_node', 'kill actor_node', 'kill critic_node', 'kill learner_node',
@@ -508,7 +509,8 @@ def main(argv=None) -> int:
     """Run ``python -m pg_node soak``."""
     args = parse_args(argv)
     try:
-        report = run_soak(args)
+        with terminate_as_interrupt():
+            report = run_soak(args)
     except ConfigError as exc:
         print(f'configuration error: {exc}', file=sys.stderr)
         return 2

@@ -25,7 +25,8 @@ import sys
 import time
 
 from pg_node.params import ConfigError, load_config, SHARED
-from pg_node.processes import signal_process, STOP_WAITS
+from pg_node.processes import (shutting_down, signal_process, STOP_WAITS,
+                               terminate_as_interrupt)
 import yaml
 
 
@@ -201,6 +202,24 @@ def evaluate_run(run_dir: Path, episodes: int) -> dict:
     return res
 
 
+def supervise(sup: Supervisor, run_dir: Path, bar, total: int) -> str:
+    """Start the nodes and watch them until done or failed; return the final state."""
+    state = 'running'
+    sup.start_all()
+    while state == 'running':
+        time.sleep(0.5)
+        state = sup.check()
+        rows = read_progress(run_dir / 'progress.csv')
+        if bar is not None and rows:
+            last = rows[-1]
+            bar.n = min(int(last['env_steps']), total)
+            bar.set_postfix(ret=f"{last['episode_return']:.2f}",
+                            sps=f"{last['steps_per_second']:.0f}",
+                            version=int(last['policy_version']), refresh=False)
+            bar.refresh()
+    return state
+
+
 def main(argv=None) -> int:
     """Run ``python -m pg_node train``."""
     args = parse_args(argv)
@@ -227,24 +246,16 @@ def main(argv=None) -> int:
     t0 = time.monotonic()
     state = 'running'
     interrupted = False
-    sup.start_all()
     try:
-        while state == 'running':
-            time.sleep(0.5)
-            state = sup.check()
-            rows = read_progress(run_dir / 'progress.csv')
-            if bar is not None and rows:
-                last = rows[-1]
-                bar.n = min(int(last['env_steps']), total)
-                bar.set_postfix(ret=f"{last['episode_return']:.2f}",
-                                sps=f"{last['steps_per_second']:.0f}",
-                                version=int(last['policy_version']), refresh=False)
-                bar.refresh()
-    except KeyboardInterrupt:
+        with terminate_as_interrupt():  # SIGTERM / SIGHUP stop the nodes as Ctrl-C does
+            state = supervise(sup, run_dir, bar, total)
+    except KeyboardInterrupt as exc:
         interrupted = True
-        print('\ninterrupted: stopping the nodes', file=sys.stderr)
+        print(f'\ninterrupted{f" by {exc}" if str(exc) else ""}: stopping the nodes',
+              file=sys.stderr)
     finally:
-        sup.stop_all()
+        with shutting_down():  # a second Ctrl-C must not leave nodes behind
+            sup.stop_all()
         if bar is not None:
             bar.close()
     wall = time.monotonic() - t0

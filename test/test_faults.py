@@ -613,3 +613,45 @@ def test_two_minute_soak_keeps_memory_flat_and_bags_readable(tmp_path):
     assert {m['node'] for m in judged} == set(nodes)
     assert all(m['growth_pct'] <= 10.0 for m in judged), report['memory']
     assert report['ok'] and res.returncode == 0
+
+
+def node_pids(run_dir):
+    """Return the pids of the node processes of a run (their command lines name it)."""
+    out = subprocess.run(['pgrep', '-f', f'pg_node[.].*_node .*{run_dir}'],
+                         capture_output=True, text=True).stdout.split()
+    return [int(p) for p in out]
+
+
+@pytest.mark.e2e
+@pytest.mark.slow
+@pytest.mark.parametrize('sig', [signal.SIGTERM, signal.SIGHUP], ids=['SIGTERM', 'SIGHUP'])
+def test_signal_to_train_alone_stops_every_node(tmp_path, sig):
+    """
+    ``kill``/``timeout`` signal the bring-up alone, not the nodes' sessions: it stops them.
+
+    Before this was handled, a SIGTERM killed ``train`` at once and left its four nodes
+    running (each in a session of its own), busy with nobody to stop them.
+    """
+    run_dir = tmp_path / 'run'
+    cmd = [sys.executable, '-m', 'pg_node', 'train', '--run-dir', str(run_dir),
+           '--no-progress', '--total-steps', '10000000', '--eval-episodes', '2']
+    proc = subprocess.Popen(cmd, env=env(GRAPH), cwd=REPO, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 240
+        while last_row(run_dir) is None:
+            assert time.monotonic() < deadline and proc.poll() is None
+            time.sleep(0.2)
+        assert len(node_pids(run_dir)) == 4
+        os.kill(proc.pid, sig)                 # the bring-up only, as timeout(1) does
+        text = proc.communicate(timeout=120)[0]
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+        for pid in node_pids(run_dir):         # do not leave them behind if the test fails
+            os.kill(pid, signal.SIGKILL)
+    assert proc.returncode == 0, text[-3000:]
+    assert f'interrupted by signal {sig.name}: stopping the nodes' in text
+    assert node_pids(run_dir) == []
+    summary = json.loads((run_dir / 'summary.json').read_text())
+    assert summary['interrupted'] and 0 < summary['total_steps'] < 10_000_000
