@@ -11,6 +11,7 @@ from typing import Dict, Optional, Tuple
 import numpy as np
 from pg_node.a2c import ValueUpdate
 from pg_node.estimators import compute_phi, value_targets
+from pg_node.losses import explained_variance
 from pg_node.policy import segment_score_sq
 from pg_node.rollout import Rollout, segment_ids
 from pg_node.rollout_buffer import RolloutArrays
@@ -35,10 +36,23 @@ class Critic:
     def annotate(self, ro: RolloutArrays, policy=None
                  ) -> Tuple[np.ndarray, np.ndarray, Dict[str, float]]:
         """
-        Return ``(adv, ret, metrics)`` for a rollout and fit V on it.
+        Return ``(adv, ret, metrics)`` for a rollout and fit V on it: :meth:`judge`, :meth:`fit`.
 
         ``policy`` is needed only by the optimal baseline, which weighs trajectories by the
         squared norm of their score.
+        """
+        adv, ret, _ = self.judge(ro, policy)
+        return adv, ret, self.fit(ro.obs, ret)
+
+    def judge(self, ro: RolloutArrays, policy=None
+              ) -> Tuple[np.ndarray, np.ndarray, Dict[str, float]]:
+        """
+        Return ``(adv, ret, metrics)`` with V as it is, before it learns from this rollout.
+
+        ``metrics`` are V's ``value_loss`` (mean squared error against ``ret``) and
+        ``explained_variance`` on the rollout, measured before :meth:`fit` (for A2C's one
+        full-batch step, the loss that step starts from). critic_node sends the batch after
+        this and fits V afterwards, off the path the next rollout waits on.
         """
         cfg = self.cfg
         self.value_fn.obs_norm.update(ro.obs.reshape(-1, ro.obs.shape[-1]))
@@ -51,8 +65,13 @@ class Critic:
                         val=val, next_val=next_val, ep_step=ro.ep_step, score_sq=score_sq)
         adv = compute_phi(cfg['estimator'], batch, cfg['gamma'], cfg['gae_lambda'])
         ret = value_targets(batch, cfg['gamma'], cfg['gae_lambda'], cfg['value_target'])
-        metrics = self.update.update(ro.obs, ret)
+        metrics = {'value_loss': float(np.mean(np.square(ret - val))),
+                   'explained_variance': explained_variance(val.ravel(), ret.ravel())}
         return adv, ret, metrics
+
+    def fit(self, obs: np.ndarray, ret: np.ndarray) -> Dict[str, float]:
+        """Take V's regression step(s) towards ``ret`` (section 4.5); return its metrics."""
+        return self.update.update(obs, ret)
 
     @staticmethod
     def _score_sq(ro: RolloutArrays, policy) -> np.ndarray:

@@ -14,6 +14,10 @@ the new weights may have been lost, and the learner answers a repeated batch by 
 its weights again), so no single lost message stalls synchronous training. A malformed
 rollout is dropped and counted.
 
+A batch is sent as soon as phi is computed; V takes its regression step on the rollout
+afterwards, while the learner works, so the batch header's ``value_loss`` and
+``explained_variance`` are V's on the rollout before that step.
+
 V is checkpointed to ``<run_dir>/critic`` every ``checkpoint_every`` batches and on exit, and
 a restarted critic resumes from the newest valid checkpoint.
 """
@@ -151,8 +155,7 @@ class CriticNode(Node):
                 self.policy = make_policy(ro.obs.shape[-1], ro.act.shape[-1], self.cfg)
                 load_flat_state(self.policy, *self.policy_weights)
             policy = self.policy
-        adv, ret, stats = self.critic.annotate(ro, policy)
-        self.last_stats = stats
+        adv, ret, stats = self.critic.judge(ro, policy)
         batch = messages.Batch(obs=ro.obs, act=ro.act, logp=ro.logp, adv=adv, ret=ret,
                                rew=ro.rew, terminated=ro.terminated, truncated=ro.truncated,
                                ep_step=ro.ep_step, episode_id=ro.episode_id, seq=ro.seq,
@@ -163,6 +166,9 @@ class CriticNode(Node):
                   'explained_variance': stats['explained_variance']}
         msg = table_msg.to_msg(*messages.pack_batch(batch, header))
         self.pub_batch.publish(msg)
+        # V learns from the rollout only now: the learner and then the actors wait on the
+        # batch, not on this step (phi above was computed with V before it, as in-process)
+        self.last_stats = self.critic.fit(ro.obs, ret)
         self.sent[version] = msg
         self.sent.move_to_end(version)
         while len(self.sent) > 4:

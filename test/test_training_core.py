@@ -208,6 +208,38 @@ def test_critic_annotates_with_the_chosen_estimator():
     assert {'value_loss', 'explained_variance'} <= set(stats)
 
 
+def test_critic_judges_with_v_as_it_is_then_fits():
+    """critic_node's order (judge, send, fit) gives exactly annotate's phi, targets and V."""
+    cfg = _cfg(estimator='gae', num_envs=3)['critic_node']
+    buf = RolloutBuffer(6, 3, 4, 1)
+    rng = np.random.default_rng(1)
+    for t in range(6):
+        buf.add_action(rng.normal(size=(3, 4)), rng.normal(size=(3, 1)), np.zeros(3), t, 0)
+        buf.add_outcome(rng.normal(size=3), np.zeros(3, bool), np.array([t == 3] * 3),
+                        rng.normal(size=(3, 4)))
+    ro = buf.finish()
+    one, two = Critic(4, cfg), Critic(4, cfg)
+
+    def params(critic):
+        return torch.cat([p.detach().reshape(-1) for p in critic.value_fn.parameters()])
+
+    before = params(two)
+    adv, ret, judged = two.judge(ro)
+    assert torch.equal(params(two), before)    # judging updates the normaliser, not V's weights
+    v = two.value_fn.value_numpy(ro.obs)
+    fitted = two.fit(ro.obs, ret)
+    ref_adv, ref_ret, ref_stats = one.annotate(ro)
+    assert np.array_equal(adv, ref_adv) and np.array_equal(ret, ref_ret)
+    assert np.array_equal(flatten_state(one.value_fn)[1], flatten_state(two.value_fn)[1])
+    assert not torch.equal(params(two), before)
+    # the judged metrics are V's before its step: for A2C's one full-batch step, the loss
+    # and explained variance that step reports (float32 there, float64 here)
+    assert judged['value_loss'] == pytest.approx(np.mean((ret - v) ** 2), rel=1e-12)
+    assert judged['value_loss'] == pytest.approx(fitted['value_loss'], rel=1e-5)
+    assert judged['explained_variance'] == pytest.approx(fitted['explained_variance'],
+                                                         abs=1e-5)
+
+
 @pytest.mark.slow
 def test_inprocess_a2c_learns_to_reach():
     """
