@@ -53,6 +53,19 @@ def test_sampling_is_reproducible_and_mean_action_is_deterministic():
     np.testing.assert_allclose(act, pol.mean_action(obs).numpy(), rtol=1e-6)
 
 
+@pytest.mark.parametrize('state_dependent_std', [False, True])
+def test_sample_log_prob_is_bit_for_bit_the_distribution_log_prob(state_dependent_std):
+    """sample() computes log pi without a Normal object: the same bits as log_prob()."""
+    pol = GaussianPolicy(5, 3, log_std_init=-0.4, state_dependent_std=state_dependent_std)
+    obs = torch.randn(64, 5)
+    act, logp = pol.sample(obs, torch.Generator().manual_seed(2))
+    with torch.no_grad():
+        assert torch.equal(logp, pol.log_prob(obs, act))
+        mu, std = pol.mean_std(obs)
+        eps = torch.randn(mu.shape, generator=torch.Generator().manual_seed(2))
+        assert torch.equal(act, mu + std * eps)
+
+
 def test_running_norm_merges_batches_exactly():
     rng = np.random.default_rng(0)
     x = rng.normal(3.0, 2.0, size=(1000, 4))
