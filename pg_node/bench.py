@@ -68,6 +68,7 @@ BUDGETS = {
     'sb3_steps': (50_000, 2_000),
     'inprocess_steps': (200_000, 4_096),
     'graph_steps': (200_000, 4_096),
+    'repeats': (3, 1),
     'latency_steps': (10_000, 300),
     'learning_steps': (1_000_000, 4_096),
     'seeds': (3, 1),
@@ -115,7 +116,28 @@ def machine_facts() -> Dict[str, str]:
         'mujoco': _version('mujoco'), 'rclpy': _version('ros-jazzy-rclpy'),
         'stable-baselines3': _version('stable-baselines3'),
         'gymnasium': _version('gymnasium'), 'numpy': _version('numpy'),
+        'pg_node commit': _commit(),
     }
+
+
+def _commit() -> str:
+    """Return the checkout's commit, marked ``+ local changes`` when the tree differs."""
+    import subprocess
+    repo = Path(__file__).resolve().parent.parent
+    try:
+        head = subprocess.run(['git', 'rev-parse', '--short', 'HEAD'], cwd=repo, text=True,
+                              capture_output=True, timeout=10).stdout.strip()
+        dirty = subprocess.run(['git', 'status', '--porcelain', '--untracked-files=no'],
+                               cwd=repo, text=True, capture_output=True,
+                               timeout=10).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return 'unknown'
+    return (head or 'unknown') + (' + local changes' if dirty else '')
+
+
+def b_repeats(results) -> int:
+    """Return how many times the repeated throughput rows ran (1 in older results)."""
+    return int(results.get('budgets', {}).get('repeats', 1))
 
 
 def load_average() -> str:
@@ -133,12 +155,16 @@ def run_throughput(b: Dict, log) -> Dict:
     from pg_node import bench_runs as br
     rows = []
 
-    def add(key, name, fn, note=''):
-        log(f'throughput: {name}')
+    def add(key, name, fn, note='', repeats=1):
+        """Measure a row ``repeats`` times and keep the median (each run in the note)."""
+        log(f'throughput: {name}' + (f' (x{repeats})' if repeats > 1 else ''))
         try:
-            value = fn()
-            rows.append({'key': key, 'name': name, 'steps_per_second': float(value),
-                         'note': note})
+            values = [float(fn()) for _ in range(repeats)]
+            if repeats > 1:
+                note = (f'{note}; ' if note else '') + 'median of ' + ', '.join(
+                    f'{v:,.0f}' for v in values)
+            rows.append({'key': key, 'name': name, 'steps_per_second': float(np.median(values)),
+                         'runs': values, 'note': note})
         except Exception as exc:  # noqa: B902 - a failed row is reported, not fatal
             rows.append({'key': key, 'name': name, 'steps_per_second': None,
                          'note': f'failed: {exc}'.splitlines()[0]})
@@ -162,15 +188,15 @@ def run_throughput(b: Dict, log) -> Dict:
                 return br.run_graph(Path(tmp) / 'run', b['graph_steps'], 0,
                                     overrides)['steps_per_second']
         add('graph', 'pg_node A2C training, whole ROS graph (64 arms)', graph,
-            f'{b["graph_steps"]:,} steps, summary.json steps_per_second')
+            f'{b["graph_steps"]:,} steps, summary.json steps_per_second', b['repeats'])
         add('graph_lean', 'the same, sim markers and per-step bag recording off',
-            lambda: graph(LEAN_GRAPH), f'overrides: {" ".join(LEAN_GRAPH)}')
+            lambda: graph(LEAN_GRAPH), f'overrides: {" ".join(LEAN_GRAPH)}', b['repeats'])
     else:
         rows.append({'key': 'graph', 'name': 'pg_node A2C training, whole ROS graph',
                      'steps_per_second': None, 'note': NOT_AVAILABLE})
     add('sb3_a2c', 'SB3 A2C training (8 envs, defaults)',
         lambda: br.sb3_throughput(b['sb3_steps'])['steps_per_second'],
-        f'{b["sb3_steps"]:,} steps')
+        f'{b["sb3_steps"]:,} steps', b['repeats'])
     return {'rows': rows}
 
 
@@ -431,7 +457,9 @@ def render_markdown(results: Dict, command: str, plots: Dict[str, str]) -> str:
         sb3, raw = by.get('sb3_a2c'), by.get('mujoco')
         out += ['## 1. Throughput ladder', '',
                 f'Environment steps per second (one arm advanced one control step), '
-                f'load average {thr["load"]}.', '',
+                f'load average {thr["load"]}. The training rows ran {b_repeats(results)} '
+                'times each, one after another; the table gives the median, the note every '
+                'run.', '',
                 _table(['way', 'env steps/s', 'x SB3 A2C', 'x raw MuJoCo', 'note'], [
                     [r['name'], _fmt(r['steps_per_second']),
                      _fmt(r['steps_per_second'] / sb3 if r['steps_per_second'] and sb3 else None,
