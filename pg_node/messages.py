@@ -65,26 +65,8 @@ def _fields(table: Dict[str, np.ndarray], T: int, N: int) -> Dict[str, np.ndarra
     if T * N != len(next(iter(table.values()))):
         raise ValueError(f'{len(next(iter(table.values())))} rows do not make '
                          f'n_steps x num_envs = {T} x {N}')
-    out = {}
-    for name, block in table.items():
-        if not np.all(np.isfinite(block)):
-            raise ValueError(f'field {name!r} holds non-finite values')
-        if name in BOOL_FIELDS:
-            if not np.all((block == 0.0) | (block == 1.0)):
-                raise ValueError(f'field {name!r} must hold 0.0 or 1.0')
-            value = block[:, 0].astype(bool)
-        elif name in INT_FIELDS:
-            if np.any(block != np.round(block)):
-                raise ValueError(f'field {name!r} must hold whole numbers')
-            value = block[:, 0].astype(np.int64)
-        elif np.any(np.abs(block) > MAX_ABS):
-            raise ValueError(f'field {name!r} holds absurd values (|x| > {MAX_ABS:g})')
-        elif block.shape[1] == 1:
-            value = block[:, 0].copy()
-        else:
-            value = block.copy()
-        out[name] = value.reshape(T, N, *value.shape[1:])
-    return out
+    checked = table_msg.check_fields(table, BOOL_FIELDS, INT_FIELDS)
+    return {name: value.reshape(T, N, *value.shape[1:]) for name, value in checked.items()}
 
 
 def _rows(a):

@@ -62,10 +62,11 @@ def unpack(dims, data_offset: int, data, header_size: int,
     if data_offset != header_size:
         raise ValueError(f'data_offset is {data_offset}, expected {header_size}')
     if not dims or dims[0][0] != rows_label:
-        raise ValueError(f'first dim must be labelled {rows_label!r}')
+        raise ValueError(f'dim labels must start with {rows_label!r}, got '
+                         f'{[d[0] for d in dims][:1]}')
     names = [d[0] for d in dims[1:]]
     if names != list(widths):
-        raise ValueError(f'fields {names} are not the expected {list(widths)}')
+        raise ValueError(f'field labels {names} are not the expected {list(widths)}')
     for (label, size, stride), want in zip(dims[1:], widths.values()):
         if size < 1 or stride != size or (want is not None and size != want):
             raise ValueError(f'field {label!r} has size {size} / stride {stride}, expected '
@@ -84,6 +85,36 @@ def unpack(dims, data_offset: int, data, header_size: int,
         out[label] = table[:, col:col + size]
         col += size
     return data[:header_size].copy(), out
+
+
+def check_fields(table: Mapping[str, np.ndarray], bool_fields=(), int_fields=()
+                 ) -> Dict[str, np.ndarray]:
+    """
+    Check the values of unpacked fields and return them typed.
+
+    Every value must be finite; ``bool_fields`` hold 0.0 or 1.0 (returned as bool),
+    ``int_fields`` whole numbers (int64), the rest real values within :data:`MAX_ABS`
+    (float64 copies). Width-1 fields come back as ``(R,)``, wider ones as ``(R, w)``.
+    Raise ``ValueError`` naming the first field that breaks its rule.
+    """
+    out = {}
+    for name, block in table.items():
+        if not np.all(np.isfinite(block)):
+            raise ValueError(f'field {name!r} holds non-finite values')
+        if name in bool_fields:
+            if not np.all((block == 0.0) | (block == 1.0)):
+                raise ValueError(f'field {name!r} must hold 0.0 or 1.0')
+            value = block.astype(bool)
+        elif name in int_fields:
+            if np.any(block != np.round(block)):
+                raise ValueError(f'field {name!r} must hold whole numbers')
+            value = block.astype(np.int64)
+        elif np.any(np.abs(block) > MAX_ABS):
+            raise ValueError(f'field {name!r} holds absurd values (|x| > {MAX_ABS:g})')
+        else:
+            value = block.copy()
+        out[name] = value[:, 0] if value.shape[1] == 1 else value
+    return out
 
 
 def to_msg(dims, data_offset: int, data):

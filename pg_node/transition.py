@@ -34,7 +34,6 @@ short by a reset has no final transition). Flags are 0.0/1.0 and ids/counters ar
 whole numbers (exact in float64 up to 2**53). The functions here are pure numpy; the two
 ``*_msg`` helpers import ``std_msgs`` lazily.
 """
-import array
 from dataclasses import dataclass
 
 import numpy as np
@@ -83,7 +82,7 @@ def field_sizes(obs_dim: int):
 
 def pack(tr: Transition):
     """
-    Pack ``tr`` into ``(dims, data_offset, data)``.
+    Pack ``tr`` into ``(dims, data_offset, data)``: a :mod:`pg_node.table_msg` table.
 
     ``dims`` is ``[(label, size, stride), ...]`` as described in the module docstring and
     ``data`` a flat float64 array of length ``1 + N * W``.
@@ -92,19 +91,14 @@ def pack(tr: Transition):
     if obs.ndim != 2:
         raise ValueError(f'obs must be (N, obs_dim), got shape {obs.shape}')
     n, obs_dim = obs.shape
-    cols = []
+    fields = {}
     for name, size in field_sizes(obs_dim):
         col = np.asarray(getattr(tr, name), dtype=np.float64).reshape(n, -1)
         if col.shape[1] != size:
             raise ValueError(f'field {name!r} has {col.shape[1]} values per env, '
                              f'expected {size}')
-        cols.append(col)
-    rows = np.concatenate(cols, axis=1)
-    width = rows.shape[1]
-    dims = [(ENV_LABEL, n, n * width)] + [(name, size, size)
-                                          for name, size in field_sizes(obs_dim)]
-    data = np.concatenate([[float(tr.seq)], rows.ravel()])
-    return dims, HEADER_SIZE, data
+        fields[name] = col
+    return table_msg.pack([tr.seq], fields, rows_label=ENV_LABEL)
 
 
 def unpack(dims, data_offset: int, data) -> Transition:
@@ -116,68 +110,24 @@ def unpack(dims, data_offset: int, data) -> Transition:
     non-finite values or values beyond :data:`MAX_ABS`.
     """
     dims = [(str(label), int(size), int(stride)) for label, size, stride in dims]
-    data = np.asarray(data, dtype=np.float64)
-    if data_offset != HEADER_SIZE:
-        raise ValueError(f'data_offset is {data_offset}, expected {HEADER_SIZE}')
-    names = [name for name, _ in FIELDS]
-    if len(dims) != 1 + len(names) or dims[0][0] != ENV_LABEL:
-        raise ValueError(f'dim labels {[d[0] for d in dims]} are not '
-                         f'{[ENV_LABEL] + names}')
-    if [d[0] for d in dims[1:]] != names:
-        raise ValueError(f'field labels {[d[0] for d in dims[1:]]} are not {names}')
-    obs_dim = dims[1][1]
-    if obs_dim < 1:
-        raise ValueError('obs must have at least one value')
-    for (label, size, stride), (_, want) in zip(dims[1:], field_sizes(obs_dim)):
-        if size != want or stride != size:
-            raise ValueError(f'field {label!r} has size {size} / stride {stride}, '
-                             f'expected {want}')
-    n = dims[0][1]
-    width = sum(size for _, size, _ in dims[1:])
-    if n < 1 or dims[0][2] != n * width:
-        raise ValueError(f'env dim has size {n} / stride {dims[0][2]}, expected stride '
-                         f'{n * width} for row width {width}')
-    if data.shape != (HEADER_SIZE + n * width,):
-        raise ValueError(f'data has {data.size} values, layout needs {HEADER_SIZE + n * width}')
-    rows = data[HEADER_SIZE:].reshape(n, width)
-    fields, col = {}, 0
-    for name, size in field_sizes(obs_dim):
-        block = rows[:, col:col + size]
-        col += size
-        if name in BOOL_FIELDS:
-            if not np.all((block == 0.0) | (block == 1.0)):
-                raise ValueError(f'field {name!r} must hold 0.0 or 1.0')
-            fields[name] = block[:, 0].astype(bool)
-        elif name in INT_FIELDS:
-            if not np.all(np.isfinite(block)) or np.any(block != np.round(block)):
-                raise ValueError(f'field {name!r} must hold whole numbers')
-            fields[name] = block[:, 0].astype(np.int64)
-        elif not np.all(np.isfinite(block)) or np.any(np.abs(block) > MAX_ABS):
-            raise ValueError(f'field {name!r} holds non-finite or absurd values '
-                             f'(|x| > {MAX_ABS:g})')
-        elif size == 1:
-            fields[name] = block[:, 0].copy()
-        else:
-            fields[name] = block.copy()
-    seq = data[0]
+    obs_dim = dims[1][1] if len(dims) > 1 and dims[1][0] == 'obs' else None
+    widths = {name: obs_dim if size is None else size for name, size in FIELDS}
+    header, table = table_msg.unpack(dims, data_offset, data, HEADER_SIZE, widths,
+                                     rows_label=ENV_LABEL)
+    if dims[0][1] < 1:
+        raise ValueError('a transition needs at least one env (dim size 0)')
+    seq = header[0]
     if not np.isfinite(seq) or seq != round(seq):
         raise ValueError('seq must be a whole number')
+    fields = table_msg.check_fields(table, BOOL_FIELDS, INT_FIELDS)
     return Transition(seq=int(seq), **fields)
 
 
 def to_msg(tr: Transition):
     """Return ``tr`` as a ``std_msgs/Float64MultiArray``."""
-    from std_msgs.msg import Float64MultiArray, MultiArrayDimension
-    dims, offset, data = pack(tr)
-    msg = Float64MultiArray()
-    msg.layout.dim = [MultiArrayDimension(label=label, size=size, stride=stride)
-                      for label, size, stride in dims]
-    msg.layout.data_offset = offset
-    msg.data = array.array('d', data.tobytes())
-    return msg
+    return table_msg.to_msg(*pack(tr))
 
 
 def from_msg(msg) -> Transition:
     """Return the :class:`Transition` in a ``std_msgs/Float64MultiArray`` (ValueError if bad)."""
-    dims = [(d.label, d.size, d.stride) for d in msg.layout.dim]
-    return unpack(dims, msg.layout.data_offset, np.asarray(msg.data, dtype=np.float64))
+    return unpack(*table_msg.from_msg(msg))
