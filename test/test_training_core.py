@@ -190,16 +190,22 @@ def test_learner_checkpoint_resume(tmp_path):
         assert torch.equal(p, q)
 
 
+def _random_rollout(n_steps, truncate_at, seed, n_envs=3, obs_dim=4):
+    """Return a rollout of random numbers, every episode truncated at ``truncate_at``."""
+    buf = RolloutBuffer(n_steps, n_envs, obs_dim, 1)
+    rng = np.random.default_rng(seed)
+    for t in range(n_steps):
+        buf.add_action(rng.normal(size=(n_envs, obs_dim)), rng.normal(size=(n_envs, 1)),
+                       np.zeros(n_envs), t, 0)
+        buf.add_outcome(rng.normal(size=n_envs), np.zeros(n_envs, bool),
+                        np.array([t == truncate_at] * n_envs), rng.normal(size=(n_envs, obs_dim)))
+    return buf.finish()
+
+
 def test_critic_annotates_with_the_chosen_estimator():
     cfg = _cfg(estimator='optimal_baseline', num_envs=3)
     critic = Critic(4, cfg['critic_node'])
-    buf = RolloutBuffer(5, 3, 4, 1)
-    rng = np.random.default_rng(0)
-    for t in range(5):
-        buf.add_action(rng.normal(size=(3, 4)), rng.normal(size=(3, 1)), np.zeros(3), t, 0)
-        buf.add_outcome(rng.normal(size=3), np.zeros(3, bool), np.array([t == 2] * 3),
-                        rng.normal(size=(3, 4)))
-    ro = buf.finish()
+    ro = _random_rollout(5, truncate_at=2, seed=0)
     with pytest.raises(ValueError, match='sampling policy'):
         critic.annotate(ro)
     pol = GaussianPolicy(4, 1)
@@ -211,13 +217,7 @@ def test_critic_annotates_with_the_chosen_estimator():
 def test_critic_judges_with_v_as_it_is_then_fits():
     """critic_node's order (judge, send, fit) gives exactly annotate's phi, targets and V."""
     cfg = _cfg(estimator='gae', num_envs=3)['critic_node']
-    buf = RolloutBuffer(6, 3, 4, 1)
-    rng = np.random.default_rng(1)
-    for t in range(6):
-        buf.add_action(rng.normal(size=(3, 4)), rng.normal(size=(3, 1)), np.zeros(3), t, 0)
-        buf.add_outcome(rng.normal(size=3), np.zeros(3, bool), np.array([t == 3] * 3),
-                        rng.normal(size=(3, 4)))
-    ro = buf.finish()
+    ro = _random_rollout(6, truncate_at=3, seed=1)
     one, two = Critic(4, cfg), Critic(4, cfg)
 
     def params(critic):
