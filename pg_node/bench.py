@@ -121,13 +121,15 @@ def machine_facts() -> Dict[str, str]:
 
 
 def _commit() -> str:
-    """Return the checkout's commit, marked ``+ local changes`` when the tree differs."""
+    """Return the checkout's commit, ``+ local changes`` when code or config differ from it."""
     import subprocess
     repo = Path(__file__).resolve().parent.parent
     try:
         head = subprocess.run(['git', 'rev-parse', '--short', 'HEAD'], cwd=repo, text=True,
                               capture_output=True, timeout=10).stdout.strip()
-        dirty = subprocess.run(['git', 'status', '--porcelain', '--untracked-files=no'],
+        # the reports this command writes are not changes to what it measures
+        dirty = subprocess.run(['git', 'status', '--porcelain', '--untracked-files=no', '--',
+                                '.', ':!*.md', ':!bench_plots'],
                                cwd=repo, text=True, capture_output=True,
                                timeout=10).stdout.strip()
     except (OSError, subprocess.SubprocessError):
