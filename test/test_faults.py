@@ -527,17 +527,26 @@ def test_sigkill_of_each_node_mid_run(tmp_path):
     logs = {n: (run_dir / 'logs' / f'{n}.log').read_text() for _, n in KILLS}
     assert 'the simulator of actor 0 restarted' in logs['learner_node']
     assert 'resumed V from' in logs['critic_node']
-    assert 'resumed policy version' in logs['learner_node']
-    # the policy version rises by one per update, except once: the restarted learner
-    # continues from its newest checkpoint (every 100 versions), and then passes its old best
+    # the restarted learner continues from its newest checkpoint (one every 100 versions):
+    # at least the last one before the version read just before the kill
+    resumed = [int(v) for v in re.findall(r'resumed policy version (\d+)',
+                                          logs['learner_node'])]
+    assert len(resumed) == 1, resumed
+    resumed = resumed[0]
+    assert resumed % 100 == 0 and resumed >= killed_at['learner_node'] // 100 * 100 > 0
+    # the policy version rises by one per update. The killed learner may have flushed rows
+    # past that checkpoint (progress.csv is flushed every second and at each checkpoint):
+    # then the restarted learner's first row, resumed + 1, is one drop. When the kill came
+    # before any such row was flushed there is none (a clean-clone CI run saw this once).
     import csv
     with open(run_dir / 'progress.csv', newline='') as f:
         versions = [int(float(r['policy_version'])) for r in csv.DictReader(f)]
     drops = [i for i in range(1, len(versions)) if versions[i] != versions[i - 1] + 1]
-    assert len(drops) == 1, drops
-    resumed = versions[drops[0]] - 1
-    assert resumed % 100 == 0 and 0 < resumed <= killed_at['learner_node']
-    assert versions[-1] > max(versions[:drops[0]]) and versions[-1] == summary['policy_version']
+    assert len(drops) <= 1, drops
+    assert resumed + 1 in versions and versions[-1] == summary['policy_version']
+    if drops:
+        assert versions[drops[0]] == resumed + 1 and versions[drops[0] - 1] > resumed
+        assert versions[-1] > max(versions[:drops[0]])
     # bags: the killed learner's (reindexed, as ros2 bag reindex would) and the new one's
     reindex(run_dir / 'bag')
     eps = episodes_of(run_dir / 'bag') + episodes_of(run_dir / 'bag_1')
