@@ -175,13 +175,19 @@ class Supervisor:
 
 
 def read_progress(path: Path):
-    """Return the rows of ``progress.csv`` as dicts of floats (empty cells NaN)."""
+    """
+    Return the rows of ``progress.csv`` as dicts of floats (empty cells NaN).
+
+    The learner may be writing while this reads: a last line without its newline is not
+    finished and is left out, whatever it holds so far.
+    """
     if not path.exists():
         return []
-    with open(path, newline='') as f:
-        rows = list(csv.DictReader(f))
+    lines = path.read_text().splitlines(keepends=True)
+    if lines and not lines[-1].endswith('\n'):
+        lines.pop()
     return [{k: float(v) if v not in ('', None) else float('nan') for k, v in r.items()}
-            for r in rows]
+            for r in csv.DictReader(lines)]
 
 
 def evaluate_run(run_dir: Path, episodes: int) -> dict:

@@ -9,6 +9,7 @@ from pg_node.learner import Learner
 from pg_node.params import ConfigError, load_config, Param
 from pg_node.policy import GaussianPolicy
 from pg_node.rollout_buffer import RolloutBuffer
+from pg_node.train import read_progress
 from pg_node.train_inprocess import train_inprocess
 from pg_node.weights import flatten_state, load_flat_state
 import pytest
@@ -260,3 +261,17 @@ def test_inprocess_a2c_learns_to_reach():
     assert diff.mean() > 6 * se, (untrained['eval_return'], summary['eval_return'], se)
     assert summary['eval_return'] > -10
     assert summary['policy_version'] == summary['learner'].version > 1000
+
+
+def test_read_progress_leaves_out_a_line_still_being_written(tmp_path):
+    """A reader racing the learner sees complete rows only, never a number cut in two."""
+    path = tmp_path / 'progress.csv'
+    path.write_text('wall_seconds,env_steps,episode_return\n1.0,512,-40.5\n2.0,1024,\n'
+                    '3.0,1536,-3')         # the learner is writing -38.25: not finished
+    rows = read_progress(path)
+    assert [r['env_steps'] for r in rows] == [512.0, 1024.0]
+    assert rows[0]['episode_return'] == -40.5 and np.isnan(rows[1]['episode_return'])
+    path.write_text(path.read_text() + '8.25\n')
+    assert read_progress(path)[-1] == {'wall_seconds': 3.0, 'env_steps': 1536.0,
+                                       'episode_return': -38.25}
+    assert read_progress(tmp_path / 'missing.csv') == []
