@@ -23,6 +23,7 @@ from pg_node.episode_recorder import EpisodeRecorder, parse_episode
 from pg_node.learner import EpisodeStats, Learner, make_policy
 from pg_node.params import defaults
 from pg_node.rollout_buffer import RolloutArrays
+from pg_node.train import read_progress
 from pg_node.weights import flatten_state
 import pytest
 import rclpy
@@ -471,14 +472,21 @@ KILLS = ((40_000, 'sim_node'), (90_000, 'actor_node'), (140_000, 'critic_node'),
 KILL_STEPS = 300_000
 
 
-def last_row(run_dir):
-    import csv
-    try:
-        with open(run_dir / 'progress.csv', newline='') as f:
-            rows = list(csv.DictReader(f))
-    except OSError:
-        return None
-    return rows[-1] if rows else None
+def wait_for_progress(proc, run_dir, deadline, min_steps=0.0):
+    """Return the newest progress row once it has ``min_steps``; fail if train ends first."""
+    while True:
+        assert time.monotonic() < deadline and proc.poll() is None
+        rows = read_progress(run_dir / 'progress.csv')
+        if rows and rows[-1]['env_steps'] >= min_steps:
+            return rows[-1]
+        time.sleep(0.2)
+
+
+def node_pids(run_dir, node=r'.*_node'):
+    """Return the pids of a run's node processes (all, or ``node``), named by its run dir."""
+    out = subprocess.run(['pgrep', '-f', f'pg_node[.]{node} .*{run_dir}'],
+                         capture_output=True, text=True).stdout.split()
+    return [int(p) for p in out]
 
 
 @pytest.mark.e2e
@@ -503,17 +511,11 @@ def test_sigkill_of_each_node_mid_run(tmp_path):
     try:
         deadline = time.monotonic() + 600
         for threshold, node in KILLS:
-            while True:
-                assert time.monotonic() < deadline and proc.poll() is None
-                row = last_row(run_dir)
-                if row and float(row['env_steps']) >= threshold:
-                    break
-                time.sleep(0.2)
-            pids = subprocess.run(['pgrep', '-f', f'pg_node.{node} .*{run_dir}'],
-                                  capture_output=True, text=True).stdout.split()
+            row = wait_for_progress(proc, run_dir, deadline, threshold)
+            pids = node_pids(run_dir, node)
             assert len(pids) == 1, (node, pids)
-            killed_at[node] = int(float(row['policy_version']))
-            os.kill(int(pids[0]), signal.SIGKILL)
+            killed_at[node] = int(row['policy_version'])
+            os.kill(pids[0], signal.SIGKILL)
         text = proc.communicate(timeout=600)[0]
     finally:
         if proc.poll() is None:
@@ -538,9 +540,7 @@ def test_sigkill_of_each_node_mid_run(tmp_path):
     # past that checkpoint (progress.csv is flushed every second and at each checkpoint):
     # then the restarted learner's first row, resumed + 1, is one drop. When the kill came
     # before any such row was flushed there is none (a clean-clone CI run saw this once).
-    import csv
-    with open(run_dir / 'progress.csv', newline='') as f:
-        versions = [int(float(r['policy_version'])) for r in csv.DictReader(f)]
+    versions = [int(r['policy_version']) for r in read_progress(run_dir / 'progress.csv')]
     drops = [i for i in range(1, len(versions)) if versions[i] != versions[i - 1] + 1]
     assert len(drops) <= 1, drops
     assert resumed + 1 in versions and versions[-1] == summary['policy_version']
@@ -624,13 +624,6 @@ def test_two_minute_soak_keeps_memory_flat_and_bags_readable(tmp_path):
     assert report['ok'] and res.returncode == 0
 
 
-def node_pids(run_dir):
-    """Return the pids of the node processes of a run (their command lines name it)."""
-    out = subprocess.run(['pgrep', '-f', f'pg_node[.].*_node .*{run_dir}'],
-                         capture_output=True, text=True).stdout.split()
-    return [int(p) for p in out]
-
-
 @pytest.mark.e2e
 @pytest.mark.slow
 @pytest.mark.parametrize('sig', [signal.SIGTERM, signal.SIGHUP], ids=['SIGTERM', 'SIGHUP'])
@@ -647,10 +640,7 @@ def test_signal_to_train_alone_stops_every_node(tmp_path, sig):
     proc = subprocess.Popen(cmd, env=env(GRAPH), cwd=REPO, stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True, start_new_session=True)
     try:
-        deadline = time.monotonic() + 240
-        while last_row(run_dir) is None:
-            assert time.monotonic() < deadline and proc.poll() is None
-            time.sleep(0.2)
+        wait_for_progress(proc, run_dir, time.monotonic() + 240)
         assert len(node_pids(run_dir)) == 4
         os.kill(proc.pid, sig)                 # the bring-up only, as timeout(1) does
         text = proc.communicate(timeout=120)[0]

@@ -6,7 +6,6 @@ order: it must learn, equal the in-process reference bit for bit (lock-step sync
 mode is deterministic), leave a bag that PyPI ``rosbags`` reads with the expected counts,
 and then resume from its checkpoint, surviving a SIGKILL of the learner while it writes.
 """
-import csv
 import json
 import os
 from pathlib import Path
@@ -22,6 +21,7 @@ from pg_node.evaluate import evaluate_policy
 from pg_node.learner import make_policy
 from pg_node.params import load_config
 from pg_node.paths import default_config
+from pg_node.train import read_progress
 from pg_node.train_inprocess import train_inprocess
 import pytest
 from rosbags.rosbag2 import Reader
@@ -50,8 +50,7 @@ def train(run_dir, *args, timeout=600):
 
 
 def progress(run_dir):
-    with open(Path(run_dir) / 'progress.csv', newline='') as f:
-        return list(csv.DictReader(f))
+    return read_progress(Path(run_dir) / 'progress.csv')
 
 
 @pytest.fixture(scope='module')
