@@ -14,7 +14,8 @@ terminated truncated ep_step episode_id seq actor``. ``num_envs`` counts the arm
 actors, side by side in actor-id order.
 
 Unpacking refuses (``ValueError``) a layout that does not match, non-finite values, flags
-other than 0/1, ids that are not whole, and real values beyond :data:`MAX_ABS`.
+other than 0/1, ids that are not whole, and real values beyond
+:data:`pg_node.table_msg.MAX_ABS`.
 
 ``/pg_node/policy_weights`` (learner -> actors, critic; transient-local), header
 ``version, env_steps``; one row whose fields are the policy's tensors in ``state_dict``
@@ -35,7 +36,6 @@ BATCH_HEADER = ('version', 'n_actors', 'batch_seq', 'n_steps', 'num_envs', 'valu
 WEIGHTS_HEADER = ('version', 'env_steps')
 BOOL_FIELDS = ('terminated', 'truncated')
 INT_FIELDS = ('ep_step', 'episode_id', 'seq', 'actor')
-MAX_ABS = table_msg.MAX_ABS
 
 
 def _rollout_widths(obs_dim=None, act_dim=None):

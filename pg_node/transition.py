@@ -53,7 +53,6 @@ FIELDS = (
 )
 BOOL_FIELDS = ('terminated', 'truncated')
 INT_FIELDS = ('episode_id', 'episode_step')
-MAX_ABS = table_msg.MAX_ABS
 
 
 @dataclass
@@ -107,7 +106,7 @@ def unpack(dims, data_offset: int, data) -> Transition:
 
     Raise ``ValueError`` naming the first mismatch: wrong labels or order, inconsistent
     sizes or strides, a data length that does not match, non-whole ids or flags not 0/1,
-    non-finite values or values beyond :data:`MAX_ABS`.
+    non-finite values or values beyond :data:`pg_node.table_msg.MAX_ABS`.
     """
     dims = [(str(label), int(size), int(stride)) for label, size, stride in dims]
     obs_dim = dims[1][1] if len(dims) > 1 and dims[1][0] == 'obs' else None
