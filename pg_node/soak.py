@@ -89,27 +89,6 @@ def rss_bytes(pid: int):
     return None
 
 
-def last_progress(path: Path):
-    """Return the last row of ``progress.csv`` as a dict of floats (None if none yet)."""
-    try:
-        with open(path, 'rb') as f:
-            header = f.readline().decode().strip().split(',')
-            f.seek(0, os.SEEK_END)
-            size = f.tell()
-            f.seek(max(0, size - 8192))
-            lines = f.read().decode(errors='replace').strip().splitlines()
-    except OSError:
-        return None
-    for line in reversed(lines):
-        cells = line.split(',')
-        if len(cells) == len(header) and cells[0] != header[0]:
-            try:
-                return {k: float(v) if v else float('nan') for k, v in zip(header, cells)}
-            except ValueError:
-                continue
-    return None
-
-
 def steps_lost_by_learner(path: Path, batch_steps: int) -> int:
     """
     Return the environment steps the learner lost with its restarts, from ``progress.csv``.
@@ -343,7 +322,7 @@ class MemoryLog:
 def run_soak(args) -> dict:
     """Run the soak; return the report."""
     from pg_node.paths import default_config
-    from pg_node.train import node_commands, Supervisor, write_params
+    from pg_node.train import last_progress, node_commands, Supervisor, write_params
     run_dir = Path(os.path.abspath(args.run_dir or os.path.join(
         'runs', 'soak-' + datetime.now().strftime('%Y%m%d-%H%M%S'))))
     cfg = load_config(args.config or default_config(),

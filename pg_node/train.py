@@ -174,6 +174,14 @@ class Supervisor:
                 return
 
 
+def _progress_rows(lines):
+    """Parse ``progress.csv`` lines (header first) into dicts of floats, empty cells NaN."""
+    if lines and not lines[-1].endswith('\n'):
+        lines = lines[:-1]      # the learner is still writing it: not a finished row
+    return [{k: float(v) if v not in ('', None) else float('nan') for k, v in r.items()}
+            for r in csv.DictReader(lines)]
+
+
 def read_progress(path: Path):
     """
     Return the rows of ``progress.csv`` as dicts of floats (empty cells NaN).
@@ -183,11 +191,28 @@ def read_progress(path: Path):
     """
     if not path.exists():
         return []
-    lines = path.read_text().splitlines(keepends=True)
-    if lines and not lines[-1].endswith('\n'):
-        lines.pop()
-    return [{k: float(v) if v not in ('', None) else float('nan') for k, v in r.items()}
-            for r in csv.DictReader(lines)]
+    return _progress_rows(path.read_text().splitlines(keepends=True))
+
+
+def last_progress(path: Path, tail_bytes: int = 8192):
+    """
+    Return the newest finished row of ``progress.csv`` (None if none yet).
+
+    Reads the header and the last ``tail_bytes`` only: a watcher polls this while a long
+    run's file grows by a row per update.
+    """
+    try:
+        with open(path, 'rb') as f:
+            header = f.readline().decode(errors='replace')
+            start = max(f.tell(), f.seek(0, os.SEEK_END) - tail_bytes)
+            f.seek(start)
+            lines = f.read().decode(errors='replace').splitlines(keepends=True)
+    except OSError:
+        return None
+    if start > len(header):
+        lines = lines[1:]       # the tail began inside a row
+    rows = _progress_rows([header] + lines)
+    return rows[-1] if rows else None
 
 
 def evaluate_run(run_dir: Path, episodes: int) -> dict:
@@ -215,9 +240,8 @@ def supervise(sup: Supervisor, run_dir: Path, bar, total: int) -> str:
     while state == 'running':
         time.sleep(0.5)
         state = sup.check()
-        rows = read_progress(run_dir / 'progress.csv')
-        if bar is not None and rows:
-            last = rows[-1]
+        last = last_progress(run_dir / 'progress.csv') if bar is not None else None
+        if last is not None:
             bar.n = min(int(last['env_steps']), total)
             bar.set_postfix(ret=f"{last['episode_return']:.2f}",
                             sps=f"{last['steps_per_second']:.0f}",

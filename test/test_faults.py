@@ -23,7 +23,7 @@ from pg_node.episode_recorder import EpisodeRecorder, parse_episode
 from pg_node.learner import EpisodeStats, Learner, make_policy
 from pg_node.params import defaults
 from pg_node.rollout_buffer import RolloutArrays
-from pg_node.train import read_progress
+from pg_node.train import last_progress, read_progress
 from pg_node.weights import flatten_state
 import pytest
 import rclpy
@@ -476,9 +476,9 @@ def wait_for_progress(proc, run_dir, deadline, min_steps=0.0):
     """Return the newest progress row once it has ``min_steps``; fail if train ends first."""
     while True:
         assert time.monotonic() < deadline and proc.poll() is None
-        rows = read_progress(run_dir / 'progress.csv')
-        if rows and rows[-1]['env_steps'] >= min_steps:
-            return rows[-1]
+        row = last_progress(run_dir / 'progress.csv')
+        if row is not None and row['env_steps'] >= min_steps:
+            return row
         time.sleep(0.2)
 
 

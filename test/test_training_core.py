@@ -9,7 +9,7 @@ from pg_node.learner import Learner
 from pg_node.params import ConfigError, load_config, Param
 from pg_node.policy import GaussianPolicy
 from pg_node.rollout_buffer import RolloutBuffer
-from pg_node.train import read_progress
+from pg_node.train import last_progress, read_progress
 from pg_node.train_inprocess import train_inprocess
 from pg_node.weights import flatten_state, load_flat_state
 import pytest
@@ -275,3 +275,17 @@ def test_read_progress_leaves_out_a_line_still_being_written(tmp_path):
     assert read_progress(path)[-1] == {'wall_seconds': 3.0, 'env_steps': 1536.0,
                                        'episode_return': -38.25}
     assert read_progress(tmp_path / 'missing.csv') == []
+
+
+def test_last_progress_reads_the_newest_finished_row_from_the_tail(tmp_path):
+    """The watcher's tail read gives read_progress's last row, from any cut of the file."""
+    path = tmp_path / 'progress.csv'
+    assert last_progress(path) is None
+    rows = ''.join(f'{i}.5,{512 * i},-{i}.25\n' for i in range(1, 400))
+    path.write_text('wall_seconds,env_steps,episode_return\n' + rows + '400.5,204')
+    assert len(read_progress(path)) == 399
+    for tail in (8192, 100, 37, 5):         # the tail starts inside a row, or holds none
+        assert last_progress(path, tail) == (read_progress(path)[-1] if tail >= 37 else None)
+    path.write_text(path.read_text() + '800,-400.25\n')
+    assert last_progress(path, 100) == {'wall_seconds': 400.5, 'env_steps': 204800.0,
+                                        'episode_return': -400.25}
