@@ -253,7 +253,12 @@ def test_empty_float64_arrays_fast_cdr_padding(tmp_path):
         w.write('/joint_states', js, T0)
     (m,) = list(BagReader(tmp_path / 'pad').messages(deserialize=True))
     assert list(m.msg.position) == [1.0, 2.0] and list(m.msg.effort) == []
-    assert m.data == serialize_message(js)
+    # the bag holds rclpy's bytes. Fast CDR does not initialise its alignment filler: the
+    # last 8 bytes (where the empty float64[] would align) differ from one serialisation to
+    # the next (a clean-clone CI run saw byte 72 differ), so only the bytes before them
+    # can be compared
+    expected = serialize_message(js)
+    assert len(m.data) == len(expected) == 76 and m.data[:68] == expected[:68]
     store = get_typestore(Stores.ROS2_JAZZY)
     with pytest.raises(SerdeError):
         store.deserialize_cdr(m.data, 'sensor_msgs/msg/JointState')
