@@ -9,13 +9,13 @@ setup(
     name=package_name,
     version='0.1.0',
     packages=find_packages(exclude=['test']),
-    package_data={package_name: ['models/*.xml']},
+    package_data={package_name + '.sim': ['models/*.xml']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
         (os.path.join('share', package_name, 'config'), glob('config/*.yaml')),
         (os.path.join('share', package_name, 'launch'), glob('launch/*.launch.py')),
-        (os.path.join('share', package_name, 'models'), glob('pg_node/models/*.xml')),
+        (os.path.join('share', package_name, 'models'), glob('pg_node/sim/models/*.xml')),
     ],
     install_requires=['setuptools'],
     zip_safe=True,
@@ -26,11 +26,11 @@ setup(
     extras_require={'test': ['pytest']},
     entry_points={
         'console_scripts': [
-            'sim_node = pg_node.sim_node:main',
-            'actor_node = pg_node.actor_node:main',
-            'critic_node = pg_node.critic_node:main',
-            'learner_node = pg_node.learner_node:main',
-            'replay_node = pg_node.replay_node:main',
+            'sim_node = pg_node.ros.sim_node:main',
+            'actor_node = pg_node.ros.actor_node:main',
+            'critic_node = pg_node.ros.critic_node:main',
+            'learner_node = pg_node.ros.learner_node:main',
+            'replay_node = pg_node.ros.replay_node:main',
         ],
     },
 )

@@ -18,8 +18,8 @@ import time
 
 import numpy as np
 
-from pg_node.bag_reader import BagReader
-from pg_node.bag_writer import BagWriter
+from pg_node.bag.reader import BagReader
+from pg_node.bag.writer import BagWriter
 from rclpy.serialization import serialize_message
 from sensor_msgs.msg import JointState
 

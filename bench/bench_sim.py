@@ -13,7 +13,7 @@ Rows, for ``reacher2`` with 2 physics steps per control step:
   step for all arms (state in, state out);
 * ``ArmTask.step``: the task in-process (stepping, observation, reward, auto-reset);
 * ``gym Reacher-v5`` / ``gym pg_node/Reacher2-v0``: one Gymnasium env, for comparison;
-* ``sim_node lock-step``: ``python -m pg_node.sim_node`` as a process and a minimal
+* ``sim_node lock-step``: ``python -m pg_node.ros.sim_node`` as a process and a minimal
   client here that answers every transition with a command (one DDS round trip per step).
 
 ``arm steps/s`` counts one arm advanced by one control step; ``batch steps/s`` counts
@@ -35,8 +35,8 @@ import numpy as np
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
-from pg_node.arm_task import ArmTask  # noqa: E402
-from pg_node.paths import resolve_model  # noqa: E402
+from pg_node.common.paths import resolve_model  # noqa: E402
+from pg_node.sim.arm_task import ArmTask  # noqa: E402
 
 FRAME_SKIP = 2
 
@@ -91,7 +91,7 @@ def in_process(n, seconds):
     task.close()
     if n == 1:
         import gymnasium as gym
-        import pg_node.gym_env  # noqa: F401
+        import pg_node.sim.gym_env  # noqa: F401
         for env_id in ('Reacher-v5', 'pg_node/Reacher2-v0'):
             env = gym.make(env_id)
             env.reset(seed=0)
@@ -112,7 +112,7 @@ def through_node(n, seconds, domain_id):
 
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id), PYTHONPATH=str(REPO))
     proc = subprocess.Popen(
-        [sys.executable, '-m', 'pg_node.sim_node', '--ros-args', '-p', f'num_envs:={n}'],
+        [sys.executable, '-m', 'pg_node.ros.sim_node', '--ros-args', '-p', f'num_envs:={n}'],
         env=env, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
         start_new_session=True)
     context = rclpy.Context()

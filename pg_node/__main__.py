@@ -1,7 +1,7 @@
-"""Run ``python -m pg_node <command>``; see :mod:`pg_node.cli`."""
+"""Run ``python -m pg_node <command>``; see :mod:`pg_node.tools.cli`."""
 import sys
 
-from pg_node.cli import main
+from pg_node.tools.cli import main
 
 if __name__ == '__main__':
     sys.exit(main())

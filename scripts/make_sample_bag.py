@@ -1,8 +1,8 @@
 """
 Make ``bags/sample/``: training metrics and a few episodes of a trained policy on reacher2.
 
-Trains in-process (:func:`pg_node.train_inprocess.train_inprocess`, the same classes the
-nodes wrap) while an :class:`pg_node.episode_recorder.EpisodeRecorder` records the training
+Trains in-process (:func:`pg_node.rl.train_inprocess.train_inprocess`, the same classes the
+nodes wrap) while an :class:`pg_node.bag.recorder.EpisodeRecorder` records the training
 metrics on ``/pg_node/metrics/*`` at their real wall times; then runs the trained policy's
 deterministic action on ``--arms`` arms for ``--episodes`` episodes each, in batches of
 ``--batch-steps`` steps annotated by the trained critic, and records them (joint states,
@@ -20,13 +20,13 @@ import sys
 import time
 
 import numpy as np
-from pg_node.arm_task import ArmTask
-from pg_node.episode_recorder import EpisodeRecorder
-from pg_node.messages import Batch
-from pg_node.params import load_config
-from pg_node.paths import resolve_model
-from pg_node.rollout_buffer import RolloutBuffer
-from pg_node.train_inprocess import train_inprocess
+from pg_node.bag.recorder import EpisodeRecorder
+from pg_node.common.params import load_config
+from pg_node.common.paths import resolve_model
+from pg_node.rl.rollout_buffer import RolloutBuffer
+from pg_node.rl.train_inprocess import train_inprocess
+from pg_node.ros.messages import Batch
+from pg_node.sim.arm_task import ArmTask
 
 EVAL_SEED_OFFSET = 20_000
 

@@ -4,8 +4,8 @@ from pathlib import Path
 import gymnasium as gym
 import mujoco
 import numpy as np
-from pg_node.arm_task import ArmSpec, ArmTask
-from pg_node.paths import resolve_model
+from pg_node.common.paths import resolve_model
+from pg_node.sim.arm_task import ArmSpec, ArmTask
 import pytest
 
 REACHER2 = resolve_model('reacher2')

@@ -1,5 +1,5 @@
 """
-Tests of pg_node.bag_reader on bags it did not write, and on damaged ones.
+Tests of pg_node.bag.reader on bags it did not write, and on damaged ones.
 
 Bags come from the PyPI ``rosbags`` writer (MCAP storage, metadata version 9) and from
 pg_node's writer, then get truncated or corrupted on purpose.
@@ -11,8 +11,8 @@ import struct
 import warnings
 
 import numpy as np
-from pg_node.bag_reader import BagDamageWarning, BagReader, McapScan
-from pg_node.bag_writer import BagWriter
+from pg_node.bag.reader import BagDamageWarning, BagReader, McapScan
+from pg_node.bag.writer import BagWriter
 import pytest
 from rclpy.serialization import serialize_message
 from rosbags.interfaces import (Qos, QosDurability, QosHistory, QosLiveliness, QosReliability,

@@ -1,5 +1,5 @@
 """
-Tests of pg_node.bag_writer: bags that third-party readers open, and that survive crashes.
+Tests of pg_node.bag.writer: bags that third-party readers open, and that survive crashes.
 
 The content checks compare every message read back by the PyPI ``rosbags`` reader and by
 the ``mcap`` reader with ``mcap_ros2``'s decoder against what was written; the crash tests
@@ -22,9 +22,9 @@ from mcap.reader import make_reader
 from mcap.stream_reader import StreamReader
 from mcap_ros2.decoder import DecoderFactory
 import numpy as np
-from pg_node import ros_types
-from pg_node.bag_reader import BagReader, McapScan
-from pg_node.bag_writer import BagWriter, reindex
+from pg_node.bag import ros_types
+from pg_node.bag.reader import BagReader, McapScan
+from pg_node.bag.writer import BagWriter, reindex
 import pytest
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosbags.rosbag2 import Reader
@@ -303,7 +303,7 @@ def test_metadata_yaml_valid_while_writing(tmp_path):
 
 CHILD = textwrap.dedent("""
     import os, signal, sys, time
-    from pg_node.bag_writer import BagWriter
+    from pg_node.bag.writer import BagWriter
     from sensor_msgs.msg import JointState
     from std_msgs.msg import Float64MultiArray
 

@@ -12,8 +12,8 @@ import re
 import subprocess
 import sys
 
-from pg_node import bench
-from pg_node.bench_runs import graph_available
+from pg_node.tools import bench
+from pg_node.tools.bench_runs import graph_available
 import pytest
 
 REPO = Path(__file__).resolve().parent.parent
@@ -56,7 +56,7 @@ def test_targets_from_fixed_numbers():
 
 
 def test_time_to_threshold_and_value_at():
-    from pg_node.bench_runs import first_time_at, value_at
+    from pg_node.tools.bench_runs import first_time_at, value_at
     curve = fake_results()['learning']['runs']['pg_node_graph'][0]['curve']
     assert first_time_at(curve, -10.0) == pytest.approx(3.072)
     assert first_time_at(curve, 100.0) is None

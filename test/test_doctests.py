@@ -4,7 +4,7 @@ import importlib
 
 import pytest
 
-MODULES = ['pg_node.rollout', 'pg_node.returns', 'pg_node.baselines', 'pg_node.gae']
+MODULES = ['pg_node.rl.rollout', 'pg_node.rl.returns', 'pg_node.rl.baselines', 'pg_node.rl.gae']
 
 
 @pytest.mark.parametrize('name', MODULES)

@@ -1,17 +1,17 @@
 """
-Tests of pg_node.episode_recorder: batches from a real ArmTask, read back with PyPI rosbags.
+Tests of pg_node.bag.recorder: batches from a real ArmTask, read back with PyPI rosbags.
 
-Batches are built by stepping :class:`pg_node.arm_task.ArmTask` with random actions (some
+Batches are built by stepping :class:`pg_node.sim.arm_task.ArmTask` with random actions (some
 outside the control range), so observations, rewards and episode boundaries are the real
 ones, and the true joint positions, velocities and episode returns are known.
 """
 from collections import defaultdict
 
 import numpy as np
-from pg_node.arm_task import ArmTask
-from pg_node.episode_recorder import EpisodeRecorder, metric_topic, parse_episode
-from pg_node.messages import Batch
-from pg_node.paths import resolve_model
+from pg_node.bag.recorder import EpisodeRecorder, metric_topic, parse_episode
+from pg_node.common.paths import resolve_model
+from pg_node.ros.messages import Batch
+from pg_node.sim.arm_task import ArmTask
 import pytest
 from rosbags.rosbag2 import Reader
 from rosbags.typesys import get_typestore, Stores
@@ -249,6 +249,6 @@ def test_closed_recorder_refuses_batches(tmp_path):
 
 def test_docstring_examples():
     import doctest
-    import pg_node.episode_recorder
-    failures, tried = doctest.testmod(pg_node.episode_recorder)
+    import pg_node.bag.recorder
+    failures, tried = doctest.testmod(pg_node.bag.recorder)
     assert tried >= 1 and failures == 0

@@ -10,9 +10,9 @@ import subprocess
 import sys
 
 import numpy as np
-from pg_node import baselines
-from pg_node.linear_gaussian import LinearGaussianProblem
-from pg_node.variance_lab import LAB_ROWS, run_lab
+from pg_node.lab.linear_gaussian import LinearGaussianProblem
+from pg_node.lab.variance import LAB_ROWS, run_lab
+from pg_node.rl import baselines
 import pytest
 import torch
 
@@ -121,9 +121,9 @@ def test_cli_rejects_bad_options():
 
 @pytest.fixture(scope='module')
 def arm_lab():
-    from pg_node.arm_lab import ArmLab
-    from pg_node.learner import make_policy
-    from pg_node.params import load_config
+    from pg_node.common.params import load_config
+    from pg_node.lab.arm import ArmLab
+    from pg_node.rl.learner import make_policy
     cfg = load_config(None, [])
     torch.set_num_threads(1)
     policy = make_policy(10, 2, {**cfg['learner_node'], **cfg['actor_node']})
@@ -134,8 +134,8 @@ def arm_lab():
 
 def test_arm_lab_batched_gradients_equal_one_backward_per_row(arm_lab):
     """The one batched vector-Jacobian product gives what a backward pass per row gives."""
-    from pg_node.estimators import compute_phi
-    from pg_node.policy import segment_score_sq
+    from pg_node.rl.estimators import compute_phi
+    from pg_node.rl.policy import segment_score_sq
     data = arm_lab.sample(3, np.random.default_rng(0))
     assert data['rew'].shape == (50, 3)
     got = arm_lab._estimates(data, 0.9, LAB_ROWS)

@@ -17,14 +17,17 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
-from pg_node import messages, processes, table_msg, transition
-from pg_node.bag_writer import reindex
-from pg_node.episode_recorder import EpisodeRecorder, parse_episode
-from pg_node.learner import EpisodeStats, Learner, make_policy
-from pg_node.params import defaults
-from pg_node.rollout_buffer import RolloutArrays
-from pg_node.train import last_progress, read_progress
-from pg_node.weights import flatten_state
+from pg_node.bag.recorder import EpisodeRecorder, parse_episode
+from pg_node.bag.writer import reindex
+from pg_node.common.params import defaults
+from pg_node.rl.learner import EpisodeStats, Learner, make_policy
+from pg_node.rl.rollout_buffer import RolloutArrays
+from pg_node.rl.weights import flatten_state
+from pg_node.ros import messages
+from pg_node.ros import table_msg
+from pg_node.ros import transition
+from pg_node.tools import processes
+from pg_node.tools.train import last_progress, read_progress
 import pytest
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
@@ -54,8 +57,8 @@ def env(domain):
 
 
 def start(module, domain, log_path, *params):
-    """Start ``python -m pg_node.<module>`` in its own session, logging to ``log_path``."""
-    args = [sys.executable, '-m', f'pg_node.{module}', '--ros-args']
+    """Start ``python -m pg_node.ros.<module>`` in its own session, logging to ``log_path``."""
+    args = [sys.executable, '-m', f'pg_node.ros.{module}', '--ros-args']
     for p in params:
         args += ['-p', p]
     return processes.start_logged(args, log_path, env(domain))
@@ -255,7 +258,7 @@ def test_bad_config_is_refused_fast_naming_the_key(tmp_path, key, value, node):
     assert 'configuration error' in res.stderr
     assert took < 20 and not (tmp_path / 'run' / 'logs').exists()   # nothing was started
     t0 = time.monotonic()
-    res = subprocess.run([sys.executable, '-m', f'pg_node.{node}', '--ros-args', '-p',
+    res = subprocess.run([sys.executable, '-m', f'pg_node.ros.{node}', '--ros-args', '-p',
                           f'{key}:={value}', '-p', f'run_dir:={tmp_path / "node"}'],
                          env=env(GRAPH), cwd=REPO, capture_output=True, text=True, timeout=90)
     took = time.monotonic() - t0
@@ -609,7 +612,7 @@ def test_two_minute_soak_keeps_memory_flat_and_bags_readable(tmp_path):
     assert all(b['episodes'] > 0 for b in report['bags'])
     # every malformed message was dropped and counted by the node it was sent to (the
     # actor may never read a malformed transition that the simulator's next one superseded
-    # in its keep-last-1 queue: that one is not counted, see pg_node.soak.Injector.garbage)
+    # in its keep-last-1 queue: that one is not counted, see pg_node.tools.soak.Injector.garbage)
     rounds = kinds.count('garbage')
     dropped = report['malformed_reported_dropped']
     assert report['malformed_sent']['commands'] == 3 * rounds

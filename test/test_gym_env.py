@@ -2,8 +2,8 @@
 import gymnasium as gym
 from gymnasium.utils.env_checker import check_env
 import numpy as np
-import pg_node.gym_env  # noqa: F401  (registers the ids)
-from pg_node.gym_env import ARM5_ID, REACHER2_ID
+import pg_node.sim.gym_env  # noqa: F401  (registers the ids)
+from pg_node.sim.gym_env import ARM5_ID, REACHER2_ID
 import pytest
 
 
@@ -75,6 +75,6 @@ def test_sb3_make_vec_env_default_render_mode_is_accepted():
         assert venv.get_attr('render_mode') == ['rgb_array', 'rgb_array']
     finally:
         venv.close()
-    from pg_node.gym_env import ArmEnv
+    from pg_node.sim.gym_env import ArmEnv
     with pytest.raises(ValueError, match="render_mode 'human' is not supported"):
         ArmEnv(render_mode='human')

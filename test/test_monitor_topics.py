@@ -13,7 +13,7 @@ import sys
 import threading
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from pg_node.monitor import MonitorState, sparkline
+from pg_node.tools.monitor import MonitorState, sparkline
 import pytest
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
@@ -160,12 +160,12 @@ def test_topics_lists_types_endpoints_and_rates(publisher):
     diag = rows['/diagnostics']
     assert diag['types'] == ['diagnostic_msgs/msg/DiagnosticArray']
     assert 1.0 < diag['rate_hz'] < 3.5  # 2 Hz
-    plain = run('topics', '--duration', '0.5')
+    plain = run('topics', '--discovery', '2', '--duration', '0.5')
     assert plain.returncode == 0 and '/pg_node/metrics/policy_loss' in plain.stdout
 
 
 def test_docstring_examples():
     import doctest
-    import pg_node.monitor
-    failures, tried = doctest.testmod(pg_node.monitor)
+    import pg_node.tools.monitor
+    failures, tried = doctest.testmod(pg_node.tools.monitor)
     assert tried >= 2 and failures == 0

@@ -3,11 +3,11 @@ import io
 import math
 
 import numpy as np
-from pg_node import losses
-from pg_node.a2c import make_optimizer, PolicyBatch, PolicyUpdate, ValueUpdate
-from pg_node.normalization import RunningNorm
-from pg_node.policy import GaussianPolicy, segment_score_sq
-from pg_node.value import ValueFunction
+from pg_node.rl import losses
+from pg_node.rl.a2c import make_optimizer, PolicyBatch, PolicyUpdate, ValueUpdate
+from pg_node.rl.normalization import RunningNorm
+from pg_node.rl.policy import GaussianPolicy, segment_score_sq
+from pg_node.rl.value import ValueFunction
 import pytest
 import torch
 

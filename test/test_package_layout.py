@@ -57,9 +57,9 @@ def test_installed_package_finds_its_share_dir_and_runs(install, tmp_path):
     env = {'PATH': '/usr/bin:/bin', 'PYTHONPATH': str(site),
            'AMENT_PREFIX_PATH': f'{install}:{sys.prefix}',
            'LD_LIBRARY_PATH': ''}
-    code = ('import pg_node.paths as p; print(p.default_config()); '
-            'import pg_node.sim_node, pg_node.actor_node, pg_node.critic_node, '
-            'pg_node.learner_node, pg_node.replay_node')
+    code = ('import pg_node.common.paths as p; print(p.default_config()); '
+            'import pg_node.ros.sim_node, pg_node.ros.actor_node, pg_node.ros.critic_node, '
+            'pg_node.ros.learner_node, pg_node.ros.replay_node')
     res = subprocess.run([sys.executable, '-c', code], env=env, cwd=tmp_path,
                          capture_output=True, text=True, timeout=120)
     assert res.returncode == 0, res.stderr

@@ -13,11 +13,11 @@ import subprocess
 import sys
 
 import numpy as np
-from pg_node.bag_reader import BagReader
-from pg_node.bag_writer import BagWriter
-from pg_node.episode_recorder import parse_episode
-from pg_node.plot import main as plot_main, RunData
-from pg_node.render import recorded_episodes
+from pg_node.bag.reader import BagReader
+from pg_node.bag.recorder import parse_episode
+from pg_node.bag.writer import BagWriter
+from pg_node.tools.plot import main as plot_main, RunData
+from pg_node.tools.render import recorded_episodes
 from PIL import Image
 import pytest
 from std_msgs.msg import String

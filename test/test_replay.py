@@ -11,10 +11,11 @@ from pathlib import Path
 import sys
 import time
 
-from pg_node import processes, ros_types
-from pg_node.bag_reader import BagReader
-from pg_node.bag_writer import BagWriter
-from pg_node.replay_node import main, merge_qos, parse_remaps
+from pg_node.bag import ros_types
+from pg_node.bag.reader import BagReader
+from pg_node.bag.writer import BagWriter
+from pg_node.ros.replay_node import main, merge_qos, parse_remaps
+from pg_node.tools import processes
 import pytest
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
@@ -353,6 +354,6 @@ def test_loop_plays_again_until_sigint(tmp_path):
 
 def test_docstring_examples():
     import doctest
-    import pg_node.replay_node
-    failures, tried = doctest.testmod(pg_node.replay_node)
+    import pg_node.ros.replay_node
+    failures, tried = doctest.testmod(pg_node.ros.replay_node)
     assert tried >= 2 and failures == 0

@@ -1,9 +1,9 @@
 """Hand-computed returns and advantages, as SB3's test_gae does, plus the special cases."""
 import numpy as np
-from pg_node import estimators
-from pg_node.gae import gae, td_lambda_return, td_residual
-from pg_node.returns import discount_cumsum, reward_to_go, total_return
-from pg_node.rollout import episode_steps, Rollout, segment_ids
+from pg_node.rl import estimators
+from pg_node.rl.gae import gae, td_lambda_return, td_residual
+from pg_node.rl.returns import discount_cumsum, reward_to_go, total_return
+from pg_node.rl.rollout import episode_steps, Rollout, segment_ids
 import pytest
 
 

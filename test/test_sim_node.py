@@ -7,9 +7,10 @@ import time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PointStamped
 import numpy as np
-from pg_node import processes, transition
-from pg_node.arm_task import ArmTask
-from pg_node.paths import resolve_model
+from pg_node.common.paths import resolve_model
+from pg_node.ros import transition
+from pg_node.sim.arm_task import ArmTask
+from pg_node.tools import processes
 import pytest
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
@@ -28,11 +29,11 @@ LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
 
 
 def start_node(tmp_path, *params):
-    """Start ``python -m pg_node.sim_node`` in its own session with ``-p`` overrides."""
+    """Start ``python -m pg_node.ros.sim_node`` in its own session with ``-p`` overrides."""
     env = dict(os.environ, ROS_DOMAIN_ID=str(DOMAIN_ID), PYTHONUNBUFFERED='1',
                PYTHONPATH=str(REPO), AMENT_PREFIX_PATH=os.environ.get(
                    'AMENT_PREFIX_PATH', str(Path(sys.executable).parent.parent)))
-    args = [sys.executable, '-m', 'pg_node.sim_node', '--ros-args']
+    args = [sys.executable, '-m', 'pg_node.ros.sim_node', '--ros-args']
     # one arm unless the test says otherwise (the shipped config trains with 64); a later
     # -p wins over an earlier one
     for param in ('num_envs:=1',) + params:

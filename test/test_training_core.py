@@ -2,16 +2,17 @@
 import os
 
 import numpy as np
-from pg_node import messages, table_msg
-from pg_node.checkpoint import list_checkpoints, load_latest, save_checkpoint
-from pg_node.critic import Critic
-from pg_node.learner import Learner
-from pg_node.params import ConfigError, load_config, Param
-from pg_node.policy import GaussianPolicy
-from pg_node.rollout_buffer import RolloutBuffer
-from pg_node.train import last_progress, read_progress
-from pg_node.train_inprocess import train_inprocess
-from pg_node.weights import flatten_state, load_flat_state
+from pg_node.common.params import ConfigError, load_config, Param
+from pg_node.rl.checkpoint import list_checkpoints, load_latest, save_checkpoint
+from pg_node.rl.critic import Critic
+from pg_node.rl.learner import Learner
+from pg_node.rl.policy import GaussianPolicy
+from pg_node.rl.rollout_buffer import RolloutBuffer
+from pg_node.rl.train_inprocess import train_inprocess
+from pg_node.rl.weights import flatten_state, load_flat_state
+from pg_node.ros import messages
+from pg_node.ros import table_msg
+from pg_node.tools.train import last_progress, read_progress
 import pytest
 import torch
 import yaml
@@ -68,8 +69,8 @@ def test_shared_values_reach_every_node_and_node_values_win(tmp_path):
 
 def test_shipped_config_is_valid_and_equals_the_defaults():
     """config/pg_node.yaml documents the defaults: every node's values equal the table's."""
-    from pg_node.params import defaults, SCHEMA, SHARED_PARAMS
-    from pg_node.paths import default_config
+    from pg_node.common.params import defaults, SCHEMA, SHARED_PARAMS
+    from pg_node.common.paths import default_config
     raw = yaml.safe_load(default_config().read_text())
     assert set(raw) == {'/**'} | {f'/**/{name}' for name in SCHEMA}
     assert raw['/**']['ros__parameters'] == {k: p.default for k, p in SHARED_PARAMS.items()}
@@ -250,8 +251,8 @@ def test_inprocess_a2c_learns_to_reach():
     and targets): the per-episode differences are paired, and their standard error is the
     noise the gain is compared with.
     """
-    from pg_node.evaluate import evaluate_policy
-    from pg_node.learner import make_policy
+    from pg_node.rl.evaluate import evaluate_policy
+    from pg_node.rl.learner import make_policy
     cfg = _cfg(num_envs=16)
     policy = make_policy(10, 2, {**cfg['learner_node'], **cfg['actor_node']})
     untrained = evaluate_policy(policy, 'reacher2', 100)

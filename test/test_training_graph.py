@@ -15,14 +15,15 @@ import sys
 import time
 
 import numpy as np
-from pg_node import messages, table_msg
-from pg_node.bag_writer import reindex
-from pg_node.evaluate import evaluate_policy
-from pg_node.learner import make_policy
-from pg_node.params import load_config
-from pg_node.paths import default_config
-from pg_node.train import read_progress
-from pg_node.train_inprocess import train_inprocess
+from pg_node.bag.writer import reindex
+from pg_node.common.params import load_config
+from pg_node.common.paths import default_config
+from pg_node.rl.evaluate import evaluate_policy
+from pg_node.rl.learner import make_policy
+from pg_node.rl.train_inprocess import train_inprocess
+from pg_node.ros import messages
+from pg_node.ros import table_msg
+from pg_node.tools.train import read_progress
 import pytest
 from rosbags.rosbag2 import Reader
 from rosbags.typesys import get_typestore, Stores
@@ -151,13 +152,13 @@ def test_two_simulator_actor_pairs_feed_one_learner(tmp_path, mode):
 
 def test_learner_refuses_a_batch_of_the_wrong_version(tmp_path):
     """Synchronous A2C is on-policy: a batch not sampled by the current version is refused."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from pg_node.ros.node_utils import LATCHED, RELIABLE
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
-    from pg_node.node_utils import LATCHED, RELIABLE
     from std_msgs.msg import Float64MultiArray
-    from diagnostic_msgs.msg import DiagnosticArray
     proc = subprocess.Popen(
-        [sys.executable, '-m', 'pg_node.learner_node', '--ros-args', '-p',
+        [sys.executable, '-m', 'pg_node.ros.learner_node', '--ros-args', '-p',
          f'run_dir:={tmp_path}', '-p', 'num_envs:=2'],
         env=env(), cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
         start_new_session=True, text=True)

@@ -1,7 +1,7 @@
 """Transition message layout: round trips, documentation and refusal of bad layouts."""
 import numpy as np
-from pg_node import transition
-from pg_node.transition import pack, Transition, unpack
+from pg_node.ros import transition
+from pg_node.ros.transition import pack, Transition, unpack
 import pytest
 
 

@@ -1,0 +1,430 @@
+"""
+Write the episodes a learner learns from into a rosbag2 MCAP bag, from its annotated batches.
+
+The learner owns an :class:`EpisodeRecorder` and hands it every :class:`pg_node.ros.messages.Batch`
+it learns from. The recorder rebuilds the step messages from the batch arrays (cheaper than
+subscribing to the simulator's high-rate topics, and exactly what was learned from) and
+writes them with :class:`pg_node.bag.writer.BagWriter`. No ROS node is created here.
+
+Topics (the contract the replay, plot and render tools and the README rely on):
+
+* ``/clock`` (``rosgraph_msgs/Clock``), every step: simulated time ``seq * dt``;
+* ``/joint_states`` (``sensor_msgs/JointState``), every step, for the recorded arms (arm
+  columns ``0 .. record_arms - 1`` of actor ``record_actor``): names ``arm<i>/<joint>`` as
+  sim_node names them, position ``atan2(sin q, cos q)`` from the observation, velocity from
+  the observation, effort ``clip(act, ctrl range) * gear`` (the torque the action applied
+  during the step), stamped with simulated time;
+* ``/target`` (``geometry_msgs/PointStamped``, reliable, transient-local, depth
+  ``record_arms``): a recorded arm's goal at the first recorded step of each of its episodes,
+  ``frame_id`` ``arm<i>``, the point from the observation's target field (world coordinates,
+  ``z = 0`` for a planar goal);
+* ``/arm_controller/commands`` (``std_msgs/Float64MultiArray``), every step: the recorded
+  arms' clipped actions, arm-major, layout dims ``arm`` x ``actuator``;
+* ``/pg_node/reward`` (``std_msgs/Float64MultiArray``), every step: the recorded arms'
+  rewards, layout dim ``arm``;
+* ``/pg_node/episode`` (``diagnostic_msgs/DiagnosticStatus``, reliable, depth 100): one per
+  finished episode of *every* arm of every actor, name ``episode``, level OK (WARN when cut
+  short), values ``actor, arm, episode_id, return, length, terminated, truncated, cut_short,
+  policy_version, recorded_steps``. ``return`` sums the rewards recorded for the episode,
+  over as many batches as it spans; ``length`` is the episode's length in steps (from
+  ``ep_step``), ``recorded_steps`` how many of them the recorder saw (fewer only when
+  recording began mid-episode, whose return is then partial). Booleans are ``true`` /
+  ``false``. ``split_max_episodes`` counts these messages;
+* ``/pg_node/metrics/<name>`` (``std_msgs/Float64``): each finite value given to
+  :meth:`EpisodeRecorder.record_metrics` (``episode_return``, ``policy_loss``, ...).
+
+Log times: a batch's step messages are spread evenly over ``(previous call, t_wall_ns]``, so
+that replay at the original rate goes at training pace; episode summaries and metrics are
+logged at ``t_wall_ns``. Log times never go back: a ``t_wall_ns`` earlier than what is
+already written is moved up to it. The open chunk is flushed whenever an episode ends.
+
+An episode is cut short when its arm starts a new episode before the old one ended (a world
+reset, an actor restart), when the owner calls :meth:`EpisodeRecorder.mark_cut_short`, or
+when it calls :meth:`EpisodeRecorder.cut_short_actor` because that actor's simulator
+restarted (the learner sees its transition numbers start again).
+Episodes still open at :meth:`EpisodeRecorder.close` get no summary.
+
+The bag's ``metadata.yaml`` ``custom_data`` holds ``pg_node.model`` (the MJCF path),
+``pg_node.dt``, ``pg_node.record_arms`` and ``pg_node.joint_names`` for the tools that
+read the bag.
+"""
+import math
+import re
+import threading
+from typing import Dict, Optional
+
+from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+from geometry_msgs.msg import PointStamped
+import mujoco
+import numpy as np
+from pg_node.bag.writer import BagWriter
+from pg_node.common.paths import resolve_model
+from pg_node.sim.arm_task import ArmSpec
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64, Float64MultiArray, MultiArrayDimension
+
+EPISODE_TOPIC = '/pg_node/episode'
+METRICS_PREFIX = '/pg_node/metrics/'
+EPISODE_KEYS = ('actor', 'arm', 'episode_id', 'return', 'length', 'terminated', 'truncated',
+                'cut_short', 'policy_version', 'recorded_steps')
+_DEFAULT = QoSProfile(depth=10)
+_EPISODE_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+_NAME_BAD = re.compile(r'[^A-Za-z0-9_]')
+
+
+def metric_topic(name: str) -> str:
+    """
+    Return the topic of a metric: ``/pg_node/metrics/<name>`` with a valid ROS name.
+
+    >>> metric_topic('episode_return'), metric_topic('loss/pi'), metric_topic('2x')
+    ('/pg_node/metrics/episode_return', '/pg_node/metrics/loss_pi', '/pg_node/metrics/m_2x')
+    """
+    clean = _NAME_BAD.sub('_', str(name)) or 'unnamed'
+    if not clean[0].isalpha():
+        clean = 'm_' + clean
+    return METRICS_PREFIX + clean
+
+
+def sim_stamp(seconds: float) -> Time:
+    """Return a ``builtin_interfaces/Time`` for a simulated time in seconds."""
+    ns = int(round(seconds * 1e9))
+    return Time(sec=ns // 10**9, nanosec=ns % 10**9)
+
+
+def _fmt(value) -> str:
+    if isinstance(value, (bool, np.bool_)):
+        return 'true' if value else 'false'
+    if isinstance(value, (int, np.integer)):
+        return str(int(value))
+    return repr(float(value))
+
+
+def parse_episode(status) -> Dict[str, float]:
+    """
+    Turn a ``/pg_node/episode`` DiagnosticStatus (rclpy or rosbags) into a dict of numbers.
+
+    Booleans become 1.0 / 0.0; ``level`` is added.
+    """
+    out = {'level': float(status.level[0] if isinstance(status.level, bytes)
+                          else status.level)}
+    for kv in status.values:
+        v = kv.value.strip().lower()
+        try:
+            out[kv.key] = 1.0 if v == 'true' else 0.0 if v == 'false' else float(v)
+        except ValueError:
+            continue
+    return out
+
+
+class _Open:
+    """One arm's open episode: its id and running sums."""
+
+    __slots__ = ('episode_id', 'ret', 'recorded', 'last_ep_step')
+
+    def __init__(self, episode_id):
+        self.episode_id = int(episode_id)
+        self.ret = 0.0
+        self.recorded = 0
+        self.last_ep_step = -1
+
+
+class EpisodeRecorder:
+    """
+    Record annotated batches, metrics and episode summaries into a bag directory.
+
+    :param directory: the bag directory to create (must not exist or be empty).
+    :param model_path: the MJCF (or a shipped model name) the batches come from; joint
+        names, control ranges and gears are read from it.
+    :param record_arms: how many arms of actor ``record_actor`` get step messages.
+    :param split_max_episodes: start a new file after this many episode summaries (0: never).
+    :param split_max_bytes: start a new file at this size (0: never).
+    :param dt: simulated seconds per control step; by default the model's timestep times
+        ``frame_skip``.
+    """
+
+    def __init__(self, directory, model_path, record_arms: int = 4,
+                 split_max_episodes: int = 200, split_max_bytes: int = 64 << 20,
+                 dt: Optional[float] = None, frame_skip: int = 2, record_actor: int = 0,
+                 compression: str = 'zstd'):
+        """Read the model and create the bag with its topics declared."""
+        self.model_path = str(resolve_model(str(model_path)))
+        model = mujoco.MjModel.from_xml_path(self.model_path)
+        self.spec = ArmSpec.from_model(model)
+        self.n_joints = len(self.spec.joint_ids)
+        self.target_dim = self.spec.target_dim
+        self.act_dim = model.nu
+        self.obs_dim = 3 * self.n_joints + 2 * self.target_dim
+        self.gear = model.actuator_gear[:, 0].copy()
+        self.dt = float(dt) if dt is not None else float(model.opt.timestep * frame_skip)
+        self.record_arms = int(record_arms)
+        self.record_actor = int(record_actor)
+        self.episodes_written = 0
+        self.batches_written = 0
+        self._open: Dict[tuple, _Open] = {}
+        self._closed_recently = {}  # (actor, arm) -> set of ended episode ids (bounded)
+        self._last_t: Optional[int] = None
+        self._target_for: Dict[int, int] = {}  # recorded arm -> episode of its last goal
+        self._lock = threading.RLock()
+        self.writer = BagWriter(
+            directory, split_max_bytes=split_max_bytes, split_max_episodes=split_max_episodes,
+            episode_topic=EPISODE_TOPIC, compression=compression,
+            custom_data={'pg_node.model': self.model_path, 'pg_node.dt': repr(self.dt),
+                         'pg_node.record_arms': str(self.record_arms),
+                         'pg_node.joint_names': ','.join(self.spec.joint_names)})
+        self.directory = self.writer.directory
+        w = self.writer
+        w.add_topic('/clock', Clock, _DEFAULT)
+        w.add_topic('/joint_states', JointState, _DEFAULT)
+        w.add_topic('/target', PointStamped, QoSProfile(
+            depth=max(1, self.record_arms), reliability=ReliabilityPolicy.RELIABLE,
+            durability=DurabilityPolicy.TRANSIENT_LOCAL))
+        w.add_topic('/arm_controller/commands', Float64MultiArray, _DEFAULT)
+        w.add_topic('/pg_node/reward', Float64MultiArray, _DEFAULT)
+        w.add_topic(EPISODE_TOPIC, DiagnosticStatus, _EPISODE_QOS)
+
+    # -- time ------------------------------------------------------------------------------
+    def _clamp(self, t_ns) -> int:
+        t_ns = int(t_ns)
+        if self._last_t is not None and t_ns < self._last_t:
+            t_ns = self._last_t
+        return t_ns
+
+    # -- batches ---------------------------------------------------------------------------
+    def record_batch(self, batch, policy_version: int, t_wall_ns: int):
+        """
+        Write one annotated batch: step messages of the recorded arms, episode summaries.
+
+        ``batch`` is a :class:`pg_node.ros.messages.Batch` (arrays ``(T, N, ...)``) whose
+        columns are the arms of all actors side by side, ``batch.actor`` naming each
+        column's actor; an arm's index is its column minus its actor's first column.
+        """
+        with self._lock:
+            if self.writer.closed:
+                raise RuntimeError('episode recorder is closed')
+            obs = np.asarray(batch.obs, dtype=np.float64)
+            T, N = obs.shape[:2]
+            if obs.shape[2] != self.obs_dim:
+                raise ValueError(f'obs has {obs.shape[2]} columns, the model gives '
+                                 f'{self.obs_dim}')
+            act = np.asarray(batch.act, dtype=np.float64).reshape(T, N, -1)
+            rew = np.asarray(batch.rew, dtype=np.float64).reshape(T, N)
+            term = np.asarray(batch.terminated).reshape(T, N).astype(bool)
+            trunc = np.asarray(batch.truncated).reshape(T, N).astype(bool)
+            ep_step = np.asarray(batch.ep_step).reshape(T, N).astype(np.int64)
+            ep_id = np.asarray(batch.episode_id).reshape(T, N).astype(np.int64)
+            seq = np.asarray(batch.seq).reshape(T, N).astype(np.int64)
+            actors = np.asarray(batch.actor).reshape(T, N).astype(np.int64)[0]
+            arm_of = np.empty(N, dtype=np.int64)
+            first = {}
+            for col, a in enumerate(actors):
+                first.setdefault(int(a), col)
+                arm_of[col] = col - first[int(a)]
+            t_end = self._clamp(t_wall_ns)
+            t_start = self._last_t if self._last_t is not None else (
+                t_end - int(round(T * self.dt * 1e9)))
+            t_start = min(t_start, t_end)
+            cols = [c for c in range(N) if actors[c] == self.record_actor
+                    and arm_of[c] < self.record_arms]
+            for t in range(T):
+                t_log = t_start + (t_end - t_start) * (t + 1) // T
+                if cols:
+                    self._write_step(t_log, obs[t, cols], act[t, cols], rew[t, cols],
+                                     ep_id[t, cols], ep_step[t, cols], arm_of[cols],
+                                     int(seq[t, cols[0]]))
+            ended = self._accumulate(rew, term, trunc, ep_step, ep_id, actors, arm_of,
+                                     int(policy_version), t_end)
+            self._last_t = t_end
+            self.batches_written += 1
+            if ended:
+                self.writer.flush(metadata=False)
+
+    def _write_step(self, t_log, obs, act, rew, ep_id, ep_step, arms, seq):
+        n, k = self.n_joints, self.target_dim
+        stamp = sim_stamp(seq * self.dt)
+        w = self.writer
+        w.write('/clock', Clock(clock=stamp), t_log)
+        act_c = np.clip(act, self.spec.ctrl_low, self.spec.ctrl_high)
+        js = JointState()
+        js.header.stamp = stamp
+        js.name = [f'arm{int(i)}/{j}' for i in arms for j in self.spec.joint_names]
+        js.position = np.arctan2(obs[:, n:2 * n], obs[:, :n]).ravel().tolist()
+        js.velocity = obs[:, 2 * n + k:3 * n + k].ravel().tolist()
+        js.effort = (act_c * self.gear).ravel().tolist()
+        w.write('/joint_states', js, t_log)
+        for r, arm in enumerate(arms):
+            eid = int(ep_id[r])
+            if self._target_for.get(int(arm)) != eid:
+                # the first recorded step of this arm's episode: its goal
+                self._target_for[int(arm)] = eid
+                point = PointStamped()
+                point.header.stamp = stamp
+                point.header.frame_id = f'arm{int(arm)}'
+                goal = obs[r, 2 * n:2 * n + k]
+                point.point.x = float(goal[0])
+                point.point.y = float(goal[1]) if k > 1 else 0.0
+                point.point.z = float(goal[2]) if k > 2 else 0.0
+                w.write('/target', point, t_log)
+        cmd = Float64MultiArray()
+        cmd.layout.dim = [
+            MultiArrayDimension(label='arm', size=len(arms), stride=len(arms) * self.act_dim),
+            MultiArrayDimension(label='actuator', size=self.act_dim, stride=self.act_dim)]
+        cmd.data = act_c.ravel().tolist()
+        w.write('/arm_controller/commands', cmd, t_log)
+        reward = Float64MultiArray()
+        reward.layout.dim = [MultiArrayDimension(label='arm', size=len(arms), stride=len(arms))]
+        reward.data = rew.ravel().tolist()
+        w.write('/pg_node/reward', reward, t_log)
+
+    def _accumulate(self, rew, term, trunc, ep_step, ep_id, actors, arm_of, version, t_ns):
+        """Update the running sums of every arm; write the episodes that end. Return count."""
+        T, N = rew.shape
+        done = term | trunc
+        # a segment of a column is a run of steps of one episode, ended by a step that ends
+        # the episode or by a change of episode id
+        starts = np.zeros((T, N), dtype=bool)
+        starts[0] = True
+        starts[1:] = (ep_id[1:] != ep_id[:-1]) | done[:-1]
+        pending = []  # (step, column, key, episode, terminated, truncated, cut_short)
+        for col in range(N):
+            key = (int(actors[col]), int(arm_of[col]))
+            bounds = np.flatnonzero(starts[:, col]).tolist() + [T]
+            for a, b in zip(bounds[:-1], bounds[1:]):
+                eid = int(ep_id[a, col])
+                cur = self._open.get(key)
+                if cur is not None and cur.episode_id != eid:
+                    # the arm moved on before its episode ended: a reset cut it short
+                    del self._open[key]
+                    pending.append((a, col, key, cur, False, False, True))
+                    cur = None
+                if cur is None:
+                    if eid in self._closed_recently.get(key, ()):
+                        continue  # steps of an episode already summarised: ignore
+                    cur = self._open[key] = _Open(eid)
+                cur.ret += float(rew[a:b, col].sum())
+                cur.recorded += b - a
+                cur.last_ep_step = int(ep_step[b - 1, col])
+                if done[b - 1, col]:
+                    del self._open[key]
+                    pending.append((b - 1, col, key, cur, bool(term[b - 1, col]),
+                                    bool(trunc[b - 1, col]), False))
+        pending.sort(key=lambda p: (p[0], p[1]))
+        for _, _, key, cur, terminated, truncated, cut_short in pending:
+            self._summary(key, cur, version, t_ns, terminated=terminated,
+                          truncated=truncated, cut_short=cut_short)
+        return len(pending)
+
+    def _summary(self, key, cur: Optional[_Open], version, t_ns, terminated=False,
+                 truncated=False, cut_short=False, episode_id=None):
+        actor, arm = key
+        eid = cur.episode_id if cur is not None else int(episode_id)
+        values = {
+            'actor': actor, 'arm': arm, 'episode_id': eid,
+            'return': cur.ret if cur is not None else 0.0,
+            'length': (cur.last_ep_step + 1) if cur is not None else 0,
+            'terminated': terminated, 'truncated': truncated, 'cut_short': cut_short,
+            'policy_version': int(version),
+            'recorded_steps': cur.recorded if cur is not None else 0}
+        status = DiagnosticStatus()
+        status.name = 'episode'
+        status.level = DiagnosticStatus.WARN if cut_short else DiagnosticStatus.OK
+        status.message = (f'actor {actor} arm {arm} episode {eid}: return '
+                          f'{values["return"]:.3f} over {values["length"]} steps'
+                          + (' (cut short)' if cut_short else ''))
+        status.hardware_id = f'actor{actor}/arm{arm}'
+        status.values = [KeyValue(key=k, value=_fmt(values[k])) for k in EPISODE_KEYS]
+        recent = self._closed_recently.setdefault(key, [])
+        recent.append(eid)
+        del recent[:-8]
+        self.writer.write(EPISODE_TOPIC, status, t_ns)
+        self.episodes_written += 1
+
+    def mark_cut_short(self, actor: int, arm: int, episode_id: int, t_wall_ns: int,
+                       policy_version: int = -1) -> bool:
+        """
+        Write the summary of an episode a crash or reset cut short (level WARN).
+
+        Its return is what was recorded so far. Return False (and write nothing) if that
+        episode was already summarised, e.g. because the recorder saw the arm move on.
+        """
+        with self._lock:
+            if self.writer.closed:
+                return False
+            key = (int(actor), int(arm))
+            t_ns = self._clamp(t_wall_ns)
+            cur = self._open.get(key)
+            if cur is not None and cur.episode_id == int(episode_id):
+                del self._open[key]
+            elif int(episode_id) in self._closed_recently.get(key, ()):
+                return False
+            else:
+                cur = None
+            self._summary(key, cur, policy_version, t_ns, cut_short=True,
+                          episode_id=episode_id)
+            self._last_t = t_ns
+            self.writer.flush()
+            return True
+
+    def cut_short_actor(self, actor: int, t_wall_ns: int, policy_version: int = -1) -> int:
+        """
+        Close every open episode of ``actor``'s arms as cut short; return how many.
+
+        For a restarted simulator: its episodes start again at id 0, so the ids seen before
+        are forgotten too (an old id that comes again is a new episode, not a repeat).
+        """
+        with self._lock:
+            if self.writer.closed:
+                return 0
+            t_ns = self._clamp(t_wall_ns)
+            keys = sorted(k for k in self._open if k[0] == int(actor))
+            for key in keys:
+                self._summary(key, self._open.pop(key), policy_version, t_ns, cut_short=True)
+            for key in [k for k in self._closed_recently if k[0] == int(actor)]:
+                del self._closed_recently[key]
+            if int(actor) == self.record_actor:
+                self._target_for.clear()
+            self._last_t = t_ns
+            if keys:
+                self.writer.flush(metadata=False)
+            return len(keys)
+
+    # -- metrics ---------------------------------------------------------------------------
+    def record_metrics(self, metrics: Dict[str, float], t_wall_ns: int):
+        """Write each finite number of ``metrics`` on ``/pg_node/metrics/<name>``."""
+        with self._lock:
+            if self.writer.closed:
+                raise RuntimeError('episode recorder is closed')
+            t_ns = self._clamp(t_wall_ns)
+            for name, value in metrics.items():
+                try:
+                    value = float(value)
+                except (TypeError, ValueError):
+                    continue
+                if not math.isfinite(value):
+                    continue
+                topic = metric_topic(name)
+                if topic not in self.writer.topics:
+                    self.writer.add_topic(topic, Float64, _DEFAULT)
+                self.writer.write(topic, Float64(data=value), t_ns)
+            self._last_t = t_ns
+
+    def open_episodes(self) -> Dict[tuple, int]:
+        """Return ``{(actor, arm): episode_id}`` of the episodes not yet summarised."""
+        with self._lock:
+            return {k: v.episode_id for k, v in self._open.items()}
+
+    def close(self):
+        """Finish the bag (idempotent); open episodes get no summary."""
+        with self._lock:
+            self.writer.close()
+
+    def __enter__(self):
+        """Return the recorder."""
+        return self
+
+    def __exit__(self, *exc):
+        """Close the bag."""
+        self.close()
+        return False

@@ -1,0 +1,767 @@
+"""
+Write rclpy messages into a rosbag2 bag (MCAP storage, as ROS 2 Jazzy records it).
+
+A bag is a directory ``<run>/`` holding ``metadata.yaml`` (rosbag2 metadata version 9) and
+the files ``<run>_0.mcap``, ``<run>_1.mcap``, ... Each file is an MCAP file with profile
+``ros2``: one ``ros2msg`` schema per type holding the full message definition text, one
+``cdr`` channel per topic with the ``offered_qos_profiles`` and ``topic_type_hash``
+metadata that rosbag2_storage_mcap writes, chunked messages serialised by
+``rclpy.serialization.serialize_message``, and at the end of each file the ``rosbag2``
+metadata record (the bag's metadata as YAML under ``serialized_metadata``).
+
+Crash safety: messages are gathered in a chunk of bounded size (and age) in memory; a full
+chunk is compressed, written and flushed to the operating system at once, so a process
+killed with SIGKILL leaves every completed chunk on disk. ``metadata.yaml`` is replaced
+atomically (temporary file, then ``os.replace``) when a file is opened or closed and at
+most every ``metadata_interval_s`` after a chunk, so it is always a valid file describing
+data that is on disk. :func:`reindex` (like ``ros2 bag reindex``) turns what a killed
+writer left into a complete bag. On Ctrl-C or SIGTERM the caller calls :meth:`close` from
+its shutdown path; close is idempotent and defers those signals while it writes.
+
+The writer creates no ROS node: it is a plain object a node (or a test) owns.
+"""
+import contextlib
+import os
+from pathlib import Path
+import signal
+import struct
+import threading
+import time
+import zlib
+
+from pg_node.bag import ros_types
+from pg_node.bag.reader import (MAGIC, McapScan, OP_CHANNEL, OP_CHUNK, OP_DATA_END, OP_FOOTER,
+                                OP_HEADER, OP_MESSAGE, OP_METADATA, OP_SCHEMA)
+import yaml
+
+METADATA_VERSION = 9
+ROS_DISTRO = 'jazzy'
+PROFILE = 'ros2'
+LIBRARY = 'pg_node bag_writer'
+DEFAULT_CHUNK_SIZE = 768 * 1024  # mcap C++ writer's default, which rosbag2 uses
+
+OP_MESSAGE_INDEX = 0x07
+OP_CHUNK_INDEX = 0x08
+OP_STATISTICS = 0x0B
+OP_METADATA_INDEX = 0x0D
+OP_SUMMARY_OFFSET = 0x0E
+
+_MESSAGE = struct.Struct('<BQHIQQ')
+_RECORD_HEAD = struct.Struct('<BQ')
+
+
+def _s(text) -> bytes:
+    data = text.encode('utf-8') if isinstance(text, str) else bytes(text)
+    return struct.pack('<I', len(data)) + data
+
+
+def _str_map(mapping) -> bytes:
+    body = b''.join(_s(k) + _s(v) for k, v in mapping.items())
+    return struct.pack('<I', len(body)) + body
+
+
+def _record(opcode, body) -> bytes:
+    return _RECORD_HEAD.pack(opcode, len(body)) + body
+
+
+@contextlib.contextmanager
+def _signals_deferred():
+    """
+    Hold SIGINT/SIGTERM while a file is being finished, so it is never left half-written.
+
+    Their Python handlers are swapped for one that only notes the signal; on leaving, the
+    original handlers come back and each noted signal is raised again, so the caller's
+    Ctrl-C/SIGTERM handling runs once the file is consistent. (Blocking the signals at
+    the OS level is not enough: a signal that already arrived runs its Python handler at
+    the next bytecode.)
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    caught = []
+
+    def hold(signum, frame):
+        caught.append(signum)
+
+    old = {}
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        handler = signal.getsignal(signum)
+        if handler is not None:
+            old[signum] = signal.signal(signum, hold)
+    try:
+        yield
+    finally:
+        for signum, handler in old.items():
+            signal.signal(signum, handler)
+        for signum in dict.fromkeys(caught):
+            signal.raise_signal(signum)
+
+
+def _compressor(compression):
+    if compression in ('', 'none', None):
+        return '', None
+    if compression == 'zstd':
+        import zstandard
+        return 'zstd', zstandard.ZstdCompressor(level=1).compress
+    if compression == 'lz4':
+        import lz4.frame
+        return 'lz4', lz4.frame.compress
+    raise ValueError(f'unknown chunk compression {compression!r} (none, zstd, lz4)')
+
+
+class McapFileWriter:
+    """
+    A chunked MCAP file writer that flushes each chunk whole.
+
+    Low level: schemas, channels and raw messages by id. :class:`BagWriter` builds on it,
+    and :func:`reindex` uses it to rewrite a damaged file.
+    """
+
+    def __init__(self, path, chunk_size=DEFAULT_CHUNK_SIZE, compression='zstd',
+                 fsync=False, on_chunk=None):
+        """Create ``path`` and write the MCAP magic and the ``ros2`` header record."""
+        self.path = Path(path)
+        self.chunk_size = int(chunk_size)
+        self.compression, self._compress = _compressor(compression)
+        self.fsync = fsync
+        self.on_chunk = on_chunk
+        self._f = open(self.path, 'xb')
+        self._pos = 0
+        self._write(MAGIC + _record(OP_HEADER, _s(PROFILE) + _s(LIBRARY)))
+        self.schemas = {}        # id -> record body
+        self.channels = {}       # id -> record body
+        self._schema_ids = {}    # (name, encoding, data) -> id
+        self._chunk = bytearray()
+        self._chunk_end = 0      # end of the last whole record in self._chunk
+        self._index = []         # (channel id, log time, offset) in self._chunk
+        self._chunk_indexes = []
+        self._metadata_indexes = []
+        self.message_count = 0   # messages in completed chunks (on disk)
+        self.channel_counts = {}
+        self.start_time = None
+        self.end_time = None
+        self.chunk_count = 0
+        self.closed = False
+
+    def _write(self, data):
+        self._f.write(data)
+        self._pos += len(data)
+
+    @property
+    def size(self) -> int:
+        """Bytes written so far plus the open chunk (a size estimate for splitting)."""
+        return self._pos + len(self._chunk)
+
+    @property
+    def buffered(self) -> int:
+        """Return how many messages are in the open chunk, not yet on disk."""
+        return len(self._index)
+
+    def add_schema(self, name, encoding, data) -> int:
+        """Register a schema (once per distinct definition) and return its id."""
+        data = data.encode('utf-8') if isinstance(data, str) else bytes(data)
+        key = (name, encoding, data)
+        if key in self._schema_ids:
+            return self._schema_ids[key]
+        sid = len(self.schemas) + 1
+        body = struct.pack('<H', sid) + _s(name) + _s(encoding) + _s(data)
+        self.schemas[sid] = body
+        self._schema_ids[key] = sid
+        self._chunk += _record(OP_SCHEMA, body)
+        self._chunk_end = len(self._chunk)
+        return sid
+
+    def add_channel(self, topic, message_encoding, schema_id, metadata) -> int:
+        """Register a channel and return its id; its record goes into the open chunk."""
+        cid = len(self.channels) + 1
+        body = (struct.pack('<HH', cid, schema_id) + _s(topic) + _s(message_encoding)
+                + _str_map(metadata))
+        self.channels[cid] = body
+        self.channel_counts.setdefault(cid, 0)
+        self._chunk += _record(OP_CHANNEL, body)
+        self._chunk_end = len(self._chunk)
+        return cid
+
+    def add_message(self, channel_id, log_time, data, publish_time=None, sequence=0):
+        """Append one serialised message to the open chunk; write the chunk when full."""
+        offset = len(self._chunk)
+        self._chunk += _MESSAGE.pack(OP_MESSAGE, 22 + len(data), channel_id,
+                                     sequence & 0xFFFFFFFF, log_time,
+                                     log_time if publish_time is None else publish_time)
+        self._chunk += data
+        # The index entry and the end mark come last: a signal between these lines
+        # leaves a record past _chunk_end, which flush_chunk drops, never a bad index.
+        self._index.append((channel_id, log_time, offset))
+        self._chunk_end = len(self._chunk)
+        if len(self._chunk) >= self.chunk_size:
+            self.flush_chunk()
+
+    def flush_chunk(self):
+        """Compress, write and flush the open chunk and its message indexes."""
+        if self._chunk_end == 0:
+            return
+        with _signals_deferred():
+            self._flush_chunk()
+
+    def _flush_chunk(self):
+        end = self._chunk_end
+        index = [e for e in self._index if e[2] < end]
+        data = bytes(self._chunk[:end])
+        times = [e[1] for e in index]
+        start_t, end_t = (min(times), max(times)) if times else (0, 0)
+        compressed = self._compress(data) if self._compress else data
+        body = (struct.pack('<QQQI', start_t, end_t, len(data), zlib.crc32(data))
+                + _s(self.compression) + struct.pack('<Q', len(compressed)))
+        chunk_start = self._pos
+        self._write(_RECORD_HEAD.pack(OP_CHUNK, len(body) + len(compressed)) + body)
+        self._write(compressed)
+        chunk_length = self._pos - chunk_start
+        per_channel = {}
+        for cid, t, off in index:
+            per_channel.setdefault(cid, []).append((t, off))
+        offsets = []
+        index_start = self._pos
+        for cid in sorted(per_channel):
+            entries = sorted(per_channel[cid])
+            offsets.append((cid, self._pos))
+            packed = b''.join(struct.pack('<QQ', t, off) for t, off in entries)
+            self._write(_record(OP_MESSAGE_INDEX, struct.pack('<HI', cid, len(packed)) + packed))
+        self._f.flush()
+        if self.fsync:
+            os.fsync(self._f.fileno())
+        offsets_map = b''.join(struct.pack('<HQ', cid, off) for cid, off in offsets)
+        self._chunk_indexes.append(_record(OP_CHUNK_INDEX, struct.pack(
+            '<QQQQ', start_t, end_t, chunk_start, chunk_length) + struct.pack(
+            '<I', len(offsets_map)) + offsets_map + struct.pack(
+            '<Q', self._pos - index_start) + _s(self.compression) + struct.pack(
+            '<QQ', len(compressed), len(data))))
+        self.chunk_count += 1
+        for cid, count in ((c, len(v)) for c, v in per_channel.items()):
+            self.channel_counts[cid] = self.channel_counts.get(cid, 0) + count
+        self.message_count += len(index)
+        if times:
+            self.start_time = start_t if self.start_time is None else min(self.start_time,
+                                                                          start_t)
+            self.end_time = end_t if self.end_time is None else max(self.end_time, end_t)
+        self._chunk = bytearray()
+        self._chunk_end = 0
+        self._index = []
+        if self.on_chunk is not None:
+            self.on_chunk(self)
+
+    def add_metadata(self, name, data):
+        """Write a metadata record (outside chunks, indexed in the summary)."""
+        self.flush_chunk()
+        offset = self._pos
+        rec = _record(OP_METADATA, _s(name) + _str_map(data))
+        self._write(rec)
+        self._metadata_indexes.append(_record(
+            OP_METADATA_INDEX, struct.pack('<QQ', offset, len(rec)) + _s(name)))
+
+    def close(self, metadata=None):
+        """Write the last chunk, the metadata records, the summary and the footer."""
+        if self.closed:
+            return
+        with _signals_deferred():
+            if self._chunk_end:
+                self._flush_chunk()
+            for name, data in (metadata or []):
+                offset = self._pos
+                rec = _record(OP_METADATA, _s(name) + _str_map(data))
+                self._write(rec)
+                self._metadata_indexes.append(_record(
+                    OP_METADATA_INDEX, struct.pack('<QQ', offset, len(rec)) + _s(name)))
+            self._write(_record(OP_DATA_END, struct.pack('<I', 0)))
+            summary_start = self._pos
+            groups = []
+
+            def group(opcode, records):
+                start = summary_start + sum(len(r) for _, rs in groups for r in rs)
+                groups.append(((opcode, start), records))
+
+            group(OP_SCHEMA, [_record(OP_SCHEMA, b) for b in self.schemas.values()])
+            group(OP_CHANNEL, [_record(OP_CHANNEL, b) for b in self.channels.values()])
+            counts = b''.join(struct.pack('<HQ', c, n) for c, n in self.channel_counts.items())
+            group(OP_STATISTICS, [_record(OP_STATISTICS, struct.pack(
+                '<QHIIIIQQ', self.message_count, len(self.schemas), len(self.channels), 0,
+                len(self._metadata_indexes), self.chunk_count, self.start_time or 0,
+                self.end_time or 0) + struct.pack('<I', len(counts)) + counts)])
+            group(OP_CHUNK_INDEX, self._chunk_indexes)
+            group(OP_METADATA_INDEX, self._metadata_indexes)
+            summary = b''.join(r for _, rs in groups for r in rs)
+            offset_start = summary_start + len(summary)
+            summary += b''.join(
+                _record(OP_SUMMARY_OFFSET, struct.pack('<BQQ', op, start, sum(map(len, rs))))
+                for (op, start), rs in groups if rs)
+            crc = zlib.crc32(summary)
+            crc = zlib.crc32(struct.pack('<BQQQ', OP_FOOTER, 20, summary_start, offset_start),
+                             crc)
+            self._write(summary)
+            self._write(_record(OP_FOOTER, struct.pack('<QQI', summary_start, offset_start,
+                                                       crc)))
+            self._write(MAGIC)
+            self._f.flush()
+            os.fsync(self._f.fileno())
+            self._f.close()
+            self.closed = True
+
+
+def _serialize(msg):
+    from rclpy.serialization import serialize_message
+    return serialize_message(msg)
+
+
+class _Topic:
+    __slots__ = ('name', 'type', 'cls', 'qos', 'hash', 'encoding', 'definition', 'count',
+                 'seq')
+
+    def __init__(self, name, msg_type, qos):
+        self.name = name
+        self.type = ros_types.type_name(msg_type)
+        self.cls = ros_types.message_class(self.type)
+        self.qos = ros_types.qos_list(qos)
+        self.hash = ros_types.type_hash(self.type)
+        self.encoding, self.definition = ros_types.message_definition(self.type)
+        self.count = 0
+        self.seq = 0
+
+    def metadata(self, count):
+        return {'topic_metadata': {
+            'name': self.name, 'type': self.type, 'serialization_format': 'cdr',
+            'offered_qos_profiles': self.qos, 'type_description_hash': self.hash},
+            'message_count': count}
+
+
+def _atomic_write(path: Path, text: str):
+    tmp = path.with_name(f'.{path.name}.tmp')
+    with open(tmp, 'w') as f:
+        f.write(text)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
+def bag_metadata(topics, files, custom_data=None) -> dict:
+    """
+    Return the ``rosbag2_bagfile_information`` dict of rosbag2 metadata version 9.
+
+    ``topics`` is a list of ``topics_with_message_count`` entries; ``files`` a list of
+    ``(relative path, starting time ns, duration ns, message count)``.
+    """
+    starts = [f[1] for f in files if f[3]]
+    ends = [f[1] + f[2] for f in files if f[3]]
+    start = min(starts) if starts else 0
+    return {
+        'version': METADATA_VERSION,
+        'storage_identifier': 'mcap',
+        'duration': {'nanoseconds': (max(ends) - start) if ends else 0},
+        'starting_time': {'nanoseconds_since_epoch': start},
+        'message_count': sum(f[3] for f in files),
+        'topics_with_message_count': topics,
+        'compression_format': '',
+        'compression_mode': '',
+        'relative_file_paths': [f[0] for f in files],
+        'files': [{'path': p, 'starting_time': {'nanoseconds_since_epoch': s},
+                   'duration': {'nanoseconds': d}, 'message_count': n}
+                  for p, s, d, n in files],
+        'custom_data': dict(custom_data) if custom_data else None,
+        'ros_distro': ROS_DISTRO,
+    }
+
+
+# libyaml's emitter when PyYAML has it: the metadata of a bag with many topics is dumped
+# often, and the pure-Python emitter takes about 20 ms for a few dozen topics.
+_YAML_DUMPER = getattr(yaml, 'CSafeDumper', yaml.SafeDumper)
+
+
+def _dump(info) -> str:
+    return yaml.dump(info, Dumper=_YAML_DUMPER, default_flow_style=False, sort_keys=False)
+
+
+def write_metadata_yaml(directory, info):
+    """Atomically replace ``directory/metadata.yaml`` with this bag information."""
+    _atomic_write(Path(directory) / 'metadata.yaml',
+                  _dump({'rosbag2_bagfile_information': info}))
+
+
+class BagWriter:
+    """
+    Record rclpy messages into a rosbag2 MCAP bag directory, split into files.
+
+    ``split_max_bytes``, ``split_max_duration_ns`` and ``split_max_messages`` start a new
+    file when the current one reaches them (0: never); ``split_max_episodes`` does so after
+    that many messages on ``episode_topic`` (one message per finished episode), and
+    :meth:`split` does it on request. ``chunk_size`` bounds what a SIGKILL can lose, as does
+    ``chunk_max_age_s`` for slow topics (checked on each write).
+    """
+
+    def __init__(self, directory, split_max_bytes=0, split_max_duration_ns=0,
+                 split_max_messages=0, split_max_episodes=0, episode_topic=None,
+                 chunk_size=DEFAULT_CHUNK_SIZE, chunk_max_age_s=1.0, compression='zstd',
+                 fsync=False, metadata_interval_s=1.0, custom_data=None, on_chunk=None):
+        """Create the bag directory (it must not exist, or be empty) and its first file."""
+        self.directory = Path(directory)
+        if self.directory.exists() and any(self.directory.iterdir()):
+            raise FileExistsError(f'bag directory {self.directory} exists and is not empty')
+        self.directory.mkdir(parents=True, exist_ok=True)
+        self.name = self.directory.name
+        self.split_max_bytes = int(split_max_bytes)
+        self.split_max_duration_ns = int(split_max_duration_ns)
+        self.split_max_messages = int(split_max_messages)
+        self.split_max_episodes = int(split_max_episodes)
+        self.episode_topic = episode_topic
+        self.chunk_size = chunk_size
+        self.chunk_max_age_s = chunk_max_age_s
+        self.compression = compression
+        self.fsync = fsync
+        self.metadata_interval_s = metadata_interval_s
+        self.custom_data = dict(custom_data or {})
+        self.on_chunk = on_chunk
+        self._topics = {}
+        self._done_files = []       # (path, start, duration, count, per-topic counts)
+        self._file = None
+        self._file_topics = {}      # topic -> channel id in the open file
+        self._file_counts = {}      # topic -> messages written to the open file
+        self._file_first_t = None
+        self._file_episodes = 0
+        self._chunk_opened = time.monotonic()
+        self._last_meta = 0.0
+        self.closed = False
+        # A node may write from several executor threads; every public call holds this.
+        self._lock = threading.RLock()
+        self._open_file()
+
+    # -- topics and messages -------------------------------------------------------------
+    def add_topic(self, name, msg_type, qos=None):
+        """
+        Declare a topic with its type (a class or ``pkg/msg/Type``) and offered QoS.
+
+        ``qos`` is an ``rclpy.qos.QoSProfile``, a rosbag2 QoS dict, a list of either (one
+        per publisher), or None for rclpy's default publisher profile.
+        """
+        with self._lock:
+            self._add_topic(name, msg_type, qos)
+
+    def _add_topic(self, name, msg_type, qos):
+        if self.closed:
+            raise RuntimeError('bag writer is closed')
+        if name in self._topics:
+            topic = self._topics[name]
+            if topic.type != ros_types.type_name(msg_type):
+                raise ValueError(f'topic {name} already added with type {topic.type}')
+            return
+        self._topics[name] = _Topic(name, msg_type, qos)
+        if self._file is not None:
+            self._add_channel(self._topics[name])
+        self._write_metadata()
+
+    def _add_channel(self, topic):
+        sid = self._file.add_schema(topic.type, topic.encoding, topic.definition)
+        self._file_topics[topic.name] = self._file.add_channel(
+            topic.name, 'cdr', sid,
+            {'offered_qos_profiles': ros_types.qos_yaml(topic.qos),
+             'topic_type_hash': topic.hash})
+        self._file_counts.setdefault(topic.name, 0)
+
+    def write(self, topic, msg, t_ns, publish_time_ns=None):
+        """
+        Record ``msg`` (an rclpy message, or CDR bytes) on ``topic`` at log time ``t_ns``.
+
+        A topic not yet added is added with the message's type and the default QoS; a
+        message of another type than its topic's raises TypeError.
+        """
+        with self._lock:
+            self._write(topic, msg, t_ns, publish_time_ns)
+
+    def _write(self, topic, msg, t_ns, publish_time_ns):
+        if self.closed:
+            raise RuntimeError('bag writer is closed')
+        if isinstance(msg, (bytes, bytearray, memoryview)):
+            if topic not in self._topics:
+                raise KeyError(f'topic {topic} must be added before writing raw bytes')
+            data = bytes(msg)
+        else:
+            if topic not in self._topics:
+                self._add_topic(topic, type(msg), None)
+            expected = self._topics[topic]
+            if expected.cls is not type(msg):
+                raise TypeError(f'topic {topic} has type {expected.type}, got {type(msg)!r}')
+            data = _serialize(msg)
+        t_ns = int(t_ns)
+        if self._file is None:
+            self._open_file()
+        if (self.split_max_duration_ns and self._file_first_t is not None
+                and t_ns - self._file_first_t >= self.split_max_duration_ns):
+            self.split()
+        info = self._topics[topic]
+        self._file.add_message(self._file_topics[topic], t_ns, data, publish_time_ns, info.seq)
+        info.seq += 1
+        info.count += 1
+        self._file_counts[topic] += 1
+        if self._file_first_t is None:
+            self._file_first_t = t_ns
+        if (self.chunk_max_age_s is not None and self._file.buffered
+                and time.monotonic() - self._chunk_opened >= self.chunk_max_age_s):
+            self._file.flush_chunk()
+        if topic == self.episode_topic:
+            self._file_episodes += 1
+            if self.split_max_episodes and self._file_episodes >= self.split_max_episodes:
+                self.split()
+                return
+        if ((self.split_max_bytes and self._file.size >= self.split_max_bytes)
+                or (self.split_max_messages
+                    and sum(self._file_counts.values()) >= self.split_max_messages)):
+            self.split()
+
+    def flush(self, metadata=True):
+        """
+        Write the open chunk now, e.g. at the end of an episode, and metadata.yaml.
+
+        With ``metadata=False``, metadata.yaml is rewritten only if the last rewrite is
+        older than ``metadata_interval_s`` (what a frequent caller wants).
+        """
+        with self._lock:
+            if not self.closed and self._file is not None:
+                self._file.flush_chunk()
+                self._write_metadata(force=metadata)
+
+    # -- files ---------------------------------------------------------------------------
+    @property
+    def file_index(self) -> int:
+        """Index of the file being written (0 for ``<run>_0.mcap``)."""
+        return len(self._done_files)
+
+    @property
+    def flushed_message_count(self) -> int:
+        """Messages in completed chunks, that is, on disk and safe from a SIGKILL."""
+        done = sum(f[3] for f in self._done_files)
+        return done + (self._file.message_count if self._file is not None else 0)
+
+    @property
+    def message_count(self) -> int:
+        """Messages written so far, flushed or not."""
+        return self.flushed_message_count + (self._file.buffered if self._file else 0)
+
+    def _file_path(self, index):
+        return self.directory / f'{self.name}_{index}.mcap'
+
+    def _open_file(self):
+        self._file = McapFileWriter(self._file_path(self.file_index), self.chunk_size,
+                                    self.compression, self.fsync, self._chunk_done)
+        self._file_topics = {}
+        self._file_counts = {}
+        self._file_first_t = None
+        self._file_episodes = 0
+        self._chunk_opened = time.monotonic()
+        for topic in self._topics.values():
+            self._add_channel(topic)
+        self._write_metadata(force=True)
+
+    def _chunk_done(self, mcap_file):
+        self._chunk_opened = time.monotonic()
+        self._write_metadata()
+        if self.on_chunk is not None:
+            self.on_chunk(self)
+
+    def _current_file_entry(self, flushed_only):
+        f = self._file
+        by_channel = dict(f.channel_counts)
+        counts = {t: by_channel.get(cid, 0) for t, cid in self._file_topics.items()}
+        if not flushed_only:
+            counts = dict(self._file_counts)
+        start = f.start_time or 0
+        count = sum(counts.values())
+        return (self._file.path.name, start, (f.end_time or start) - start, count, counts)
+
+    def _info(self, flushed_only=True):
+        files = list(self._done_files)
+        if self._file is not None:
+            files.append(self._current_file_entry(flushed_only))
+        totals = {}
+        for f in files:
+            for t, n in f[4].items():
+                totals[t] = totals.get(t, 0) + n
+        topics = [t.metadata(totals.get(name, 0)) for name, t in self._topics.items()]
+        return bag_metadata(topics, [f[:4] for f in files], self.custom_data)
+
+    def _write_metadata(self, force=False):
+        now = time.monotonic()
+        if not force and now - self._last_meta < self.metadata_interval_s:
+            return
+        self._last_meta = now
+        write_metadata_yaml(self.directory, self._info())
+
+    def _close_file(self):
+        f = self._file
+        with _signals_deferred():
+            f.flush_chunk()
+            entry = self._current_file_entry(flushed_only=True)
+            self._done_files.append(entry)
+            self._file = None
+            info = self._info()
+            f.close(metadata=[('rosbag2', {'serialized_metadata': _dump(info)})])
+            write_metadata_yaml(self.directory, info)
+
+    def split(self):
+        """
+        Finish the current file now; the next message goes into a new file.
+
+        A no-op if the current file holds no message. The next file is created by the
+        next :meth:`write`, so a split after the last episode leaves no empty file.
+        """
+        with self._lock:
+            if self.closed or self._file is None or not any(self._file_counts.values()):
+                return
+            self._close_file()
+
+    def close(self):
+        """Finish the open file and write the final metadata.yaml; safe to call twice."""
+        with self._lock:
+            if self.closed:
+                return
+            self.closed = True
+            with _signals_deferred():
+                if self._file is not None:
+                    self._close_file()
+
+    def __enter__(self):
+        """Return the writer itself."""
+        return self
+
+    def __exit__(self, *exc):
+        """Close the bag, also when leaving on an exception (Ctrl-C included)."""
+        self.close()
+        return False
+
+    @property
+    def topics(self) -> dict:
+        """Map topic name to (type, message count written)."""
+        return {n: (t.type, t.count) for n, t in self._topics.items()}
+
+
+class ReindexReport:
+    """What :func:`reindex` found: per file its message count and any damage repaired."""
+
+    def __init__(self):
+        """Start an empty report."""
+        self.files = []  # (name, message count, damage or None)
+
+    @property
+    def repaired(self):
+        """Return the files that had to be rewritten, with their damage."""
+        return [(name, damage) for name, _, damage in self.files if damage is not None]
+
+    @property
+    def message_count(self):
+        """Return the messages the reindexed bag holds."""
+        return sum(n for _, n, _ in self.files)
+
+    def __repr__(self):
+        """Return a short summary."""
+        return f'ReindexReport(files={self.files!r})'
+
+
+def _split_key(path):
+    tail = path.stem.rsplit('_', 1)[-1]
+    return (int(tail) if tail.isdigit() else 0, path.name)
+
+
+def reindex(directory, compression='zstd', keep_damaged=False) -> ReindexReport:
+    """
+    Recover a bag whose writer was killed, like ``ros2 bag reindex``.
+
+    Each ``.mcap`` file is scanned record by record. A complete file is left alone; a
+    truncated or damaged one is rewritten (temporary file, then ``os.replace``) into a
+    complete MCAP file holding everything before the damage. Then ``metadata.yaml`` is
+    rewritten from what the files really contain: counts, times, and each topic's QoS and
+    type hash from its MCAP channel (from the old metadata.yaml where a channel has none).
+    ``keep_damaged`` keeps each original damaged file as ``<name>.damaged``.
+    """
+    directory = Path(directory)
+    old = {}
+    custom = None
+    meta_path = directory / 'metadata.yaml'
+    if meta_path.is_file():
+        try:
+            info = yaml.safe_load(meta_path.read_text())['rosbag2_bagfile_information']
+            custom = info.get('custom_data')
+            for entry in info.get('topics_with_message_count') or []:
+                old[entry['topic_metadata']['name']] = entry['topic_metadata']
+        except (yaml.YAMLError, KeyError, TypeError):
+            pass
+    report = ReindexReport()
+    topics = {}   # name -> topic_metadata
+    totals = {}
+    files = []
+    damaged = []
+    for path in sorted(directory.glob('*.mcap'), key=_split_key):
+        scan = McapScan(path)
+        counts, times = _copy_records(scan, None, topics)
+        damage = None
+        if scan.damage is not None or not scan.complete:
+            damage = scan.damage or f'{path}: no footer'
+            damaged.append(path)
+        n = sum(counts.values())
+        for t, c in counts.items():
+            totals[t] = totals.get(t, 0) + c
+        start = min(times, default=0)
+        files.append((path.name, start, max(times, default=0) - start, n))
+        report.files.append((path.name, n, damage))
+    entries = []
+    for name, tm in topics.items():
+        tm = dict(tm)
+        if name in old and old[name].get('type') == tm['type']:
+            # The channel's QoS is what readers match metadata.yaml against (rosbags
+            # yields nothing for a topic whose two QoS differ), so it wins.
+            tm['offered_qos_profiles'] = tm['offered_qos_profiles'] or ros_types.parse_qos(
+                old[name].get('offered_qos_profiles'))
+            tm['type_description_hash'] = (tm['type_description_hash']
+                                           or old[name].get('type_description_hash', ''))
+        entries.append({'topic_metadata': tm, 'message_count': totals.get(name, 0)})
+    info = bag_metadata(entries, files, custom)
+    for path in damaged:
+        tmp = path.with_name(f'.{path.name}.reindex')
+        if tmp.exists():
+            tmp.unlink()
+        writer = McapFileWriter(tmp, compression=compression)
+        _copy_records(McapScan(path), writer, {})
+        writer.close(metadata=[('rosbag2', {'serialized_metadata': _dump(info)})])
+        if keep_damaged:
+            os.replace(path, path.with_name(path.name + '.damaged'))
+        os.replace(tmp, path)
+    write_metadata_yaml(directory, info)
+    return report
+
+
+def _copy_records(scan, writer, topics):
+    """Read every whole record of ``scan``; copy them into ``writer`` if it is not None."""
+    counts, times = {}, []
+    schema_map, channel_map = {}, {}
+    for kind, value in scan:
+        if kind == 'schema' and writer is not None:
+            schema_map[value.id] = writer.add_schema(value.name, value.encoding, value.data)
+        elif kind == 'channel':
+            schema = scan.schemas.get(value.schema_id)
+            topics.setdefault(value.topic, {
+                'name': value.topic, 'type': schema.name if schema else '',
+                'serialization_format': value.message_encoding,
+                'offered_qos_profiles': ros_types.parse_qos(
+                    value.metadata.get('offered_qos_profiles', '')),
+                'type_description_hash': value.metadata.get('topic_type_hash', '')})
+            counts.setdefault(value.topic, 0)
+            if writer is not None:
+                channel_map[value.id] = writer.add_channel(
+                    value.topic, value.message_encoding, schema_map.get(value.schema_id, 0),
+                    value.metadata)
+        elif kind == 'messages':
+            for cid, seq, log, pub, data in value:
+                channel = scan.channels.get(cid)
+                if channel is None:
+                    continue
+                counts[channel.topic] += 1
+                times.append(log)
+                if writer is not None:
+                    writer.add_message(channel_map[cid], log, data, pub, seq)
+        elif kind == 'metadata' and writer is not None and value[0] != 'rosbag2':
+            writer.add_metadata(*value)
+    return counts, times

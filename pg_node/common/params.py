@@ -1,0 +1,335 @@
+"""
+Every training parameter: default, meaning, and what values are allowed.
+
+One table serves three readers: the nodes declare their ROS parameters from it (with the
+description as ``ParameterDescriptor``, so ``ros2 param describe`` explains each), the
+``python -m pg_node train`` bring-up validates the YAML file and ``key=value`` overrides
+against it before starting anything, and the README's parameter table is taken from it.
+Validation refuses an unknown key, a value of the wrong type and a value out of range, with
+a message that names the key, the value and what is allowed.
+
+The YAML file (``config/pg_node.yaml``) follows ROS 2's parameter-file format: a section
+``<node_name>: ros__parameters:`` per node, and ``/**: ros__parameters:`` for the values every
+node shares (the arm model, the number of arms, the seed, the network shape).
+"""
+from dataclasses import dataclass
+import math
+from typing import Any, Callable, Dict, Optional, Sequence
+
+from pg_node.common.paths import resolve_model
+import yaml
+
+SHARED = '/**'
+
+
+class ConfigError(ValueError):
+    """A parameter file or override that cannot be used; the message says why."""
+
+
+@dataclass(frozen=True)
+class Param:
+    """One parameter: its default (whose type is the parameter's type) and its limits."""
+
+    default: Any
+    description: str
+    choices: Optional[Sequence[Any]] = None
+    low: Optional[float] = None
+    high: Optional[float] = None
+    low_inclusive: bool = True
+    #: extra check: called with the value, raises ValueError/OSError with the reason
+    validate: Optional[Callable[[Any], Any]] = None
+
+    def allowed(self) -> str:
+        """Describe the allowed values in words."""
+        kind = type(self.default).__name__
+        if isinstance(self.default, list):
+            kind = 'list of integers'
+        if self.choices is not None:
+            return 'one of ' + ', '.join(repr(c) for c in self.choices)
+        if self.low is not None or self.high is not None:
+            lo = '' if self.low is None else (
+                f'{self.low} <= ' if self.low_inclusive else f'{self.low} < ')
+            hi = '' if self.high is None else f' <= {self.high}'
+            return f'{_article(kind)} {kind} with {lo}value{hi}'
+        return f'{_article(kind)} {kind}'
+
+    def check(self, key: str, value):
+        """Return ``value`` converted to the parameter's type, or raise ConfigError."""
+        want = type(self.default)
+        bad = ConfigError(f'parameter {key!r}: {value!r} is not allowed; '
+                          f'expected {self.allowed()}')
+        if want is bool:
+            if not isinstance(value, bool):
+                raise bad
+        elif want is int:
+            if isinstance(value, bool) or not isinstance(value, int):
+                raise bad
+        elif want is float:
+            if isinstance(value, str):
+                # YAML 1.1 reads 3e-4 (no dot) as a string; accept any float literal.
+                try:
+                    value = float(value)
+                except ValueError:
+                    raise bad from None
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise bad
+            value = float(value)
+            if not math.isfinite(value):
+                raise bad
+        elif want is str:
+            if not isinstance(value, str):
+                raise bad
+        elif want is list:
+            if (not isinstance(value, (list, tuple))
+                    or not all(isinstance(v, int) and not isinstance(v, bool) and v > 0
+                               for v in value)):
+                raise bad
+            value = list(value)
+        if self.choices is not None and value not in self.choices:
+            raise bad
+        if self.low is not None and (value < self.low or (value == self.low
+                                                          and not self.low_inclusive)):
+            raise bad
+        if self.high is not None and value > self.high:
+            raise bad
+        if self.validate is not None:
+            try:
+                self.validate(value)
+            except (ValueError, OSError) as exc:
+                raise ConfigError(f'parameter {key!r}: {value!r} is not allowed: {exc}') from None
+        return value
+
+
+def _article(word: str) -> str:
+    return 'an' if word[0] in 'aeiou' else 'a'
+
+
+POSITIVE = {'low': 0.0, 'low_inclusive': False}
+
+#: Values every node reads (the ``/**`` section).
+SHARED_PARAMS: Dict[str, Param] = {
+    'model': Param('reacher2', 'shipped arm model (reacher2, arm5_3d) or a path to an MJCF file',
+                   validate=lambda v: resolve_model(v)),
+    'num_envs': Param(64, 'arms simulated side by side, all in one message per step', low=1),
+    'seed': Param(0, 'seed of the simulator, the policy initialisation and the sampling', low=0),
+    'hidden_sizes': Param([64, 64], 'hidden layer widths of the policy and value networks'),
+    'activation': Param('tanh', 'hidden activation of both networks',
+                        choices=('tanh', 'relu', 'elu')),
+    'normalize_obs': Param(True, 'normalise observations by a running mean and variance'),
+    'sync_mode': Param('sync', 'sync: actors wait for the weights of version k before rollout '
+                               'k+1 (exact on-policy A2C); async: actors keep sampling with '
+                               'stale weights up to max_policy_lag versions (A3C-style)',
+                       choices=('sync', 'async')),
+    'max_policy_lag': Param(4, "async mode: most versions a batch's policy may lag", low=0),
+    'num_actors': Param(1, 'simulator/actor pairs feeding the critic and learner; in sync '
+                           'mode one batch holds one rollout of each', low=1),
+    'run_dir': Param('runs/latest', 'where checkpoints, the bag and progress files go'),
+}
+
+ACTOR_PARAMS: Dict[str, Param] = {
+    'n_steps': Param(8, 'control steps per arm in one rollout (rollout = n_steps x num_envs)',
+                     low=1),
+    'log_std_init': Param(-0.5, 'initial log standard deviation of the Gaussian policy',
+                          low=-5.0, high=2.0),
+    'state_dependent_std': Param(False, 'log-std from a network head instead of a parameter'),
+    'actor_id': Param(0, 'id of this actor when several feed one critic/learner', low=0),
+    'rollout_resend_timeout': Param(5.0, 'sync mode: seconds without new weights before the '
+                                         'last rollout is sent again', **POSITIVE),
+}
+
+CRITIC_PARAMS: Dict[str, Param] = {
+    'estimator': Param('gae', 'choice of phi (see pg_node.rl.estimators)',
+                       choices=('total_return', 'reward_to_go', 'constant_baseline',
+                                'optimal_baseline', 'time_baseline', 'value_baseline',
+                                'td_residual', 'gae')),
+    'gamma': Param(0.9, 'discount factor', low=0.0, high=1.0),
+    'gae_lambda': Param(0.95, 'GAE lambda (also of the TD(lambda) value target)',
+                        low=0.0, high=1.0),
+    'value_target': Param('td_lambda', 'targets V is fitted to: td_lambda (GAE + V) or mc '
+                                       '(empirical discounted return, section 4.5.1)',
+                          choices=('td_lambda', 'mc')),
+    'vf_learning_rate': Param(1e-3, 'learning rate of the value network', **POSITIVE),
+    'vf_coef': Param(0.5, 'weight of the value loss', **POSITIVE),
+    'vf_epochs': Param(1, 'passes over each batch when fitting V', low=1),
+    'vf_batch_size': Param(0, 'minibatch size when fitting V (0: the whole batch)', low=0),
+    'vf_optimizer': Param('adam', 'optimiser of the value network', choices=('rmsprop', 'adam')),
+    'vf_max_grad_norm': Param(0.5, 'gradient clipping of V (0: none)', low=0.0),
+    'checkpoint_every': Param(100, 'batches between checkpoints of V', low=1),
+}
+
+LEARNER_PARAMS: Dict[str, Param] = {
+    'algo': Param('a2c', 'a2c: one gradient step per batch; ppo: clipped surrogate, epochs',
+                  choices=('a2c', 'ppo')),
+    'learning_rate': Param(1e-3, 'learning rate of the policy', **POSITIVE),
+    'optimizer': Param('adam', 'optimiser of the policy', choices=('rmsprop', 'adam')),
+    'ent_coef': Param(0.0, 'entropy bonus weight', low=0.0),
+    'max_grad_norm': Param(0.5, 'gradient clipping of the policy (0: none)', low=0.0),
+    'normalize_advantage': Param(True, 'scale phi to zero mean and unit std per batch'),
+    'n_epochs': Param(10, 'ppo: passes over each batch', low=1),
+    'batch_size': Param(64, 'ppo: minibatch size', low=1),
+    'clip_range': Param(0.2, 'ppo: clip range of the probability ratio', **POSITIVE),
+    'total_steps': Param(2_000_000, 'environment steps (all arms) to train for', low=1),
+    'checkpoint_every': Param(100, 'policy versions between checkpoints', low=1),
+    'record_arms': Param(4, 'arms of actor 0 whose every step is written to the bag '
+                            '(episode summaries are written for all arms)', low=0),
+    'bag_split_episodes': Param(2000, 'episode summaries per bag file before a split', low=1),
+    'exit_when_done': Param(True, 'stop the learner once total_steps are learned'),
+}
+
+SIM_PARAMS: Dict[str, Param] = {
+    'frame_skip': Param(2, 'physics steps per control step', low=1),
+    'max_episode_steps': Param(50, 'control steps after which an episode is truncated', low=1),
+    'reward_dist_weight': Param(1.0, 'weight of the fingertip distance in the reward', low=0.0),
+    'reward_control_weight': Param(1.0, 'weight of the squared command norm in the reward',
+                                   low=0.0),
+    'mode': Param('lock_step', 'lock_step: one control step per command; real_time: wall '
+                               'clock', choices=('lock_step', 'real_time')),
+    'lock_step_timeout': Param(1.0, 'seconds without a command before the last transition '
+                                    'is re-sent (lock_step)', **POSITIVE),
+    'command_timeout': Param(0.5, 'seconds after which a held command drops to zero torque '
+                                  '(real_time)', **POSITIVE),
+    'real_time_factor': Param(1.0, 'simulated seconds per wall second (real_time)', **POSITIVE),
+    'start_paused': Param(False, 'start paused (step with ~/step_simulation)'),
+    'marker_rate': Param(10.0, 'MarkerArray rate in Hz of wall time; 0 turns markers off',
+                         low=0.0),
+    'marker_spacing': Param(0.7, 'distance in m between arms drawn on the marker grid',
+                            low=0.0),
+    'frame_id': Param('world', 'frame of the markers'),
+    'diagnostics_rate': Param(1.0, 'diagnostics rate in Hz of wall time', **POSITIVE),
+}
+
+SCHEMA: Dict[str, Dict[str, Param]] = {
+    'sim_node': SIM_PARAMS,
+    'actor_node': ACTOR_PARAMS,
+    'critic_node': CRITIC_PARAMS,
+    'learner_node': LEARNER_PARAMS,
+}
+
+
+def defaults(section: str) -> Dict[str, Any]:
+    """Return the default value of every parameter one node reads (shared ones included)."""
+    return {k: p.default for k, p in params_for(section).items()}
+
+
+#: The shared parameters a node reads, where it is not all of them.
+NODE_SHARED = {'sim_node': ('model', 'num_envs', 'seed')}
+
+
+def params_for(section: str) -> Dict[str, Param]:
+    """Return the parameter table of one node, the shared parameters it reads included."""
+    shared = {k: p for k, p in SHARED_PARAMS.items()
+              if k in NODE_SHARED.get(section, SHARED_PARAMS)}
+    return {**shared, **SCHEMA[section]}
+
+
+def known_keys() -> set:
+    """Return every parameter name some pg_node node reads."""
+    return set(SHARED_PARAMS).union(*(set(t) for t in SCHEMA.values()))
+
+
+def parse_override(text: str):
+    """Split ``key=value`` (value parsed as YAML: ``3``, ``0.5``, ``true``, ``[64, 64]``)."""
+    if '=' not in text:
+        raise ConfigError(f'override {text!r} is not of the form key=value')
+    key, _, raw = text.partition('=')
+    try:
+        value = yaml.safe_load(raw)
+    except yaml.YAMLError as exc:
+        raise ConfigError(f'override {text!r}: value is not valid YAML ({exc})') from None
+    return key.strip(), value
+
+
+def load_config(path=None, overrides: Sequence[str] = (), extra_sections=None
+                ) -> Dict[str, Dict[str, Any]]:
+    """
+    Read a parameter file, apply ``key=value`` overrides, validate, fill in defaults.
+
+    Returns ``{section: {key: value}}`` for ``'/**'``, every node in :data:`SCHEMA` and every
+    node in ``extra_sections`` (a map of node name to its own table, e.g. ``sim_node``'s).
+    A node's value comes from its own section, else from ``/**`` if it is a shared key, else
+    from the default; a node of :data:`SCHEMA` also receives every shared key. An override
+    ``key=value`` goes to ``/**`` for a shared key, else to every node that has the key;
+    ``node.key=value`` sets it in one node only.
+    """
+    extra = dict(extra_sections or {})
+    tables = {SHARED: SHARED_PARAMS}
+    tables.update({name: params_for(name) for name in SCHEMA})
+    tables.update(extra)
+    given = {name: {} for name in tables}
+    if path is not None:
+        for name, params in _read_sections(path).items():
+            if name not in tables:
+                raise ConfigError(f'unknown section {name!r} in {path}; known: '
+                                  f'{", ".join(tables)}')
+            given[name].update(params)
+    for text in overrides:
+        key, value = parse_override(text)
+        if '.' in key:
+            name, _, key = key.partition('.')
+            if name not in tables:
+                raise ConfigError(f'override {text!r}: unknown node {name!r}; known: '
+                                  f'{", ".join(tables)}')
+            given[name][key] = value
+        elif key in SHARED_PARAMS:
+            given[SHARED][key] = value
+        else:
+            homes = [n for n, t in tables.items() if key in t]
+            if not homes:
+                raise ConfigError(f'override {text!r}: unknown parameter {key!r}')
+            for name in homes:
+                given[name][key] = value
+    out = {}
+    for name, table in tables.items():
+        for key in given[name]:
+            if key not in table:
+                raise ConfigError(f'unknown parameter {key!r} in section {name!r}; allowed: '
+                                  f'{", ".join(table)}')
+        values = {}
+        for key, param in table.items():
+            if key in given[name]:
+                value = given[name][key]
+            elif key in SHARED_PARAMS and key in given[SHARED]:
+                value = given[SHARED][key]
+            elif key in SHARED_PARAMS:
+                value = SHARED_PARAMS[key].default
+            else:
+                value = param.default
+            label = key if name == SHARED else f'{name}.{key}'
+            values[key] = param.check(label, value)
+        out[name] = values
+    return out
+
+
+def _read_sections(path) -> Dict[str, Dict[str, Any]]:
+    """Return ``{section: ros__parameters}`` of a ROS 2 parameter file, checking its shape."""
+    try:
+        with open(path) as f:
+            raw = yaml.safe_load(f) or {}
+    except OSError as exc:
+        raise ConfigError(f'cannot read config file {path}: {exc.strerror}') from None
+    except yaml.YAMLError as exc:
+        raise ConfigError(f'config file {path} is not valid YAML: {exc}') from None
+    if not isinstance(raw, dict):
+        raise ConfigError(f'config file {path} must map node names to sections')
+    out = {}
+    for name, section in raw.items():
+        params = section.get('ros__parameters') if isinstance(section, dict) else None
+        if not isinstance(params, dict):
+            raise ConfigError(f'section {name!r} in {path} must hold a ros__parameters: map')
+        out[node_key(str(name))] = params
+    return out
+
+
+def node_key(name: str) -> str:
+    """
+    Return the section a parameter-file key addresses: ``/**/sim_node`` and ``sim_node``.
+
+    ``/**`` stays itself; ``/**/x``, ``/x`` and ``x`` all mean node ``x`` (pg_node's files use
+    ``/**/x``, which reaches node ``x`` in any namespace).
+    """
+    if name == SHARED:
+        return name
+    for prefix in ('/**/', '/'):
+        if name.startswith(prefix):
+            return name[len(prefix):]
+    return name

@@ -1,0 +1,46 @@
+"""Where pg_node's shared files (config, launch, models) are, from source or installed."""
+import os
+from pathlib import Path
+
+PACKAGE_NAME = 'pg_node'
+_PACKAGE_DIR = Path(__file__).resolve().parent.parent
+#: The folder that holds the ``pg_node`` package: a source checkout, or site-packages.
+SOURCE_ROOT = _PACKAGE_DIR.parent
+
+
+def share_dir() -> Path:
+    """
+    Return the directory holding ``config/``, ``launch/`` and ``models/``.
+
+    A source checkout (``config/`` beside the ``pg_node/`` package) wins, so that a developer
+    always runs what they edit; otherwise the colcon/ament install's
+    ``share/pg_node`` is found through ``ament_index_python``.
+    """
+    if (SOURCE_ROOT / 'config').is_dir() and (SOURCE_ROOT / 'package.xml').is_file():
+        return SOURCE_ROOT
+    from ament_index_python.packages import get_package_share_directory
+    return Path(get_package_share_directory(PACKAGE_NAME))
+
+
+def models_dir() -> Path:
+    """Return the directory of the MJCF arm models shipped with the package."""
+    return _PACKAGE_DIR / 'sim' / 'models'
+
+
+def default_config() -> Path:
+    """Return the path of the default parameter file, ``config/pg_node.yaml``."""
+    return share_dir() / 'config' / 'pg_node.yaml'
+
+
+def resolve_model(name_or_path: str) -> Path:
+    """Turn a model name (``reacher2``) or an MJCF path into an existing file path."""
+    candidate = Path(os.path.expanduser(name_or_path))
+    if candidate.suffix == '.xml' and candidate.is_file():
+        return candidate
+    shipped = models_dir() / f'{name_or_path}.xml'
+    if shipped.is_file():
+        return shipped
+    known = sorted(p.stem for p in models_dir().glob('*.xml'))
+    raise FileNotFoundError(
+        f'model {name_or_path!r} is neither an existing .xml file nor a shipped model '
+        f'(shipped: {", ".join(known) or "none"})')

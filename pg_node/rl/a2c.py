@@ -1,0 +1,175 @@
+"""
+One learner step and one critic step: the A2C update (and PPO's) on a finished batch.
+
+In pg_node the actor and the critic are separate networks living in separate processes
+(the learner and critic nodes), so SB3's single loss ``pg + vf_coef * vl - ent_coef * H`` is
+split in two: :class:`PolicyUpdate` minimises ``pg - ent_coef * H`` for the policy and
+:class:`ValueUpdate` minimises ``vf_coef * vl`` for V. With no shared parameters this is the
+same gradient step SB3 takes.
+
+A step whose loss or gradient is not finite is skipped: the weights stay as they were and
+the step is reported (``skipped``), so one bad batch cannot poison the policy.
+"""
+from dataclasses import dataclass
+from typing import Dict, Optional
+
+import numpy as np
+from pg_node.rl import losses
+import torch
+from torch import nn
+
+OPTIMIZERS = ('rmsprop', 'adam')
+
+
+def make_optimizer(name: str, params, learning_rate: float) -> torch.optim.Optimizer:
+    """Build SB3's A2C optimiser (RMSprop, alpha 0.99, eps 1e-5) or Adam (eps 1e-5)."""
+    if name == 'rmsprop':
+        return torch.optim.RMSprop(params, lr=learning_rate, alpha=0.99, eps=1e-5)
+    if name == 'adam':
+        return torch.optim.Adam(params, lr=learning_rate, eps=1e-5)
+    raise ValueError(f'unknown optimizer {name!r}; choose one of: {", ".join(OPTIMIZERS)}')
+
+
+def _step(module: nn.Module, opt: torch.optim.Optimizer, loss: torch.Tensor,
+          max_grad_norm: Optional[float]) -> Optional[float]:
+    """Back-propagate and step; return the gradient norm, or None if the step was skipped."""
+    opt.zero_grad(set_to_none=True)
+    if not torch.isfinite(loss):
+        return None
+    loss.backward()
+    params = [p for p in module.parameters() if p.grad is not None]
+    norm = torch.nn.utils.clip_grad_norm_(
+        params, max_grad_norm if max_grad_norm and max_grad_norm > 0 else float('inf'))
+    if not torch.isfinite(norm):
+        opt.zero_grad(set_to_none=True)
+        return None
+    opt.step()
+    return float(norm)
+
+
+@dataclass
+class PolicyBatch:
+    """What the learner needs of a batch: flattened observations, actions, old log-probs, phi."""
+
+    obs: torch.Tensor
+    act: torch.Tensor
+    logp: torch.Tensor
+    adv: torch.Tensor
+
+    @classmethod
+    def from_numpy(cls, obs, act, logp, adv) -> 'PolicyBatch':
+        """Build from arrays of any leading shape (flattened to one batch axis)."""
+        obs = np.asarray(obs)
+        act = np.asarray(act)
+        return cls(torch.as_tensor(obs.reshape(-1, obs.shape[-1]), dtype=torch.float32),
+                   torch.as_tensor(act.reshape(-1, act.shape[-1]), dtype=torch.float32),
+                   torch.as_tensor(np.asarray(logp).reshape(-1), dtype=torch.float32),
+                   torch.as_tensor(np.asarray(adv).reshape(-1), dtype=torch.float32))
+
+
+class PolicyUpdate:
+    """Applies A2C (one gradient step on the whole batch) or PPO (epochs of minibatches)."""
+
+    def __init__(self, policy: nn.Module, learning_rate: float = 7e-4, ent_coef: float = 0.0,
+                 max_grad_norm: float = 0.5, normalize_advantage: bool = False,
+                 algo: str = 'a2c', optimizer: str = 'rmsprop', clip_range: float = 0.2,
+                 n_epochs: int = 10, batch_size: int = 64, target_kl: Optional[float] = None,
+                 seed: int = 0):
+        if algo not in ('a2c', 'ppo'):
+            raise ValueError(f"unknown algo {algo!r}; choose 'a2c' or 'ppo'")
+        self.policy = policy
+        self.opt = make_optimizer(optimizer, policy.parameters(), learning_rate)
+        self.ent_coef = ent_coef
+        self.max_grad_norm = max_grad_norm
+        self.normalize_advantage = normalize_advantage
+        self.algo = algo
+        self.clip_range = clip_range
+        self.n_epochs = n_epochs
+        self.batch_size = batch_size
+        self.target_kl = target_kl
+        self.gen = torch.Generator().manual_seed(seed)
+        self.skipped = 0
+
+    def _loss(self, b: PolicyBatch, idx):
+        obs, act, old_logp, adv = b.obs[idx], b.act[idx], b.logp[idx], b.adv[idx]
+        if self.normalize_advantage:
+            adv = losses.normalize_advantage(adv)
+        dist = self.policy.distribution(obs)
+        logp = dist.log_prob(act).sum(-1)
+        entropy = dist.entropy().sum(-1)
+        if self.algo == 'ppo':
+            pg, stats = losses.ppo_clip_loss(logp, old_logp, adv, self.clip_range)
+        else:
+            pg = losses.policy_gradient_loss(logp, adv)
+            with torch.no_grad():
+                log_ratio = logp - old_logp
+                stats = {'approx_kl': float(((log_ratio.exp() - 1) - log_ratio).mean()),
+                         'clip_fraction': 0.0}
+        loss = pg + self.ent_coef * losses.entropy_loss(entropy)
+        stats.update(policy_loss=float(pg.detach()), entropy=float(entropy.detach().mean()))
+        return loss, stats
+
+    def update(self, batch: PolicyBatch) -> Dict[str, float]:
+        """Update the policy on one batch; return the metrics SB3/CleanRL users know."""
+        n = batch.obs.shape[0]
+        if self.algo == 'a2c':
+            plan = [[torch.arange(n)]]
+        else:
+            size = min(self.batch_size, n)
+            plan = [list(torch.randperm(n, generator=self.gen).split(size))
+                    for _ in range(self.n_epochs)]
+        logs, norms, skipped = [], [], 0
+        for epoch in plan:
+            for idx in epoch:
+                loss, stats = self._loss(batch, idx)
+                norm = _step(self.policy, self.opt, loss, self.max_grad_norm)
+                if norm is None:
+                    skipped += 1
+                else:
+                    norms.append(norm)
+                logs.append(stats)
+            kl = logs[-1]['approx_kl'] if logs else 0.0
+            if self.target_kl is not None and kl > 1.5 * self.target_kl:
+                break
+        self.skipped += skipped
+        out = {k: float(np.mean([s[k] for s in logs])) for k in logs[0]}
+        out['grad_norm'] = float(np.mean(norms)) if norms else float('nan')
+        out['skipped_updates'] = float(skipped)
+        return out
+
+
+class ValueUpdate:
+    """Fits V_w to its targets: ``n_epochs`` passes of ``vf_coef * MSE`` (1 pass for A2C)."""
+
+    def __init__(self, value_fn: nn.Module, learning_rate: float = 7e-4, vf_coef: float = 0.5,
+                 max_grad_norm: float = 0.5, optimizer: str = 'rmsprop', n_epochs: int = 1,
+                 batch_size: Optional[int] = None, seed: int = 0):
+        self.value_fn = value_fn
+        self.opt = make_optimizer(optimizer, value_fn.parameters(), learning_rate)
+        self.vf_coef = vf_coef
+        self.max_grad_norm = max_grad_norm
+        self.n_epochs = n_epochs
+        self.batch_size = batch_size
+        self.gen = torch.Generator().manual_seed(seed)
+        self.skipped = 0
+
+    def update(self, obs, ret) -> Dict[str, float]:
+        """Regress V(obs) on ``ret``; return ``value_loss`` and ``explained_variance``."""
+        obs = torch.as_tensor(np.asarray(obs), dtype=torch.float32)
+        obs = obs.reshape(-1, obs.shape[-1])
+        ret = torch.as_tensor(np.asarray(ret).reshape(-1), dtype=torch.float32)
+        with torch.no_grad():
+            ev = losses.explained_variance(self.value_fn(obs), ret)
+        n = obs.shape[0]
+        size = min(self.batch_size or n, n)
+        vls, skipped = [], 0
+        for _ in range(self.n_epochs):
+            order = torch.randperm(n, generator=self.gen) if size < n else torch.arange(n)
+            for idx in order.split(size):
+                vl = losses.value_loss(self.value_fn(obs[idx]), ret[idx])
+                if _step(self.value_fn, self.opt, self.vf_coef * vl, self.max_grad_norm) is None:
+                    skipped += 1
+                vls.append(float(vl.detach()))
+        self.skipped += skipped
+        return {'value_loss': float(np.mean(vls)), 'explained_variance': ev,
+                'skipped_updates': float(skipped)}

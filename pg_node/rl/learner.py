@@ -1,0 +1,144 @@
+"""
+The learner's job, without ROS: the policy, its A2C/PPO update, versions and checkpoints.
+
+Each applied update increases the policy ``version`` by one. A batch is tagged with the
+version of the policy that sampled it; in synchronous mode only a batch of the current
+version is exact on-policy A2C, so :meth:`Learner.accepts` refuses any other (and the node
+counts the refusal). The observation statistics are merged *after* the gradient step, so
+that the step is taken at exactly the policy the actor sampled from.
+"""
+from typing import Dict, Optional
+
+import numpy as np
+from pg_node.rl.a2c import PolicyBatch, PolicyUpdate
+from pg_node.rl.checkpoint import load_latest, save_checkpoint
+from pg_node.rl.policy import GaussianPolicy
+from pg_node.rl.weights import flatten_state
+import torch
+
+
+def make_policy(obs_dim: int, act_dim: int, cfg: Dict) -> GaussianPolicy:
+    """Build the policy network the configuration describes (same in actor and learner)."""
+    torch.manual_seed(cfg['seed'])
+    return GaussianPolicy(obs_dim, act_dim, cfg['hidden_sizes'], cfg['activation'],
+                          cfg['log_std_init'], cfg['state_dependent_std'],
+                          cfg['normalize_obs'])
+
+
+class Learner:
+    """The policy, its optimiser and its version."""
+
+    def __init__(self, obs_dim: int, act_dim: int, cfg: Dict):
+        self.cfg = cfg
+        self.policy = make_policy(obs_dim, act_dim, cfg)
+        self.update = PolicyUpdate(
+            self.policy, learning_rate=cfg['learning_rate'], ent_coef=cfg['ent_coef'],
+            max_grad_norm=cfg['max_grad_norm'],
+            normalize_advantage=cfg['normalize_advantage'], algo=cfg['algo'],
+            optimizer=cfg['optimizer'], clip_range=cfg['clip_range'],
+            n_epochs=cfg['n_epochs'], batch_size=cfg['batch_size'], seed=cfg['seed'])
+        self.version = 0
+        self.env_steps = 0
+        self.rejected = 0
+
+    def accepts(self, batch_version: int, max_lag: int = 0) -> bool:
+        """Return whether a batch sampled with ``batch_version`` may be learned from now."""
+        ok = 0 <= self.version - batch_version <= max_lag
+        if not ok:
+            self.rejected += 1
+        return ok
+
+    def learn(self, obs, act, logp, adv) -> Dict[str, float]:
+        """
+        Apply one update from a batch; return its metrics.
+
+        The version advances with every batch learned from, also when the gradient step was
+        skipped for a non-finite loss or gradient (weights kept): the actors wait for the
+        next version in sync mode, and must get one to go on sampling.
+        """
+        stats = self.update.update(PolicyBatch.from_numpy(obs, act, logp, adv))
+        if stats['skipped_updates'] == 0 or self.cfg['algo'] == 'ppo':
+            self.policy.obs_norm.update(np.asarray(obs).reshape(-1, self.policy.obs_dim))
+        self.version += 1
+        self.env_steps += int(np.asarray(adv).size)
+        stats['policy_version'] = float(self.version)
+        return stats
+
+    def weights(self):
+        """Return ``(layout, vector)`` of the current policy, for the actors."""
+        return flatten_state(self.policy)
+
+    def state(self) -> Dict:
+        """Return what a checkpoint keeps of the learner."""
+        return {'policy': self.policy.state_dict(), 'opt': self.update.opt.state_dict(),
+                'env_steps': self.env_steps, 'obs_dim': self.policy.obs_dim,
+                'act_dim': self.policy.act_dim, 'config': dict(self.cfg)}
+
+    def save(self, directory, extra: Optional[Dict] = None):
+        """Write an atomic checkpoint of the current version."""
+        return save_checkpoint(directory, self.version, {**self.state(), **(extra or {})})
+
+    def resume(self, directory):
+        """Load the newest valid checkpoint; return ``(state or None, problems)``."""
+        state, problems = load_latest(directory)
+        if state is not None:
+            self.policy.load_state_dict(state['policy'])
+            self.update.opt.load_state_dict(state['opt'])
+            self.version = int(state['version'])
+            self.env_steps = int(state.get('env_steps', 0))
+        return state, problems
+
+
+class EpisodeStats:
+    """
+    Running returns of the episodes a stream of batches holds, and the recent finished ones.
+
+    Episodes span several batches, so each arm's return is summed across them, keyed by
+    (actor, arm column, episode id); an arm that shows a new episode id without the old one
+    having ended (a reset, a restarted simulator) drops the old, cut-short sum.
+    """
+
+    def __init__(self, window: int = 100):
+        self.window = int(window)
+        self.open = {}
+        self.returns = []
+        self.lengths = []
+        self.finished = 0
+
+    def update(self, rew, terminated, truncated, episode_id, actor) -> int:
+        """Add a batch's ``(T, N)`` arrays; return how many episodes finished in it."""
+        done = np.asarray(terminated) | np.asarray(truncated)
+        n_done = 0
+        for t in range(rew.shape[0]):
+            for n in range(rew.shape[1]):
+                key = (int(actor[t, n]), n)
+                ep = int(episode_id[t, n])
+                cur = self.open.get(key)
+                if cur is None or cur[0] != ep:
+                    cur = self.open[key] = [ep, 0.0, 0]
+                cur[1] += float(rew[t, n])
+                cur[2] += 1
+                if done[t, n]:
+                    self.returns.append(cur[1])
+                    self.lengths.append(cur[2])
+                    del self.open[key]
+                    n_done += 1
+        self.returns = self.returns[-self.window:]
+        self.lengths = self.lengths[-self.window:]
+        self.finished += n_done
+        return n_done
+
+    def forget_actor(self, actor: int) -> int:
+        """Drop the open sums of ``actor``'s arms (its simulator restarted); return how many."""
+        keys = [k for k in self.open if k[0] == int(actor)]
+        for k in keys:
+            del self.open[k]
+        return len(keys)
+
+    def mean_return(self) -> float:
+        """Return the mean return of the last ``window`` finished episodes (NaN if none)."""
+        return float(np.mean(self.returns)) if self.returns else float('nan')
+
+    def mean_length(self) -> float:
+        """Return the mean length of the last ``window`` finished episodes (NaN if none)."""
+        return float(np.mean(self.lengths)) if self.lengths else float('nan')

@@ -1,0 +1,195 @@
+"""
+actor_node: samples torques from the Gaussian policy for every arm and gathers rollouts.
+
+Subscribes ``pg_node/transition`` (from ``sim_node``) and ``/pg_node/policy_weights`` (from
+``learner_node``, latched); publishes ``arm_controller/commands`` (one command per new
+transition, ``num_envs x n_actuators`` values, arm-major, clipped to the control range) and,
+every ``n_steps`` control steps, the rollout on ``/pg_node/rollout`` tagged with the policy
+version that sampled it (layout in :mod:`pg_node.ros.messages`).
+
+It acts only once it holds the learner's weights. In ``sync`` mode, after sending rollout k
+sampled by version v it waits for version v + 1 before acting again: exact on-policy A2C
+(the simulator, in lock-step, waits with it). If no new weights come within
+``rollout_resend_timeout`` seconds it sends the rollout again (the critic drops duplicates),
+so a lost message or a restarted critic cannot deadlock the graph. In ``async`` mode it
+keeps sampling with the newest weights it has.
+
+A transition re-sent by the simulator (same ``seq``) is ignored; one that skips a number (a
+restarted simulator, a world reset) discards the partial rollout, whose last command's
+outcome is unknown.
+"""
+import time
+
+import numpy as np
+from pg_node.common.params import params_for
+from pg_node.common.paths import resolve_model
+from pg_node.rl.learner import make_policy
+from pg_node.rl.rollout_buffer import RolloutBuffer
+from pg_node.rl.weights import load_flat_state
+from pg_node.ros import messages
+from pg_node.ros import table_msg
+from pg_node.ros import transition
+from pg_node.ros.node_utils import declare_params, Diagnostics, LATCHED, RateCounter, RELIABLE, run
+from pg_node.sim.arm_task import ArmSpec
+from rclpy.node import Node
+from std_msgs.msg import Float64MultiArray
+import torch
+
+
+class ActorNode(Node):
+    """Samples the policy for all arms of one simulator and gathers rollouts."""
+
+    def __init__(self):
+        super().__init__('actor_node')
+        torch.set_num_threads(1)
+        self.cfg = declare_params(self, params_for('actor_node'))
+        model = resolve_model(self.cfg['model'])
+        import mujoco
+        self.spec = ArmSpec.from_model(mujoco.MjModel.from_xml_path(str(model)))
+        self.act_dim = len(self.spec.ctrl_low)
+        self.obs_dim = 3 * len(self.spec.joint_names) + 2 * self.spec.target_dim
+        self.policy = make_policy(self.obs_dim, self.act_dim, self.cfg)
+        self.version = -1                      # no weights yet: do not act
+        self.gen = torch.Generator().manual_seed(self.cfg['seed'] + 7919 * self.cfg['actor_id'])
+        self.buf = RolloutBuffer(self.cfg['n_steps'], self.cfg['num_envs'], self.obs_dim,
+                                 self.act_dim)
+        self.buf_version = None
+        self.last_seq = -1
+        self.pending_tr = None                 # transition waiting for weights (sync mode)
+        self.wait_for = None                   # version awaited in sync mode
+        self.last_rollout = None
+        self.last_rollout_time = 0.0
+        self.rollout_seq = 0
+        self.counters = {'commands': 0, 'rollouts': 0, 'rollouts_resent': 0,
+                         'rollouts_discarded': 0, 'transitions_dropped': 0,
+                         'transitions_repeated': 0, 'weights_dropped': 0,
+                         'weights_received': 0, 'policy_lag': 0}
+        self.steps = RateCounter()
+        self.pub_cmd = self.create_publisher(Float64MultiArray, 'arm_controller/commands', 10)
+        self.pub_rollout = self.create_publisher(Float64MultiArray, '/pg_node/rollout',
+                                                 RELIABLE)
+        self.create_subscription(Float64MultiArray, 'pg_node/transition', self.on_transition,
+                                 LATCHED)
+        self.create_subscription(Float64MultiArray, '/pg_node/policy_weights', self.on_weights,
+                                 LATCHED)
+        self.diag = Diagnostics(self, f'actor_node {self.cfg["actor_id"]}',
+                                f'{self.cfg["num_envs"]} arms')
+        self.create_timer(1.0, self.on_tick)
+        self.get_logger().info(
+            f'actor {self.cfg["actor_id"]}: {self.cfg["num_envs"]} arms, {self.cfg["sync_mode"]}'
+            f' mode, rollouts of {self.cfg["n_steps"]} steps; waiting for policy weights')
+
+    # --- inputs ---------------------------------------------------------------------------
+
+    def on_weights(self, msg: Float64MultiArray):
+        """Load a new policy version; in sync mode, resume acting when it is the awaited one."""
+        try:
+            header, layout, vec = messages.unpack_weights(*table_msg.from_msg(msg))
+            load_flat_state(self.policy, layout, vec)
+        except ValueError as exc:
+            self.counters['weights_dropped'] += 1
+            self.get_logger().warning(f'dropped policy weights: {exc}',
+                                      throttle_duration_sec=1.0)
+            return
+        if header['version'] < self.version:
+            # the learner restarted from an older checkpoint: what we gathered with newer
+            # weights will be refused, so start over with the version it has now
+            self.get_logger().warning(
+                f'policy version went back from {self.version} to {header["version"]} '
+                '(learner restarted): discarding the partial rollout')
+            self.buf.reset()
+            self.counters['rollouts_discarded'] += 1
+            self.wait_for = None
+        self.version = header['version']
+        self.counters['weights_received'] += 1
+        if self.pending_tr is not None and (self.wait_for is None
+                                            or self.version >= self.wait_for):
+            tr, self.pending_tr = self.pending_tr, None
+            self.wait_for = None
+            self.act(tr)
+
+    def on_transition(self, msg: Float64MultiArray):
+        """Record the outcome of the last command and answer the new observation."""
+        try:
+            tr = transition.from_msg(msg)
+            if tr.obs.shape != (self.cfg['num_envs'], self.obs_dim):
+                raise ValueError(f'observations of shape {tr.obs.shape}, expected '
+                                 f'{(self.cfg["num_envs"], self.obs_dim)}')
+        except ValueError as exc:
+            self.counters['transitions_dropped'] += 1
+            self.get_logger().warning(f'dropped a transition: {exc}', throttle_duration_sec=1.0)
+            return
+        if tr.seq == self.last_seq:
+            self.counters['transitions_repeated'] += 1
+            if self.buf.pending or self.pending_tr is not None:
+                return
+            # a re-send of a transition we never answered (e.g. we just started): answer it
+        elif tr.seq != self.last_seq + 1 and self.buf.pos + self.buf.pending > 0:
+            self.counters['rollouts_discarded'] += 1
+            self.get_logger().warning(
+                f'transition {tr.seq} after {self.last_seq}: discarding the partial rollout')
+            self.buf.reset()
+        self.last_seq = tr.seq
+        if self.buf.pending:
+            self.buf.add_outcome(tr.reward, tr.terminated, tr.truncated, tr.final_obs)
+            if self.buf.full:
+                self.send_rollout()
+        if self.version < 0 or self.wait_for is not None:
+            self.pending_tr = tr
+            return
+        self.act(tr)
+
+    # --- acting ---------------------------------------------------------------------------
+
+    def act(self, tr: transition.Transition):
+        """Sample and send the command for ``tr``'s observations."""
+        if self.buf.pos == 0 and not self.buf.pending:
+            self.buf_version = self.version
+        act, logp = self.policy.act_numpy(tr.obs, generator=self.gen)
+        cmd = np.clip(act, self.spec.ctrl_low, self.spec.ctrl_high)
+        self.buf.add_action(tr.obs, act, logp, tr.episode_step, tr.episode_id, tr.seq)
+        out = Float64MultiArray()
+        out.data = cmd.reshape(-1).tolist()
+        self.pub_cmd.publish(out)
+        self.counters['commands'] += 1
+        self.steps.add(self.cfg['num_envs'])
+
+    def send_rollout(self):
+        """Publish the full rollout; in sync mode, wait for the next policy version."""
+        ro = self.buf.finish()
+        self.last_rollout = table_msg.to_msg(*messages.pack_rollout(
+            ro, self.buf_version, self.cfg['actor_id'], self.rollout_seq))
+        self.rollout_seq += 1
+        self.pub_rollout.publish(self.last_rollout)
+        self.last_rollout_time = time.monotonic()
+        self.counters['rollouts'] += 1
+        self.counters['policy_lag'] = self.version - self.buf_version
+        if self.cfg['sync_mode'] == 'sync':
+            self.wait_for = self.buf_version + 1
+
+    def on_tick(self):
+        """Re-send a rollout the learner never answered; publish diagnostics."""
+        if (self.wait_for is not None and self.last_rollout is not None
+                and time.monotonic() - self.last_rollout_time
+                > self.cfg['rollout_resend_timeout']):
+            self.get_logger().warning(
+                f'no policy version {self.wait_for} after '
+                f'{self.cfg["rollout_resend_timeout"]:g} s: sending the rollout again')
+            self.pub_rollout.publish(self.last_rollout)
+            self.last_rollout_time = time.monotonic()
+            self.counters['rollouts_resent'] += 1
+        waiting = 'weights' if self.version < 0 else (
+            f'version {self.wait_for}' if self.wait_for is not None else 'nothing')
+        self.diag.publish({**self.counters, 'policy_version': self.version,
+                           'waiting_for': waiting,
+                           'steps_per_second': round(self.steps.rate(), 1)},
+                          message=f'policy version {self.version}')
+
+
+def main(args=None):
+    """Run actor_node until Ctrl-C or an external shutdown."""
+    return run(ActorNode, args)
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

@@ -1,0 +1,203 @@
+"""
+critic_node: annotates rollouts with the chosen phi and fits the value function V_w.
+
+Subscribes ``/pg_node/rollout`` (from the actors) and ``/pg_node/policy_weights`` (only the
+optimal baseline needs the policy); publishes ``/pg_node/batch`` (layout in
+:mod:`pg_node.ros.messages`) for the learner, and ``/diagnostics``.
+
+In ``sync`` mode a batch holds one rollout of each of the ``num_actors`` actors, all sampled
+by the same policy version, side by side in actor-id order: batched A2C across processes,
+and reproducible because the order never depends on which message came first. In ``async``
+mode every rollout is annotated and sent as it comes. A rollout seen before (an actor's
+re-send) is not annotated again: the batch made from it is sent again instead (the batch or
+the new weights may have been lost, and the learner answers a repeated batch by publishing
+its weights again), so no single lost message stalls synchronous training. A malformed
+rollout is dropped and counted.
+
+A batch is sent as soon as phi is computed; V takes its regression step on the rollout
+afterwards, while the learner works, so the batch header's ``value_loss`` and
+``explained_variance`` are V's on the rollout before that step.
+
+V is checkpointed to ``<run_dir>/critic`` every ``checkpoint_every`` batches and on exit, and
+a restarted critic resumes from the newest valid checkpoint.
+"""
+from collections import OrderedDict
+from pathlib import Path
+
+import numpy as np
+from pg_node.common.params import params_for
+from pg_node.rl.checkpoint import load_latest, save_checkpoint
+from pg_node.rl.critic import Critic
+from pg_node.rl.learner import make_policy
+from pg_node.rl.rollout_buffer import RolloutArrays
+from pg_node.rl.weights import load_flat_state
+from pg_node.ros import messages
+from pg_node.ros import table_msg
+from pg_node.ros.node_utils import declare_params, Diagnostics, LATCHED, RateCounter, RELIABLE, run
+from rclpy.node import Node
+from std_msgs.msg import Float64MultiArray
+import torch
+
+SEEN_MAX = 1000
+
+
+class CriticNode(Node):
+    """Turns rollouts into advantage-annotated batches."""
+
+    def __init__(self):
+        super().__init__('critic_node')
+        torch.set_num_threads(1)
+        self.cfg = declare_params(self, {**params_for('critic_node'),
+                                         **{k: v for k, v in params_for('actor_node').items()
+                                            if k in ('log_std_init', 'state_dependent_std')}})
+        self.critic = None
+        self.policy = None
+        self.policy_weights = None
+        self.ckpt_dir = Path(self.cfg['run_dir']) / 'critic'
+        self.batches = 0
+        self.seen = OrderedDict()
+        self.groups = {}
+        self.sent = OrderedDict()              # version -> last batch sent (for re-sends)
+        self.counters = {'rollouts': 0, 'rollouts_dropped': 0, 'duplicates': 0,
+                         'batches': 0, 'batches_resent': 0, 'stale_groups_dropped': 0}
+        self.steps = RateCounter()
+        self.last_stats = {}
+        self.pub_batch = self.create_publisher(Float64MultiArray, '/pg_node/batch', RELIABLE)
+        self.create_subscription(Float64MultiArray, '/pg_node/rollout', self.on_rollout,
+                                 RELIABLE)
+        if self.cfg['estimator'] == 'optimal_baseline':
+            self.create_subscription(Float64MultiArray, '/pg_node/policy_weights',
+                                     self.on_weights, LATCHED)
+        self.diag = Diagnostics(self, 'critic_node', self.cfg['estimator'])
+        self.create_timer(1.0, self.on_tick)
+        self.get_logger().info(f'critic: phi = {self.cfg["estimator"]}, gamma '
+                               f'{self.cfg["gamma"]}, lambda {self.cfg["gae_lambda"]}, '
+                               f'{self.cfg["num_actors"]} actor(s), {self.cfg["sync_mode"]}')
+
+    def _ensure_critic(self, obs_dim: int):
+        if self.critic is not None:
+            return
+        self.critic = Critic(obs_dim, self.cfg)
+        state, problems = load_latest(self.ckpt_dir)
+        for p in problems:
+            self.get_logger().warning(p)
+        if state is not None:
+            self.critic.load(state)
+            self.batches = int(state['version'])
+            self.get_logger().info(f'resumed V from {self.ckpt_dir} (batch {self.batches})')
+
+    def on_weights(self, msg: Float64MultiArray):
+        """Keep the newest policy (for the optimal baseline's score norms)."""
+        try:
+            _, layout, vec = messages.unpack_weights(*table_msg.from_msg(msg))
+        except ValueError as exc:
+            self.get_logger().warning(f'dropped policy weights: {exc}', throttle_duration_sec=1.0)
+            return
+        self.policy_weights = (layout, vec)
+        if self.policy is not None:
+            load_flat_state(self.policy, layout, vec)
+
+    def on_rollout(self, msg: Float64MultiArray):
+        """Check a rollout, drop duplicates, and annotate once its group is complete."""
+        try:
+            header, ro = messages.unpack_rollout(*table_msg.from_msg(msg))
+            if self.critic is not None and ro.obs.shape[-1] != self.critic.value_fn.obs_dim:
+                raise ValueError(f'observations of size {ro.obs.shape[-1]}, expected '
+                                 f'{self.critic.value_fn.obs_dim}')
+        except ValueError as exc:
+            self.counters['rollouts_dropped'] += 1
+            self.get_logger().warning(f'dropped a rollout: {exc}', throttle_duration_sec=1.0)
+            return
+        key = (header['actor_id'], header['rollout_seq'], header['version'])
+        if key in self.seen:
+            # an actor sends a rollout again when no new weights came: the batch or the
+            # weights may have been lost, so send the batch made from it again
+            self.counters['duplicates'] += 1
+            sent = self.sent.get(header['version'])
+            if sent is not None:
+                self.pub_batch.publish(sent)
+                self.counters['batches_resent'] += 1
+            return
+        self.seen[key] = True
+        while len(self.seen) > SEEN_MAX:
+            self.seen.popitem(last=False)
+        self.counters['rollouts'] += 1
+        self._ensure_critic(ro.obs.shape[-1])
+        if self.cfg['sync_mode'] == 'async':
+            self.annotate(header['version'], [(header['actor_id'], ro)])
+            return
+        version = header['version']
+        for newer in [v for v in self.groups if v > version]:
+            # a new rollout of an older version: the learner restarted from a checkpoint,
+            # and those groups of the versions it lost can never be completed
+            del self.groups[newer]
+            self.counters['stale_groups_dropped'] += 1
+        group = self.groups.setdefault(version, {})
+        group[header['actor_id']] = ro
+        if len(group) >= self.cfg['num_actors']:
+            del self.groups[version]
+            for old in [v for v in self.groups if v < version]:
+                del self.groups[old]
+                self.counters['stale_groups_dropped'] += 1
+            self.annotate(version, sorted(group.items()))
+
+    def annotate(self, version: int, parts):
+        """Concatenate rollouts along the arm axis, compute phi, fit V, send the batch."""
+        ros = [ro for _, ro in parts]
+        ro = RolloutArrays(**{k: np.concatenate([getattr(r, k) for r in ros], axis=1)
+                              for k in ros[0].as_dict()})
+        actor = np.concatenate([np.full(r.rew.shape, a) for a, r in parts], axis=1)
+        policy = None
+        if self.cfg['estimator'] == 'optimal_baseline':
+            if self.policy_weights is None:
+                self.get_logger().warning('no policy weights yet for the optimal baseline')
+                return
+            if self.policy is None:
+                self.policy = make_policy(ro.obs.shape[-1], ro.act.shape[-1], self.cfg)
+                load_flat_state(self.policy, *self.policy_weights)
+            policy = self.policy
+        adv, ret, stats = self.critic.judge(ro, policy)
+        batch = messages.Batch(obs=ro.obs, act=ro.act, logp=ro.logp, adv=adv, ret=ret,
+                               rew=ro.rew, terminated=ro.terminated, truncated=ro.truncated,
+                               ep_step=ro.ep_step, episode_id=ro.episode_id, seq=ro.seq,
+                               actor=actor)
+        header = {'version': version, 'n_actors': len(parts), 'batch_seq': self.batches,
+                  'n_steps': ro.n_steps, 'num_envs': ro.num_envs,
+                  'value_loss': stats['value_loss'],
+                  'explained_variance': stats['explained_variance']}
+        msg = table_msg.to_msg(*messages.pack_batch(batch, header))
+        self.pub_batch.publish(msg)
+        # V learns from the rollout only now: the learner and then the actors wait on the
+        # batch, not on this step (phi above was computed with V before it, as in-process)
+        self.last_stats = self.critic.fit(ro.obs, ret)
+        self.sent[version] = msg
+        self.sent.move_to_end(version)
+        while len(self.sent) > 4:
+            # the oldest *sent*, not the lowest version: after a learner restart the
+            # versions go back, and the batch just sent must stay ready for a re-send
+            self.sent.popitem(last=False)
+        self.batches += 1
+        self.counters['batches'] += 1
+        self.steps.add(ro.rew.size)
+        if self.batches % self.cfg['checkpoint_every'] == 0:
+            self.save()
+
+    def save(self):
+        """Write an atomic checkpoint of V."""
+        if self.critic is not None:
+            save_checkpoint(self.ckpt_dir, self.batches, self.critic.state())
+
+    def on_tick(self):
+        """Publish diagnostics."""
+        self.diag.publish({**self.counters, 'steps_per_second': round(self.steps.rate(), 1),
+                           **{k: round(v, 4) for k, v in self.last_stats.items()}},
+                          message=f'{self.batches} batches')
+
+
+def main(args=None):
+    """Run critic_node until Ctrl-C or an external shutdown."""
+    return run(CriticNode, args, cleanup=lambda node: node.save())
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

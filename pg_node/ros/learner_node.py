@@ -1,0 +1,242 @@
+"""
+learner_node: applies the A2C (or PPO) update, publishes weights, logs, checkpoints.
+
+Subscribes ``/pg_node/batch`` (from ``critic_node``); publishes ``/pg_node/policy_weights``
+(reliable, transient-local, depth 1: a late or restarted actor gets the newest), one
+``std_msgs/Float64`` topic per training metric under ``/pg_node/metrics/`` (``episode_return``,
+``episode_length``, ``policy_loss``, ``value_loss``, ``entropy``, ``explained_variance``,
+``approx_kl``, ``grad_norm``, ``steps_per_second``, ``policy_version``, ``env_steps``,
+``policy_lag``, ``rejected_batches``, ``skipped_updates``) and ``/diagnostics``.
+
+Each accepted batch is one update and one new policy version. A batch received again (the
+same version and number: the critic re-sends when the actor's rollout comes again) is not
+learned from twice; the weights are published again instead, in case they were lost. In
+``sync`` mode a batch sampled by any version other than the current one is refused and
+counted (on-policy A2C); in ``async`` mode batches up to ``max_policy_lag`` versions old
+are learned from and the lag is reported. A malformed batch (layout, non-finite or absurd
+values) is dropped, counted (``dropped_batches``) and warned about at most once a second.
+When an actor's transition numbers start again (its simulator restarted), the episodes its
+arms had open are written to the bag as cut short (``sim_restarts_seen`` counts this).
+
+Everything the run makes goes under ``run_dir``: ``checkpoints/`` (atomic, the newest valid
+one resumed on restart), ``bag/`` (the episodes learned from, see
+:mod:`pg_node.bag.recorder`) and ``progress.csv`` (one row per update). When
+``total_steps`` environment steps are learned the learner writes a final checkpoint,
+closes the bag and, with ``exit_when_done``, exits with code 0.
+"""
+import csv
+import math
+from pathlib import Path
+import time
+
+import numpy as np
+from pg_node.bag.recorder import EpisodeRecorder
+from pg_node.common.params import params_for
+from pg_node.common.paths import resolve_model
+from pg_node.rl.learner import EpisodeStats, Learner
+from pg_node.ros import messages
+from pg_node.ros import table_msg
+from pg_node.ros.node_utils import declare_params, Diagnostics, LATCHED, RateCounter, RELIABLE, run
+from rclpy.node import Node
+from std_msgs.msg import Float64, Float64MultiArray
+import torch
+
+METRICS = ('episode_return', 'episode_length', 'policy_loss', 'value_loss', 'entropy',
+           'explained_variance', 'approx_kl', 'grad_norm', 'steps_per_second',
+           'policy_version', 'env_steps', 'policy_lag', 'rejected_batches', 'skipped_updates')
+PROGRESS_FIELDS = ('wall_seconds',) + METRICS
+
+
+class LearnerNode(Node):
+    """Owns the policy: learns from batches and hands out new versions."""
+
+    def __init__(self):
+        super().__init__('learner_node')
+        torch.set_num_threads(1)
+        self.cfg = declare_params(self, {**params_for('learner_node'),
+                                         **params_for('actor_node')})
+        import mujoco
+        from pg_node.sim.arm_task import ArmSpec
+        model_path = resolve_model(self.cfg['model'])
+        spec = ArmSpec.from_model(mujoco.MjModel.from_xml_path(str(model_path)))
+        obs_dim = 3 * len(spec.joint_names) + 2 * spec.target_dim
+        self.run_dir = Path(self.cfg['run_dir'])
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        self.learner = Learner(obs_dim, len(spec.ctrl_low), self.cfg)
+        state, problems = self.learner.resume(self.run_dir / 'checkpoints')
+        for p in problems:
+            self.get_logger().warning(p)
+        if state is not None:
+            self.get_logger().info(f'resumed policy version {self.learner.version} '
+                                   f'({self.learner.env_steps} steps) from checkpoints')
+        self.stats = EpisodeStats()
+        self.steps = RateCounter()
+        self.counters = {'batches': 0, 'rejected_batches': 0, 'dropped_batches': 0,
+                         'repeated_batches': 0, 'skipped_updates': 0, 'sim_restarts_seen': 0}
+        self.last_batch = None
+        self.last_seq = {}                     # actor -> last transition number learned
+        self.t0 = time.monotonic()
+        self.last_metrics = {}
+        self.done = False
+        bag_dir = self.run_dir / 'bag'
+        if bag_dir.exists():
+            # a restarted learner continues in a new bag beside the old one
+            k = 1
+            while (self.run_dir / f'bag_{k}').exists():
+                k += 1
+            bag_dir = self.run_dir / f'bag_{k}'
+        self.recorder = EpisodeRecorder(bag_dir, model_path, record_arms=self.cfg['record_arms'],
+                                        split_max_episodes=self.cfg['bag_split_episodes'])
+        self.recorder_t = time.time_ns()
+        progress = self.run_dir / 'progress.csv'
+        new = not progress.exists()
+        self.progress_file = open(progress, 'a', newline='')
+        self.progress = csv.DictWriter(self.progress_file, PROGRESS_FIELDS)
+        if new:
+            self.progress.writeheader()
+        self.pub_weights = self.create_publisher(Float64MultiArray, '/pg_node/policy_weights',
+                                                 LATCHED)
+        self.pub_metrics = {name: self.create_publisher(Float64, f'/pg_node/metrics/{name}', 10)
+                            for name in METRICS}
+        self.create_subscription(Float64MultiArray, '/pg_node/batch', self.on_batch, RELIABLE)
+        self.diag = Diagnostics(self, 'learner_node', self.cfg['algo'])
+        self.create_timer(1.0, self.on_tick)
+        self.publish_weights()
+        self.get_logger().info(
+            f'learner: {self.cfg["algo"]}, version {self.learner.version}, '
+            f'{self.learner.env_steps}/{self.cfg["total_steps"]} steps, run dir {self.run_dir}')
+
+    def publish_weights(self):
+        """Publish the current policy (latched)."""
+        layout, vec = self.learner.weights()
+        self.pub_weights.publish(table_msg.to_msg(*messages.pack_weights(
+            layout, vec, self.learner.version, self.learner.env_steps)))
+
+    def on_batch(self, msg: Float64MultiArray):
+        """Learn from a batch of the right version; publish, log and checkpoint."""
+        if self.done:
+            return
+        try:
+            header, batch = messages.unpack_batch(*table_msg.from_msg(msg),
+                                                  obs_dim=self.learner.policy.obs_dim,
+                                                  act_dim=self.learner.policy.act_dim)
+        except ValueError as exc:
+            self.counters['dropped_batches'] += 1
+            self.get_logger().warning(f'dropped a batch: {exc}', throttle_duration_sec=1.0)
+            return
+        key = (header['version'], header['batch_seq'])
+        if key == self.last_batch:
+            # the critic sent a batch again: our weights were probably lost on the way
+            self.counters['repeated_batches'] += 1
+            self.publish_weights()
+            return
+        lag = self.learner.version - header['version']
+        max_lag = self.cfg['max_policy_lag'] if self.cfg['sync_mode'] == 'async' else 0
+        if not self.learner.accepts(header['version'], max_lag):
+            self.counters['rejected_batches'] += 1
+            self.get_logger().warning(
+                f'refused a batch of policy version {header["version"]}: the policy is at '
+                f'{self.learner.version} ({self.cfg["sync_mode"]} mode, lag allowed '
+                f'{max_lag})', throttle_duration_sec=1.0)
+            return
+        stats = self.learner.learn(batch.obs, batch.act, batch.logp, batch.adv)
+        self.last_batch = key
+        self.counters['batches'] += 1
+        self.counters['skipped_updates'] += int(stats['skipped_updates'])
+        self.steps.add(batch.rew.size)
+        self.publish_weights()
+        now_ns = time.time_ns()
+        self.check_sim_restarts(batch, now_ns)
+        self.stats.update(batch.rew, batch.terminated, batch.truncated, batch.episode_id,
+                          batch.actor)
+        self.recorder.record_batch(batch, header['version'], now_ns)
+        metrics = {
+            'episode_return': self.stats.mean_return(),
+            'episode_length': self.stats.mean_length(),
+            'policy_loss': stats['policy_loss'], 'entropy': stats['entropy'],
+            'approx_kl': stats['approx_kl'], 'grad_norm': stats['grad_norm'],
+            'value_loss': header['value_loss'],
+            'explained_variance': header['explained_variance'],
+            'policy_version': float(self.learner.version),
+            'env_steps': float(self.learner.env_steps),
+            'policy_lag': float(lag),
+            'rejected_batches': float(self.counters['rejected_batches']),
+            'skipped_updates': float(self.counters['skipped_updates']),
+            'steps_per_second': self.last_metrics.get('steps_per_second', float('nan')),
+        }
+        for name, value in metrics.items():
+            self.pub_metrics[name].publish(Float64(data=float(value)))
+        self.recorder.record_metrics(metrics, now_ns)
+        self.progress.writerow({'wall_seconds': round(time.monotonic() - self.t0, 3),
+                                **{k: ('' if isinstance(v, float) and math.isnan(v) else v)
+                                   for k, v in metrics.items()}})
+        self.last_metrics.update(metrics)
+        if self.learner.version % self.cfg['checkpoint_every'] == 0:
+            self.save()
+        if self.learner.env_steps >= self.cfg['total_steps']:
+            self.finish()
+
+    def check_sim_restarts(self, batch, now_ns: int):
+        """
+        Notice a restarted simulator: its transition numbers (``seq``) start again at 0.
+
+        The episodes its arms had open were cut short: they are written to the bag as such,
+        dropped from the running returns, and the episode ids seen before are forgotten
+        (the new simulator numbers its episodes from 0 again). The actor never mixes two
+        simulator lives in one rollout (it discards a partial rollout when ``seq`` jumps).
+        """
+        for a in np.unique(batch.actor[0]):
+            cols = batch.actor[0] == a
+            first, last = int(batch.seq[0, cols].min()), int(batch.seq[-1, cols].max())
+            prev = self.last_seq.get(int(a))
+            if prev is not None and first <= prev:
+                self.counters['sim_restarts_seen'] += 1
+                n = self.recorder.cut_short_actor(int(a), now_ns, self.learner.version)
+                self.stats.forget_actor(int(a))
+                self.get_logger().warning(
+                    f'the simulator of actor {int(a)} restarted (transition {first} after '
+                    f'{prev}): {n} open episodes marked cut short')
+            self.last_seq[int(a)] = last
+
+    def save(self):
+        """Write an atomic checkpoint of the current version."""
+        self.learner.save(self.run_dir / 'checkpoints')
+        self.progress_file.flush()
+
+    def finish(self):
+        """Write the final checkpoint, close the bag, and stop if asked to."""
+        self.done = True
+        self.save()
+        self.recorder.close()
+        self.get_logger().info(f'done: {self.learner.env_steps} steps, policy version '
+                               f'{self.learner.version}')
+        if self.cfg['exit_when_done']:
+            raise SystemExit(0)
+
+    def close(self):
+        """Save and close everything (on exit, Ctrl-C or SIGTERM)."""
+        if not self.done:
+            self.save()
+        self.recorder.close()
+        self.progress_file.close()
+
+    def on_tick(self):
+        """Publish steps per second and diagnostics."""
+        rate = self.steps.rate()
+        self.last_metrics['steps_per_second'] = rate
+        self.pub_metrics['steps_per_second'].publish(Float64(data=rate))
+        self.progress_file.flush()
+        self.diag.publish({**self.counters, 'policy_version': self.learner.version,
+                           'env_steps': self.learner.env_steps,
+                           'steps_per_second': round(rate, 1)},
+                          message=f'version {self.learner.version}, '
+                                  f'{self.learner.env_steps} steps')
+
+
+def main(args=None):
+    """Run learner_node until done, Ctrl-C or an external shutdown."""
+    return run(LearnerNode, args, cleanup=lambda node: node.close())
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

@@ -1,0 +1,154 @@
+"""
+The three message kinds the training graph adds, laid out with :mod:`pg_node.ros.table_msg`.
+
+All are ``std_msgs/Float64MultiArray``; rows are time-major (row ``t * N + n`` is step t of
+arm n). Flags are 0.0/1.0 and ids whole numbers.
+
+``/pg_node/rollout`` (actor -> critic), header ``version, actor_id, rollout_seq, n_steps,
+num_envs``; fields ``obs[D] act[A] logp rew terminated truncated final_obs[D] ep_step
+episode_id seq`` (``seq``: the number of the transition message the action answered).
+
+``/pg_node/batch`` (critic -> learner), header ``version, n_actors, batch_seq, n_steps,
+num_envs, value_loss, explained_variance``; fields ``obs[D] act[A] logp adv ret rew
+terminated truncated ep_step episode_id seq actor``. ``num_envs`` counts the arms of all
+actors, side by side in actor-id order.
+
+Unpacking refuses (``ValueError``) a layout that does not match, non-finite values, flags
+other than 0/1, ids that are not whole, and real values beyond
+:data:`pg_node.ros.table_msg.MAX_ABS`.
+
+``/pg_node/policy_weights`` (learner -> actors, critic; transient-local), header
+``version, env_steps``; one row whose fields are the policy's tensors in ``state_dict``
+order, each labelled ``name[shape]`` (e.g. ``mu.weight[2x64]``) with its element count as
+width.
+"""
+from dataclasses import dataclass
+import re
+from typing import Dict, List, Tuple
+
+import numpy as np
+from pg_node.rl.rollout_buffer import RolloutArrays
+from pg_node.ros import table_msg
+
+ROLLOUT_HEADER = ('version', 'actor_id', 'rollout_seq', 'n_steps', 'num_envs')
+BATCH_HEADER = ('version', 'n_actors', 'batch_seq', 'n_steps', 'num_envs', 'value_loss',
+                'explained_variance')
+WEIGHTS_HEADER = ('version', 'env_steps')
+BOOL_FIELDS = ('terminated', 'truncated')
+INT_FIELDS = ('ep_step', 'episode_id', 'seq', 'actor')
+
+
+def _rollout_widths(obs_dim=None, act_dim=None):
+    return {'obs': obs_dim, 'act': act_dim, 'logp': 1, 'rew': 1, 'terminated': 1,
+            'truncated': 1, 'final_obs': obs_dim, 'ep_step': 1, 'episode_id': 1, 'seq': 1}
+
+
+def _batch_widths(obs_dim=None, act_dim=None):
+    return {'obs': obs_dim, 'act': act_dim, 'logp': 1, 'adv': 1, 'ret': 1, 'rew': 1,
+            'terminated': 1, 'truncated': 1, 'ep_step': 1, 'episode_id': 1, 'seq': 1,
+            'actor': 1}
+
+
+def _header(names, values) -> Dict[str, float]:
+    out = dict(zip(names, (float(v) for v in values)))
+    for key in ('version', 'actor_id', 'rollout_seq', 'n_steps', 'num_envs', 'n_actors',
+                'batch_seq', 'env_steps'):
+        if key in out:
+            v = out[key]
+            if not np.isfinite(v) or v != round(v) or v < 0:
+                raise ValueError(f'header {key!r} must be a whole number >= 0, got {v}')
+            out[key] = int(v)
+    return out
+
+
+def _fields(table: Dict[str, np.ndarray], T: int, N: int) -> Dict[str, np.ndarray]:
+    if T * N != len(next(iter(table.values()))):
+        raise ValueError(f'{len(next(iter(table.values())))} rows do not make '
+                         f'n_steps x num_envs = {T} x {N}')
+    checked = table_msg.check_fields(table, BOOL_FIELDS, INT_FIELDS)
+    return {name: value.reshape(T, N, *value.shape[1:]) for name, value in checked.items()}
+
+
+def _rows(a):
+    a = np.asarray(a)
+    return a.reshape(a.shape[0] * a.shape[1], *a.shape[2:])
+
+
+def pack_rollout(ro: RolloutArrays, version: int, actor_id: int, rollout_seq: int):
+    """Return the packed ``/pg_node/rollout`` table of a finished rollout."""
+    header = (version, actor_id, rollout_seq, ro.n_steps, ro.num_envs)
+    return table_msg.pack(header, {k: _rows(v) for k, v in ro.as_dict().items()})
+
+
+def unpack_rollout(dims, offset, data, obs_dim=None, act_dim=None
+                   ) -> Tuple[Dict[str, float], RolloutArrays]:
+    """Return ``(header, rollout)``; ValueError if the layout or values are wrong."""
+    head, table = table_msg.unpack(dims, offset, data, len(ROLLOUT_HEADER),
+                                   _rollout_widths(obs_dim, act_dim))
+    header = _header(ROLLOUT_HEADER, head)
+    fields = _fields(table, header['n_steps'], header['num_envs'])
+    return header, RolloutArrays(**fields)
+
+
+@dataclass
+class Batch:
+    """An annotated batch as the learner receives it, each array ``(T, N, ...)``."""
+
+    obs: np.ndarray
+    act: np.ndarray
+    logp: np.ndarray
+    adv: np.ndarray
+    ret: np.ndarray
+    rew: np.ndarray
+    terminated: np.ndarray
+    truncated: np.ndarray
+    ep_step: np.ndarray
+    episode_id: np.ndarray
+    seq: np.ndarray
+    actor: np.ndarray
+
+
+def pack_batch(batch: Batch, header: Dict[str, float]):
+    """Return the packed ``/pg_node/batch`` table."""
+    values = [header[k] for k in BATCH_HEADER]
+    return table_msg.pack(values, {k: _rows(getattr(batch, k)) for k in _batch_widths()})
+
+
+def unpack_batch(dims, offset, data, obs_dim=None, act_dim=None
+                 ) -> Tuple[Dict[str, float], Batch]:
+    """Return ``(header, batch)``; ValueError if the layout or values are wrong."""
+    head, table = table_msg.unpack(dims, offset, data, len(BATCH_HEADER),
+                                   _batch_widths(obs_dim, act_dim))
+    header = _header(BATCH_HEADER, head)
+    return header, Batch(**_fields(table, header['n_steps'], header['num_envs']))
+
+
+_LABEL = re.compile(r'^(.+)\[([0-9x]*)\]$')
+
+
+def pack_weights(layout: List[Tuple[str, tuple]], vec, version: int, env_steps: int):
+    """Return the packed ``/pg_node/policy_weights`` table of a flattened state."""
+    fields, pos = {}, 0
+    for name, shape in layout:
+        n = int(np.prod(shape))
+        fields[f'{name}[{"x".join(str(d) for d in shape)}]'] = np.asarray(vec[pos:pos + n])[None]
+        pos += n
+    return table_msg.pack((version, env_steps), fields)
+
+
+def unpack_weights(dims, offset, data):
+    """Return ``(header, layout, vector)`` of a weights message."""
+    widths = {str(d[0]): None for d in dims[1:]}
+    head, table = table_msg.unpack(dims, offset, data, len(WEIGHTS_HEADER), widths)
+    layout, parts = [], []
+    for label, block in table.items():
+        m = _LABEL.match(label)
+        if m is None:
+            raise ValueError(f'weights field {label!r} is not of the form name[shape]')
+        shape = tuple(int(d) for d in m.group(2).split('x')) if m.group(2) else ()
+        if int(np.prod(shape)) != block.shape[1] or block.shape[0] != 1:
+            raise ValueError(f'weights field {label!r} does not hold {shape} values')
+        layout.append((m.group(1), shape))
+        parts.append(block[0])
+    vec = np.concatenate(parts) if parts else np.zeros(0)
+    return _header(WEIGHTS_HEADER, head), layout, vec

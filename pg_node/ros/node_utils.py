@@ -1,0 +1,124 @@
+"""
+What pg_node's nodes share: parameters from the table, the ``main`` loop, diagnostics.
+
+Kept apart from the math: only nodes import this module.
+"""
+import sys
+import time
+from typing import Callable, Dict, Optional
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from pg_node.common.params import ConfigError, known_keys, Param
+from rcl_interfaces.msg import ParameterDescriptor
+import rclpy
+from rclpy.exceptions import InvalidParameterTypeException
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+#: Reliable, keep-last-1, transient-local: a late or restarted subscriber gets the latest.
+LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.TRANSIENT_LOCAL,
+                     history=HistoryPolicy.KEEP_LAST)
+#: Reliable, volatile, a few deep: the rollouts and batches between training nodes.
+RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.VOLATILE, history=HistoryPolicy.KEEP_LAST)
+
+
+def declare_params(node: Node, table: Dict[str, Param]) -> Dict:
+    """
+    Declare every parameter of ``table`` on ``node`` and return the checked values.
+
+    Raises :class:`~pg_node.common.params.ConfigError` naming the parameter when a value given in
+    the parameter file or on the command line is not allowed, or when a parameter given
+    there is known to no pg_node node (a typo: ROS would silently ignore it). A key that
+    another node reads is accepted, as a shared parameter file gives every node all of them.
+    """
+    allowed = known_keys() | set(table) | {'use_sim_time', 'start_type_description_service'}
+    for name in sorted(getattr(node, '_parameter_overrides', {})):
+        if name not in allowed and not name.startswith('qos_overrides.'):
+            raise ConfigError(f"unknown parameter '{node.get_name()}.{name}'; allowed: "
+                              f'{", ".join(table)}')
+    values = {}
+    for name, param in table.items():
+        key = f'{node.get_name()}.{name}'
+        descriptor = ParameterDescriptor(description=param.description)
+        try:
+            node.declare_parameter(name, param.default, descriptor)
+        except InvalidParameterTypeException:
+            # a value of another type than the default's (n_steps:=eight, gamma:=1): say
+            # what is allowed, or take it where the table converts it (an int for a float)
+            value = param.check(key, node._parameter_overrides[name].value)
+            node.declare_parameter(name, value, descriptor, ignore_override=True)
+        values[name] = param.check(key, node.get_parameter(name).value)
+    return values
+
+
+class Diagnostics:
+    """Publishes one ``DiagnosticStatus`` of a node on ``/diagnostics`` from its counters."""
+
+    def __init__(self, node: Node, name: str, hardware_id: str = ''):
+        self.node = node
+        self.name = name
+        self.hardware_id = hardware_id
+        self.pub = node.create_publisher(DiagnosticArray, '/diagnostics', 10)
+
+    def publish(self, values: Dict, level: int = DiagnosticStatus.OK, message: str = 'ok'):
+        """Publish ``values`` (stringified) with a level and a one-line message."""
+        status = DiagnosticStatus(name=self.name, hardware_id=self.hardware_id,
+                                  level=level, message=message)
+        status.values = [KeyValue(key=str(k), value=str(v)) for k, v in values.items()]
+        msg = DiagnosticArray()
+        msg.header.stamp = self.node.get_clock().now().to_msg()
+        msg.status = [status]
+        self.pub.publish(msg)
+
+
+class RateCounter:
+    """Counts events and reports their rate since the last report."""
+
+    def __init__(self):
+        self.count = 0
+        self._last_count = 0
+        self._last_time = time.monotonic()
+
+    def add(self, n: int = 1):
+        """Count ``n`` events."""
+        self.count += n
+
+    def rate(self) -> float:
+        """Return events per second since the previous call."""
+        now = time.monotonic()
+        r = (self.count - self._last_count) / max(now - self._last_time, 1e-9)
+        self._last_count, self._last_time = self.count, now
+        return r
+
+
+def run(make_node: Callable[[], Node], args=None,
+        cleanup: Optional[Callable[[Node], None]] = None) -> int:
+    """
+    Init rclpy, spin the node until Ctrl-C / shutdown, clean up; return an exit code.
+
+    The node style of ``ros2/demos``' talker; a bad configuration is reported in one line
+    (exit code 2) instead of a traceback.
+    """
+    rclpy.init(args=args)
+    node = None
+    code = 0
+    try:
+        node = make_node()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except ConfigError as exc:
+        print(f'configuration error: {exc}', file=sys.stderr)
+        code = 2
+    except SystemExit as exc:
+        code = int(exc.code or 0)
+    finally:
+        if node is not None:
+            if cleanup is not None:
+                cleanup(node)
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return code

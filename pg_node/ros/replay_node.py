@@ -1,0 +1,492 @@
+"""
+replay_node: play a rosbag2 MCAP bag back onto its topics, as ``ros2 bag play`` does.
+
+Run it as ``ros2 run pg_node replay_node --ros-args -p bag:=<dir or .mcap>`` or as
+``python -m pg_node replay <bag> [--rate 4] [--loop] ...``; both forms take the same
+options (``--help`` lists them) and any mix of the two, command-line options winning over
+``-p`` parameters. It plays any rosbag2 MCAP bag whose message types are installed, not only
+pg_node's: messages are read by :class:`pg_node.bag.reader.BagReader` and published as the
+CDR bytes the bag holds, so nothing is deserialised on the way.
+
+Timing: message ``m`` is published when ``(log_time(m) - log_time(first)) / rate`` of wall
+time has passed since the first; ``rate`` 0 (or ``inf``) plays as fast as possible.
+``start_offset`` skips that many seconds of the bag. ``loop`` starts over at the end.
+
+QoS: each topic is published with the QoS its recorder offered (``offered_qos_profiles``):
+if all its publishers offered the same profile, that one; otherwise the most permissive
+(best effort if any was, volatile if any was, the largest depth). ``keep_all`` publishes
+with keep-all history instead, so that a fast replay into a reliable keep-all subscriber
+loses nothing.
+
+Clock (parameter ``clock``): ``auto`` (default) replays a recorded ``/clock`` topic as it
+is (pg_node's bags hold simulated time there) and otherwise publishes ``/clock`` from the
+recorded log times at ``clock_rate`` Hz of bag time; ``log_time`` always does the latter
+(and skips a recorded ``/clock``); ``off`` publishes no clock of its own.
+
+At the end the node waits up to ``wait_acked_timeout`` s until reliable subscribers have
+acknowledged every message (a fast replay is otherwise over before they have read it).
+
+Topics: ``topics`` limits playback to those names; ``remap`` takes ``from:=to`` pairs.
+Topics whose type is not installed, or whose messages are not CDR, are skipped and listed
+in a warning at start.
+
+Damage: a truncated or corrupted file plays up to the damage; the node then logs the file,
+the byte offset and the reason, and the log time of the last message played, and exits
+with status 3 (0 when the bag played to its end, 1 when nothing could be played).
+
+Services (``std_srvs``; rosbag2's own player uses ``rosbag2_interfaces``, which pg_node
+does not depend on): ``~/set_pause`` (``SetBool``: true pauses, false resumes; the same
+name as sim_node's and mujoco_ros2_control's), ``~/toggle_paused`` (``Trigger``) and
+``~/play_next`` (``Trigger``: while paused, publish the next message only).
+
+``main(args)`` takes the arguments without the program name: ``python -m pg_node replay``
+passes its own list, the ``replay_node`` console script passes ``sys.argv[1:]``. ROS
+arguments (after ``--ros-args``) go to ``rclpy.init``, the rest to argparse, so one parser
+serves both ways of starting the node.
+"""
+import argparse
+import math
+import sys
+import threading
+import time
+
+from pg_node.bag import ros_types
+from pg_node.bag.reader import BagReader
+from rcl_interfaces.msg import ParameterDescriptor, ParameterType
+import rclpy
+from rclpy.exceptions import ParameterUninitializedException
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import HistoryPolicy
+from rosgraph_msgs.msg import Clock
+from std_srvs.srv import SetBool, Trigger
+
+EXIT_OK, EXIT_NOTHING, EXIT_DAMAGED = 0, 1, 3
+
+#: (name, default, ROS parameter type, description)
+PARAMETERS = (
+    ('bag', '', ParameterType.PARAMETER_STRING, 'rosbag2 directory or .mcap file to play'),
+    ('rate', 1.0, ParameterType.PARAMETER_DOUBLE,
+     'playback speed factor; 0 or inf: as fast as possible'),
+    ('start_offset', 0.0, ParameterType.PARAMETER_DOUBLE,
+     'seconds of the bag to skip at the start'),
+    ('topics', [], ParameterType.PARAMETER_STRING_ARRAY,
+     'topics to play (empty: all)'),
+    ('remap', [], ParameterType.PARAMETER_STRING_ARRAY,
+     'topic remappings, each "from:=to"'),
+    ('loop', False, ParameterType.PARAMETER_BOOL, 'start over at the end of the bag'),
+    ('clock', 'auto', ParameterType.PARAMETER_STRING,
+     'auto: replay a recorded /clock, else publish log time; log_time; off'),
+    ('clock_rate', 40.0, ParameterType.PARAMETER_DOUBLE,
+     'Hz of bag time at which /clock is published from log time'),
+    ('start_paused', False, ParameterType.PARAMETER_BOOL, 'start paused (see ~/set_pause)'),
+    ('keep_all', False, ParameterType.PARAMETER_BOOL,
+     'publish with keep-all history, so that a fast replay drops nothing'),
+    ('wait_for_subscribers', 0, ParameterType.PARAMETER_INTEGER,
+     'before playing, wait until every topic has this many subscribers'),
+    ('wait_timeout', 10.0, ParameterType.PARAMETER_DOUBLE,
+     'seconds to wait for subscribers at most'),
+    ('delay', 0.0, ParameterType.PARAMETER_DOUBLE, 'seconds to sleep before playing'),
+    ('wait_acked_timeout', 10.0, ParameterType.PARAMETER_DOUBLE,
+     'at the end, seconds to wait for reliable subscribers to acknowledge every message'),
+)
+
+
+def merge_qos(profiles):
+    """
+    Return one rosbag2 QoS dict for a topic recorded from these offered profiles.
+
+    All equal: that one. Otherwise the one that every subscriber can match: best effort if
+    any publisher was, volatile if any was, the largest depth (rosbag2's adaptation).
+    """
+    if not profiles:
+        return ros_types.qos_to_dict(None)
+    if all(p == profiles[0] for p in profiles):
+        return dict(profiles[0])
+    out = dict(profiles[0])
+    if any(p['reliability'] == 'best_effort' for p in profiles):
+        out['reliability'] = 'best_effort'
+    if any(p['durability'] == 'volatile' for p in profiles):
+        out['durability'] = 'volatile'
+    out['depth'] = max(p['depth'] for p in profiles)
+    return out
+
+
+def parse_remaps(items):
+    """
+    Turn ``['/a:=/b', ...]`` into ``{'/a': '/b'}``; raise ValueError on a malformed item.
+
+    >>> parse_remaps(['/joint_states:=/replay/joint_states', ''])
+    {'/joint_states': '/replay/joint_states'}
+    """
+    out = {}
+    for item in items:
+        if not item:
+            continue
+        src, sep, dst = item.partition(':=')
+        if not sep or not src or not dst:
+            raise ValueError(f'remap {item!r} is not of the form from:=to')
+        out[src.strip()] = dst.strip()
+    return out
+
+
+class ReplayNode(Node):
+    """Publish a bag's messages with their timing and QoS; see the module docstring."""
+
+    def __init__(self, **kwargs):
+        """Declare the parameters, open the bag and create one publisher per played topic."""
+        super().__init__('replay_node', **kwargs)
+        p = {}
+        for name, default, ptype, text in PARAMETERS:
+            descriptor = ParameterDescriptor(type=ptype, description=text)
+            if ptype == ParameterType.PARAMETER_STRING_ARRAY:
+                # rclpy types an empty list default as a byte array: declare the type only
+                self.declare_parameter(name, Parameter.Type.STRING_ARRAY, descriptor)
+                try:
+                    p[name] = list(self.get_parameter(name).value)
+                except ParameterUninitializedException:
+                    p[name] = list(default)
+            else:
+                self.declare_parameter(name, default, descriptor)
+                p[name] = self.get_parameter(name).value
+        self.params = p
+        if not p['bag']:
+            raise ValueError('no bag given (parameter bag, or the first argument)')
+        self.rate = float(p['rate'])
+        self.as_fast_as_possible = self.rate <= 0 or math.isinf(self.rate)
+        self.reader = BagReader(p['bag'], warn=False)
+        self.remap = parse_remaps(p['remap'])
+        wanted = [t for t in p['topics'] if t]
+        topics = self.reader.topics
+        unknown_wanted = [t for t in wanted if t not in topics]
+        if unknown_wanted:
+            self.get_logger().warning(f'not in the bag: {", ".join(unknown_wanted)}')
+        clock_mode = p['clock']
+        if clock_mode not in ('auto', 'log_time', 'off'):
+            raise ValueError(f'clock must be auto, log_time or off, not {clock_mode!r}')
+        recorded_clock = ('/clock' in topics and (not wanted or '/clock' in wanted)
+                          and topics['/clock'].msg_type == 'rosgraph_msgs/msg/Clock')
+        self.generate_clock = clock_mode == 'log_time' or (
+            clock_mode == 'auto' and not recorded_clock)
+        self.skipped = {}
+        self.publishers_ = {}
+        for name, info in topics.items():
+            if wanted and name not in wanted:
+                continue
+            if name == '/clock' and clock_mode == 'log_time':
+                self.skipped[name] = 'a recorded /clock (clock:=log_time publishes its own)'
+                continue
+            if info.serialization_format != 'cdr':
+                self.skipped[name] = f'{info.serialization_format} messages, not cdr'
+                continue
+            cls = ros_types.message_class(info.msg_type)
+            if cls is None:
+                self.skipped[name] = f'type {info.msg_type} is not installed'
+                continue
+            qos = ros_types.qos_profile(merge_qos(info.offered_qos_profiles))
+            if p['keep_all']:
+                qos.history = HistoryPolicy.KEEP_ALL
+            self.publishers_[name] = self.create_publisher(
+                cls, self.remap.get(name, name), qos)
+        for name, why in self.skipped.items():
+            self.get_logger().warning(f'skipping {name}: {why}')
+        self.clock_pub = None
+        if self.generate_clock:
+            self.clock_pub = self.create_publisher(Clock, self.remap.get('/clock', '/clock'),
+                                                   10)
+        self._cond = threading.Condition()
+        self.paused = bool(p['start_paused'])
+        self._rebase = False
+        self._next = 0
+        self.stopping = False
+        self.done = threading.Event()
+        self.played = 0
+        self.passes = 0
+        self.last_log_time = None
+        self.damage = []
+        self.error = None
+        self.create_service(SetBool, '~/set_pause', self.on_set_pause)
+        self.create_service(Trigger, '~/toggle_paused', self.on_toggle_paused)
+        self.create_service(Trigger, '~/play_next', self.on_play_next)
+        n_msgs = sum(topics[t].message_count for t in self.publishers_)
+        speed = 'as fast as possible' if self.as_fast_as_possible else f'at rate {self.rate:g}'
+        self.get_logger().info(
+            f'playing {self.reader.path}: {len(self.publishers_)} topics, {n_msgs} messages, '
+            f'{speed}' + (', looping' if p['loop'] else '') + (
+                ', paused' if self.paused else ''))
+        self._thread = threading.Thread(target=self._run, name='replay', daemon=True)
+
+    # -- services --------------------------------------------------------------------------
+    def _set_paused(self, paused: bool):
+        with self._cond:
+            if self.paused and not paused:
+                self._rebase = True
+            self.paused = paused
+            self._cond.notify_all()
+
+    def on_set_pause(self, request, response):
+        """Pause (data true) or resume (data false)."""
+        self._set_paused(bool(request.data))
+        response.success = True
+        response.message = 'paused' if self.paused else 'playing'
+        return response
+
+    def on_toggle_paused(self, request, response):
+        """Pause if playing, resume if paused."""
+        self._set_paused(not self.paused)
+        response.success = True
+        response.message = 'paused' if self.paused else 'playing'
+        return response
+
+    def on_play_next(self, request, response):
+        """While paused, publish the next message."""
+        with self._cond:
+            if not self.paused:
+                response.success = False
+                response.message = 'not paused'
+                return response
+            self._next += 1
+            self._cond.notify_all()
+        response.success = True
+        response.message = 'next message queued'
+        return response
+
+    # -- playback --------------------------------------------------------------------------
+    def start(self):
+        """Start the playback thread."""
+        self._thread.start()
+
+    def stop(self):
+        """Ask the playback thread to end, and wait for it."""
+        with self._cond:
+            self.stopping = True
+            self._cond.notify_all()
+        if self._thread.is_alive():
+            self._thread.join(5.0)
+
+    def _run(self):
+        try:
+            self._wait_for_subscribers()
+            if self.params['delay'] > 0:
+                with self._cond:
+                    self._cond.wait_for(lambda: self.stopping, self.params['delay'])
+            while not self.stopping:
+                self._play_once()
+                self.passes += 1
+                if not self.params['loop'] or self.damage or not self.played:
+                    break
+            self._wait_acked()
+        except Exception as exc:  # noqa: B902 - report any failure, never die silently
+            self.error = exc
+            self.get_logger().error(f'playback failed: {exc!r}')
+        finally:
+            self.done.set()
+
+    def _wait_acked(self):
+        """Let reliable subscribers fetch what is still only in our history (at exit)."""
+        from rclpy.duration import Duration
+        deadline = time.monotonic() + max(0.0, float(self.params['wait_acked_timeout']))
+        late = []
+        for name, pub in self.publishers_.items():
+            left = deadline - time.monotonic()
+            if self.stopping or not pub.wait_for_all_acked(Duration(seconds=max(0.0, left))):
+                late.append(name)
+        if late and not self.stopping:
+            self.get_logger().warning(f'not acknowledged by every subscriber in time: '
+                                      f'{", ".join(late)}')
+
+    def _wait_for_subscribers(self):
+        need = int(self.params['wait_for_subscribers'])
+        if need <= 0:
+            return
+        deadline = time.monotonic() + float(self.params['wait_timeout'])
+        while not self.stopping and time.monotonic() < deadline:
+            if all(pub.get_subscription_count() >= need
+                   for pub in self.publishers_.values()):
+                return
+            time.sleep(0.02)
+        missing = [n for n, pub in self.publishers_.items()
+                   if pub.get_subscription_count() < need]
+        if missing:
+            self.get_logger().warning(f'playing although these topics have fewer than {need} '
+                                      f'subscribers: {", ".join(missing)}')
+
+    def _wait_until(self, log_time):
+        """Sleep until ``log_time`` is due (or until stopping); honour pause and play_next."""
+        with self._cond:
+            while not self.stopping:
+                if self.paused:
+                    if self._next > 0:
+                        self._next -= 1
+                        self._rebase = True
+                        return True
+                    self._cond.wait(0.2)
+                    continue
+                if self._rebase or self._r0 is None:
+                    # (re)start the wall clock: keep the gap since the last message played
+                    self._rebase = False
+                    self._r0 = time.monotonic()
+                    last = self.last_log_time
+                    self._b0 = log_time if last is None or last > log_time else last
+                if self.as_fast_as_possible:
+                    return True
+                due = self._r0 + (log_time - self._b0) / self.rate / 1e9
+                delay = due - time.monotonic()
+                if delay <= 0:
+                    return True
+                self._cond.wait(min(delay, 0.2))
+        return False
+
+    def _play_once(self):
+        reader = self.reader
+        reader.problems = [d for d in reader.problems if 'missing' in d.reason]
+        offset_ns = int(round(float(self.params['start_offset']) * 1e9))
+        first = None
+        self._r0, self._b0 = None, None
+        self.last_log_time = None
+        last_clock = None
+        clock_period = 1e9 / max(float(self.params['clock_rate']), 1e-9)
+        topics = list(self.publishers_)
+        for m in reader.messages(topics=topics):
+            if first is None:
+                first = m.log_time_ns
+            if m.log_time_ns < first + offset_ns:
+                continue
+            if not self._wait_until(m.log_time_ns):
+                return
+            if self.clock_pub is not None and (
+                    last_clock is None or m.log_time_ns - last_clock >= clock_period):
+                last_clock = m.log_time_ns
+                t = m.log_time_ns
+                clock = Clock()
+                clock.clock.sec, clock.clock.nanosec = t // 10**9, t % 10**9
+                self.clock_pub.publish(clock)
+            data = m.data if isinstance(m.data, bytes) else bytes(m.data)
+            self.publishers_[m.topic].publish(data)
+            self.played += 1
+            self.last_log_time = m.log_time_ns
+        self.damage = list(reader.problems)
+        for d in self.damage:
+            where = ('no message played' if self.last_log_time is None else
+                     f'last message played at log time {self.last_log_time} ns')
+            self.get_logger().error(f'bag damaged, playback stopped early: {d} ({where})')
+        if reader.decode_errors:
+            self.get_logger().warning(f'undecodable messages: {reader.decode_errors}')
+
+
+def split_ros_args(argv):
+    """
+    Split ``argv`` into ``(plain, ros)``: ROS arguments are ``--ros-args ... [--]`` blocks.
+
+    >>> split_ros_args(['bag', '--rate', '2', '--ros-args', '-p', 'loop:=true', '--', '-l'])
+    (['bag', '--rate', '2', '-l'], ['--ros-args', '-p', 'loop:=true', '--'])
+    """
+    plain, ros, inside = [], [], False
+    for arg in argv:
+        if arg == '--ros-args':
+            inside = True
+        if inside:
+            ros.append(arg)
+            if arg == '--':
+                inside = False
+        else:
+            plain.append(arg)
+    return plain, ros
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Return the argparse parser of ``python -m pg_node replay``."""
+    parser = argparse.ArgumentParser(
+        prog='python -m pg_node replay',
+        description='Play a rosbag2 MCAP bag back onto its topics (like ros2 bag play). '
+                    'Options override -p parameters given after --ros-args.')
+    parser.add_argument('bag', nargs='?', help='bag directory or .mcap file')
+    parser.add_argument('--rate', '-r', type=float, help='speed factor; 0: as fast as possible')
+    parser.add_argument('--start-offset', type=float, help='seconds of the bag to skip')
+    parser.add_argument('--topics', nargs='+', help='play only these topics')
+    parser.add_argument('--remap', nargs='+', metavar='FROM:=TO', help='rename topics')
+    parser.add_argument('--loop', '-l', action='store_true', default=None)
+    parser.add_argument('--clock', choices=('auto', 'log_time', 'off'))
+    parser.add_argument('--clock-rate', type=float, help='Hz of bag time (log_time clock)')
+    parser.add_argument('--start-paused', action='store_true', default=None)
+    parser.add_argument('--keep-all', action='store_true', default=None,
+                        help='keep-all history: a fast replay drops nothing')
+    parser.add_argument('--wait-for-subscribers', type=int, metavar='N',
+                        help='wait until every topic has N subscribers')
+    parser.add_argument('--wait-timeout', type=float, help='seconds (default 10)')
+    parser.add_argument('--delay', type=float, help='seconds to sleep before playing')
+    parser.add_argument('--wait-acked-timeout', type=float,
+                        help='seconds to wait at the end for acknowledgements (default 10)')
+    parser.add_argument('--info', action='store_true',
+                        help="print the bag's topics (type, count, QoS) and exit")
+    return parser
+
+
+def print_info(path) -> int:
+    """Print what ``ros2 bag info`` would, in short; return the exit status."""
+    reader = BagReader(path, warn=False)
+    topics = reader.topics
+    width = max((len(n) for n in topics), default=5)
+    print(f'bag: {reader.path}  files: {len(reader.files)}')
+    for name, info in sorted(topics.items()):
+        qos = merge_qos(info.offered_qos_profiles)
+        installed = ros_types.message_class(info.msg_type) is not None
+        print(f'  {name:<{width}}  {info.msg_type:<40} {info.message_count:>8}  '
+              f'{qos["reliability"]}/{qos["durability"]}/depth {qos["depth"]}'
+              + ('' if installed else '  (type not installed)'))
+    return EXIT_OK
+
+
+def main(args=None) -> int:
+    """Start the node (see the module docstring for ``args``); return the exit status."""
+    argv = list(sys.argv[1:] if args is None else args)
+    plain, ros = split_ros_args(argv)
+    try:
+        opts = build_parser().parse_args(plain)
+    except SystemExit as exc:
+        return int(exc.code or 0)
+    if opts.info:
+        if not opts.bag:
+            print('--info needs a bag', file=sys.stderr)
+            return 2
+        return print_info(opts.bag)
+    values = {'bag': opts.bag, 'rate': opts.rate, 'start_offset': opts.start_offset,
+              'topics': opts.topics, 'remap': opts.remap, 'loop': opts.loop,
+              'clock': opts.clock, 'clock_rate': opts.clock_rate,
+              'start_paused': opts.start_paused, 'keep_all': opts.keep_all,
+              'wait_for_subscribers': opts.wait_for_subscribers,
+              'wait_timeout': opts.wait_timeout, 'delay': opts.delay,
+              'wait_acked_timeout': opts.wait_acked_timeout}
+    overrides = [Parameter(k, value=v) for k, v in values.items() if v is not None]
+    rclpy.init(args=['replay_node'] + ros)
+    node = None
+    status = EXIT_OK
+    try:
+        try:
+            node = ReplayNode(parameter_overrides=overrides)
+        except (ValueError, FileNotFoundError, OSError) as exc:
+            print(f'replay_node: {exc}', file=sys.stderr)
+            return EXIT_NOTHING
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        node.start()
+        while rclpy.ok() and not node.done.is_set():
+            executor.spin_once(timeout_sec=0.1)
+        node.get_logger().info(f'played {node.played} messages')
+        if node.damage:
+            status = EXIT_DAMAGED
+        elif node.error is not None or not node.played:
+            status = EXIT_NOTHING
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.stop()
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return status
+
+
+if __name__ == '__main__':
+    sys.exit(main())

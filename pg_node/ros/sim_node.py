@@ -1,0 +1,378 @@
+"""
+sim_node: the simulated arm(s) as a ROS 2 driver would offer them.
+
+The physics and the task are :class:`pg_node.sim.arm_task.ArmTask`; this node only moves data.
+
+Topics published:
+
+* ``/joint_states`` (``sensor_msgs/JointState``), every control step, one message for all
+  arms: names ``arm<i>/<joint>`` (``<joint>`` the model's joint name, ``i`` from 0, for
+  every ``num_envs`` including 1), position (rad), velocity (rad/s), effort (actuator
+  torque, N m), stamped with simulated time;
+* ``/clock`` (``rosgraph_msgs/Clock``): simulated time, ``control steps * dt``, every
+  control step; it never goes back, not even on a world reset;
+* ``/target`` (``geometry_msgs/PointStamped``): one message per arm whenever its target
+  changes (episode start), ``frame_id = 'arm<i>'`` and the point in that arm's own
+  coordinates; reliable, transient-local, depth ``num_envs``, so a late subscriber still
+  gets the current targets;
+* ``/pg_node/transition`` (``std_msgs/Float64MultiArray``): every control step, the layout
+  of :mod:`pg_node.ros.transition`; reliable, transient-local, depth 1;
+* ``/pg_node/markers`` (``visualization_msgs/MarkerArray``) at ``marker_rate`` Hz of wall
+  time: three markers in ``frame_id`` for all arms, the links (``LINE_LIST``, ns ``links``),
+  the fingertips and the targets (``SPHERE_LIST``, ns ``fingertips`` and ``targets``); arm
+  ``i`` is drawn shifted by its place on a square grid with ``marker_spacing`` between arms
+  (frame ``arm<i>`` is ``frame_id`` shifted so);
+* ``/diagnostics`` (``diagnostic_msgs/DiagnosticArray``) at ``diagnostics_rate`` Hz: mode,
+  paused, steps, simulated time, steps per second, commands received / dropped (wrong size,
+  non-finite, absurd) / clipped, lock-step timeouts.
+
+Subscribed: ``/arm_controller/commands`` (``std_msgs/Float64MultiArray``, as ros2_control's
+forward_command_controller): ``num_envs * n_actuators`` values, arm-major (arm 0's
+actuators in model order, then arm 1's...); the layout is not read. A message of another
+size, with a non-finite value or with an absurd one (beyond ``ABSURD_COMMAND``, e.g. 1e300)
+is dropped, counted and warned about (at most once a second); other values outside the
+actuators' control range are clipped to it, counted (``commands_clipped``) and warned about.
+In lock-step every accepted command is a control step, so dropping an absurd command (rather
+than clipping it) also keeps the actor's command/outcome pairing intact.
+
+No node subscribes ``joint_states``: it is an output for tools (RViz, Foxglove, the bag);
+the simulator takes input only on ``arm_controller/commands`` and its services.
+
+Modes (parameter ``mode``):
+
+* ``lock_step`` (default): each accepted command is one control step, then a transition is
+  published; with no command for ``lock_step_timeout`` s the last transition and joint
+  state are re-sent (same ``seq`` and stamp) and the wait logged, so neither side hangs on
+  a lost message and a late ``/joint_states`` subscriber still sees the arm;
+* ``real_time``: control steps at ``real_time_factor / dt`` Hz of wall time with the last
+  command held, zero torque once it is older than ``command_timeout`` s.
+
+Services (names as in mujoco_ros2_control): ``~/reset_world`` (``std_srvs/Trigger``: new
+episodes in all arms, publishes a transition), ``~/set_pause`` (``std_srvs/SetBool``) and
+``~/step_simulation`` (``std_srvs/Trigger``: while paused, one control step with the held
+command; refused when not paused). While paused, lock-step commands are held, not stepped.
+
+Topic names other than ``/diagnostics`` are relative: started in a namespace
+(``--ros-args -r __ns:=/arm1``) the node publishes ``/arm1/joint_states``,
+``/arm1/pg_node/transition``... and listens on ``/arm1/arm_controller/commands``, so several
+simulator/actor pairs can share one graph; in the root namespace the names are as above.
+
+Parameters: :data:`pg_node.common.params.SIM_PARAMS` (and the shared ``model``, ``num_envs``,
+``seed``) list them with their defaults, descriptions and allowed values; the shipped
+``config/pg_node.yaml`` holds the same defaults, as a file to copy and edit.
+"""
+import array
+import math
+import time
+
+from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import Point, PointStamped
+import numpy as np
+from pg_node.common.params import params_for
+from pg_node.common.paths import resolve_model
+from pg_node.ros import table_msg
+from pg_node.ros import transition
+from pg_node.ros.node_utils import declare_params, run
+from pg_node.sim.arm_task import ArmTask
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray
+from std_srvs.srv import SetBool, Trigger
+from visualization_msgs.msg import Marker, MarkerArray
+
+#: A command value beyond this (N m before gear) is not a torque but a bug: dropped, not
+#: clipped. Values between the control range and this are clipped (counted, warned).
+ABSURD_COMMAND = table_msg.MAX_ABS
+
+
+def sim_stamp(seconds: float) -> Time:
+    """Return ``seconds`` of simulated time as a ``builtin_interfaces/Time``."""
+    nanos = int(round(seconds * 1e9))
+    return Time(sec=nanos // 1_000_000_000, nanosec=nanos % 1_000_000_000)
+
+
+def as_array(values: np.ndarray) -> array.array:
+    """Return a float64 numpy array as the ``array.array`` that message fields hold."""
+    return array.array('d', np.ascontiguousarray(values, dtype=np.float64).tobytes())
+
+
+class SimNode(Node):
+    """Publish simulated arms and step them on torque commands."""
+
+    def __init__(self):
+        """Declare parameters, build the task and the ROS interfaces, publish the start."""
+        super().__init__('sim_node')
+        p = declare_params(self, params_for('sim_node'))
+        self.mode = p['mode']
+        self.task = ArmTask(resolve_model(p['model']), num_envs=p['num_envs'], seed=p['seed'],
+                            frame_skip=p['frame_skip'],
+                            max_episode_steps=p['max_episode_steps'],
+                            reward_dist_weight=p['reward_dist_weight'],
+                            reward_control_weight=p['reward_control_weight'])
+        self.params = p
+        n, spec = self.task.num_envs, self.task.spec
+        self.n_cmd = n * self.task.act_dim
+        self.joint_names = [f'arm{i}/{name}' for i in range(n) for name in spec.joint_names]
+        cols = math.ceil(math.sqrt(n))
+        self.offsets = np.array([[(i % cols) * p['marker_spacing'],
+                                  (i // cols) * p['marker_spacing'], 0.0] for i in range(n)])
+        self.counters = {'steps': 0, 'commands_received': 0, 'commands_dropped_size': 0,
+                         'commands_dropped_nonfinite': 0, 'commands_dropped_absurd': 0,
+                         'commands_clipped': 0,
+                         'lock_step_timeouts': 0, 'transitions_resent': 0}
+        self.paused = bool(p['start_paused'])
+        self.held = np.zeros((n, self.task.act_dim))
+        self.held_time = -math.inf
+        self.seq = -1
+        self.last_transition = None
+        self.last_joint_state = None
+        self.last_sent = time.monotonic()
+        self._diag_steps, self._diag_time = 0, time.monotonic()
+
+        reliable_latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        targets_qos = QoSProfile(depth=n, reliability=ReliabilityPolicy.RELIABLE,
+                                 durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        self.pub_joints = self.create_publisher(JointState, 'joint_states', 10)
+        self.pub_clock = self.create_publisher(Clock, 'clock', 10)
+        self.pub_target = self.create_publisher(PointStamped, 'target', targets_qos)
+        self.pub_transition = self.create_publisher(Float64MultiArray, 'pg_node/transition',
+                                                    reliable_latched)
+        self.pub_markers = self.create_publisher(MarkerArray, 'pg_node/markers', 1)
+        self.pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        self.create_subscription(Float64MultiArray, 'arm_controller/commands',
+                                 self.on_command, 10)
+        self.create_service(Trigger, '~/reset_world', self.on_reset_world)
+        self.create_service(SetBool, '~/set_pause', self.on_set_pause)
+        self.create_service(Trigger, '~/step_simulation', self.on_step_simulation)
+        if p['marker_rate'] > 0:
+            self.create_timer(1.0 / p['marker_rate'], self.publish_markers)
+        self.create_timer(1.0 / max(p['diagnostics_rate'], 1e-3), self.publish_diagnostics)
+        if self.mode == 'real_time':
+            self.create_timer(self.task.dt / p['real_time_factor'], self.on_real_time_tick)
+        else:
+            self.create_timer(min(0.1, p['lock_step_timeout'] / 2), self.on_lock_step_watch)
+
+        obs = self.task.reset()
+        self.publish_state(self._reset_transition(obs))
+        self.get_logger().info(
+            f'{self.mode}: {n} x {p["model"]} ({self.task.act_dim} actuators, joints '
+            f'{", ".join(spec.joint_names)}), dt {self.task.dt:g} s')
+
+    @property
+    def sim_time(self) -> float:
+        """Return the simulated time in seconds (control steps times dt)."""
+        return self.counters['steps'] * self.task.dt
+
+    # --- commands -------------------------------------------------------------------------
+
+    def on_command(self, msg: Float64MultiArray):
+        """Check, clip and hold a torque command; in lock-step, take one control step."""
+        self.counters['commands_received'] += 1
+        cmd = np.asarray(msg.data, dtype=np.float64)
+        if cmd.size != self.n_cmd:
+            self.counters['commands_dropped_size'] += 1
+            self.get_logger().warning(
+                f'dropped a command of {cmd.size} values, expected {self.n_cmd} '
+                f'({self.task.num_envs} arms x {self.task.act_dim} actuators)',
+                throttle_duration_sec=1.0)
+            return
+        if not np.all(np.isfinite(cmd)):
+            self.counters['commands_dropped_nonfinite'] += 1
+            self.get_logger().warning('dropped a command with a non-finite value',
+                                      throttle_duration_sec=1.0)
+            return
+        if np.any(np.abs(cmd) > ABSURD_COMMAND):
+            self.counters['commands_dropped_absurd'] += 1
+            self.get_logger().warning(
+                f'dropped a command with an absurd value ({np.abs(cmd).max():g}, more than '
+                f'{ABSURD_COMMAND:g}): a bug upstream, not a torque to clip',
+                throttle_duration_sec=1.0)
+            return
+        cmd = cmd.reshape(self.task.num_envs, self.task.act_dim)
+        clipped = np.clip(cmd, self.task.spec.ctrl_low, self.task.spec.ctrl_high)
+        if not np.array_equal(clipped, cmd):
+            self.counters['commands_clipped'] += 1
+            self.get_logger().warning(
+                f'clipped a command to the control range [{self.task.spec.ctrl_low.min():g}, '
+                f'{self.task.spec.ctrl_high.max():g}] (largest value {np.abs(cmd).max():g})',
+                throttle_duration_sec=1.0)
+        self.held = clipped
+        self.held_time = time.monotonic()
+        if self.mode == 'lock_step' and not self.paused:
+            self.control_step(self.held)
+
+    def on_real_time_tick(self):
+        """Take one control step with the held command, or zero torque if it is stale."""
+        if self.paused:
+            return
+        if time.monotonic() - self.held_time > self.params['command_timeout']:
+            self.held = np.zeros_like(self.held)
+        self.control_step(self.held)
+
+    def on_lock_step_watch(self):
+        """Re-send the last transition when no command came for ``lock_step_timeout``."""
+        if self.paused or self.last_transition is None:
+            return
+        waited = time.monotonic() - self.last_sent
+        if waited >= self.params['lock_step_timeout']:
+            self.counters['lock_step_timeouts'] += 1
+            self.get_logger().info(
+                f'no command for {waited:.1f} s, re-sending transition {self.seq}',
+                throttle_duration_sec=10.0)
+            self.pub_transition.publish(self.last_transition)
+            if self.last_joint_state is not None:
+                self.pub_joints.publish(self.last_joint_state)
+            self.counters['transitions_resent'] += 1
+            self.last_sent = time.monotonic()
+
+    # --- stepping and publishing ----------------------------------------------------------
+
+    def control_step(self, act: np.ndarray):
+        """Step every arm once with ``act`` and publish the results."""
+        obs, reward, terminated, truncated, info = self.task.step(act)
+        self.counters['steps'] += 1
+        self.seq += 1
+        tr = transition.Transition(
+            seq=self.seq, obs=obs, reward=reward, terminated=terminated, truncated=truncated,
+            final_obs=info['final_obs'], episode_id=info['episode_id'],
+            episode_step=info['episode_step'])
+        self.publish_state(tr)
+
+    def _reset_transition(self, obs: np.ndarray) -> transition.Transition:
+        """Return the transition announcing fresh episodes in every arm."""
+        self.seq += 1
+        n = self.task.num_envs
+        return transition.Transition(
+            seq=self.seq, obs=obs, reward=np.zeros(n), terminated=np.zeros(n, dtype=bool),
+            truncated=np.zeros(n, dtype=bool), final_obs=obs,
+            episode_id=self.task.episode_id.copy(), episode_step=self.task.episode_step.copy())
+
+    def publish_state(self, tr: transition.Transition):
+        """Publish clock, joint states, new targets and the transition ``tr``."""
+        stamp = sim_stamp(self.sim_time)
+        self.pub_clock.publish(Clock(clock=stamp))
+        pos, vel, eff = self.task.joint_state()
+        js = JointState()
+        js.header.stamp = stamp
+        js.name = self.joint_names
+        js.position = as_array(pos.ravel())
+        js.velocity = as_array(vel.ravel())
+        js.effort = as_array(eff.ravel())
+        self.pub_joints.publish(js)
+        self.last_joint_state = js
+        new = np.flatnonzero(tr.episode_step == 0)
+        if new.size:
+            targets = self.task.target_pos()
+            for i in new:
+                point = PointStamped()
+                point.header.stamp = stamp
+                point.header.frame_id = f'arm{i}'
+                point.point = Point(x=float(targets[i, 0]), y=float(targets[i, 1]),
+                                    z=float(targets[i, 2]))
+                self.pub_target.publish(point)
+        self.last_transition = transition.to_msg(tr)
+        self.pub_transition.publish(self.last_transition)
+        self.last_sent = time.monotonic()
+
+    def publish_markers(self):
+        """
+        Publish links, fingertips and targets of all arms as three list markers.
+
+        One ``LINE_LIST`` holds every arm's links and one ``SPHERE_LIST`` each the fingertips
+        and the targets, each arm shifted by its grid offset: three markers whatever the
+        number of arms (192 single markers for 64 arms cost 46 ms a call in Python, the
+        simulator's largest cost in PROFILE.md).
+        """
+        stamp = sim_stamp(self.sim_time)
+        n = self.task.num_envs
+        links = self.task.link_positions().reshape(n, -1, 3) + self.offsets[:, None, :]
+        tips = self.task.fingertip_pos() + self.offsets
+        targets = self.task.target_pos() + self.offsets
+        out = MarkerArray()
+        for ns, kind, rgb, size, points in (
+                ('links', Marker.LINE_LIST, (0.0, 0.4, 0.6), 0.02, links.reshape(-1, 3)),
+                ('fingertips', Marker.SPHERE_LIST, (0.0, 0.8, 0.6), 0.025, tips),
+                ('targets', Marker.SPHERE_LIST, (0.9, 0.2, 0.2), 0.025, targets)):
+            marker = self._marker(stamp, ns, 0, kind, rgb, size)
+            marker.points = [Point(x=x, y=y, z=z) for x, y, z in points.tolist()]
+            out.markers.append(marker)
+        self.pub_markers.publish(out)
+
+    def _marker(self, stamp, ns: str, i: int, kind: int, rgb, size: float) -> Marker:
+        """Return a marker with the common fields filled in."""
+        marker = Marker()
+        marker.header.stamp = stamp
+        marker.header.frame_id = self.params['frame_id']
+        marker.ns = ns
+        marker.id = i
+        marker.type = kind
+        marker.action = Marker.ADD
+        marker.pose.orientation.w = 1.0
+        marker.scale.x = marker.scale.y = marker.scale.z = size
+        marker.color.r, marker.color.g, marker.color.b = rgb
+        marker.color.a = 1.0
+        return marker
+
+    def publish_diagnostics(self):
+        """Publish the counters as one DiagnosticStatus."""
+        now = time.monotonic()
+        rate = (self.counters['steps'] - self._diag_steps) / max(now - self._diag_time, 1e-9)
+        self._diag_steps, self._diag_time = self.counters['steps'], now
+        dropped = (self.counters['commands_dropped_size']
+                   + self.counters['commands_dropped_nonfinite']
+                   + self.counters['commands_dropped_absurd'])
+        status = DiagnosticStatus()
+        status.name = 'sim_node: simulated arms'
+        status.hardware_id = f'{self.params["model"]} x {self.task.num_envs}'
+        status.level = DiagnosticStatus.WARN if dropped else DiagnosticStatus.OK
+        status.message = ('paused' if self.paused else self.mode) + (
+            f', {dropped} commands dropped' if dropped else '')
+        values = dict(self.counters, mode=self.mode, paused=self.paused,
+                      sim_time=round(self.sim_time, 6), steps_per_second=round(rate, 1),
+                      num_envs=self.task.num_envs)
+        status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
+        msg = DiagnosticArray()
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.status = [status]
+        self.pub_diag.publish(msg)
+
+    # --- services -------------------------------------------------------------------------
+
+    def on_reset_world(self, request, response):
+        """Start new episodes in every arm and publish them."""
+        obs = self.task.reset()
+        self.publish_state(self._reset_transition(obs))
+        response.success = True
+        response.message = f'new episodes {self.task.episode_id.tolist()}'
+        return response
+
+    def on_set_pause(self, request, response):
+        """Pause (``data=True``) or resume the simulation."""
+        self.paused = bool(request.data)
+        response.success = True
+        response.message = 'paused' if self.paused else 'running'
+        return response
+
+    def on_step_simulation(self, request, response):
+        """Take one control step with the held command while paused."""
+        if not self.paused:
+            response.success = False
+            response.message = 'not paused: pause with ~/set_pause first'
+            return response
+        self.control_step(self.held)
+        response.success = True
+        response.message = f'stepped to seq {self.seq}'
+        return response
+
+
+def main(args=None):
+    """Run sim_node until Ctrl-C or an external shutdown."""
+    return run(SimNode, args, cleanup=lambda node: node.task.close())
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

@@ -1,0 +1,132 @@
+"""
+Wire layout of the per-control-step transition message that ``sim_node`` publishes.
+
+One ``std_msgs/Float64MultiArray`` per control step carries all ``N`` arms
+(topic ``/pg_node/transition``). ``data`` is a header followed by an ``N x W`` row-major
+matrix, one row per arm:
+
+* ``layout.data_offset = 1``: ``data[0]`` is ``seq``, the message's sequence number (0 for
+  the first message, +1 for every new one: a control step or a world reset; a repeated
+  ``seq`` is a re-send of the same transition after a lock-step timeout);
+* ``layout.dim[0]``: ``label='env'``, ``size=N``, ``stride=N*W``;
+* ``layout.dim[1:]``: one entry per field of a row, in row order, ``label`` = field name,
+  ``size`` = its width, ``stride`` = its width too; ``W`` is the sum of the widths.
+
+Fields of row ``i`` (``D`` = observation size of the model, 10 for ``reacher2``):
+
+=================  =====  ================================================================
+label              size   meaning
+=================  =====  ================================================================
+``obs``            D      observation to act on (first of a new episode after a reset)
+``reward``         1      reward of the previous command (0 after a start or world reset)
+``terminated``     1      1.0 if the previous command ended the episode in a terminal state
+``truncated``      1      1.0 if the previous command ended the episode on the time limit
+``final_obs``      D      observation the previous command reached; equals ``obs`` unless
+                          the episode ended, then bootstrap ``V(final_obs)`` on truncation
+``episode_id``     1      id of the episode ``obs`` belongs to (unique over the sim's life)
+``episode_step``   1      control steps taken in that episode (0 at its first observation)
+=================  =====  ================================================================
+
+``reward``, ``terminated``, ``truncated`` and ``final_obs`` belong to the episode that the
+previous message's ``episode_id`` named for that arm. A message whose ``episode_step`` is
+0 without ``terminated``/``truncated`` comes from a start or world reset (an episode cut
+short by a reset has no final transition). Flags are 0.0/1.0 and ids/counters are
+whole numbers (exact in float64 up to 2**53). The functions here are pure numpy; the two
+``*_msg`` helpers import ``std_msgs`` lazily.
+"""
+from dataclasses import dataclass
+
+import numpy as np
+from pg_node.ros import table_msg
+
+HEADER_SIZE = 1
+ENV_LABEL = 'env'
+# field name -> width; None is the observation size
+FIELDS = (
+    ('obs', None),
+    ('reward', 1),
+    ('terminated', 1),
+    ('truncated', 1),
+    ('final_obs', None),
+    ('episode_id', 1),
+    ('episode_step', 1),
+)
+BOOL_FIELDS = ('terminated', 'truncated')
+INT_FIELDS = ('episode_id', 'episode_step')
+
+
+@dataclass
+class Transition:
+    """One control step of all ``N`` arms, field names as in the module's table."""
+
+    seq: int
+    obs: np.ndarray
+    reward: np.ndarray
+    terminated: np.ndarray
+    truncated: np.ndarray
+    final_obs: np.ndarray
+    episode_id: np.ndarray
+    episode_step: np.ndarray
+
+    @property
+    def num_envs(self) -> int:
+        """Return the number of arms ``N``."""
+        return int(np.shape(self.obs)[0])
+
+
+def field_sizes(obs_dim: int):
+    """Return ``[(label, size), ...]`` of one row for observations of size ``obs_dim``."""
+    return [(name, obs_dim if size is None else size) for name, size in FIELDS]
+
+
+def pack(tr: Transition):
+    """
+    Pack ``tr`` into ``(dims, data_offset, data)``: a :mod:`pg_node.ros.table_msg` table.
+
+    ``dims`` is ``[(label, size, stride), ...]`` as described in the module docstring and
+    ``data`` a flat float64 array of length ``1 + N * W``.
+    """
+    obs = np.asarray(tr.obs, dtype=np.float64)
+    if obs.ndim != 2:
+        raise ValueError(f'obs must be (N, obs_dim), got shape {obs.shape}')
+    n, obs_dim = obs.shape
+    fields = {}
+    for name, size in field_sizes(obs_dim):
+        col = np.asarray(getattr(tr, name), dtype=np.float64).reshape(n, -1)
+        if col.shape[1] != size:
+            raise ValueError(f'field {name!r} has {col.shape[1]} values per env, '
+                             f'expected {size}')
+        fields[name] = col
+    return table_msg.pack([tr.seq], fields, rows_label=ENV_LABEL)
+
+
+def unpack(dims, data_offset: int, data) -> Transition:
+    """
+    Check a ``(dims, data_offset, data)`` layout and return the :class:`Transition`.
+
+    Raise ``ValueError`` naming the first mismatch: wrong labels or order, inconsistent
+    sizes or strides, a data length that does not match, non-whole ids or flags not 0/1,
+    non-finite values or values beyond :data:`pg_node.ros.table_msg.MAX_ABS`.
+    """
+    dims = [(str(label), int(size), int(stride)) for label, size, stride in dims]
+    obs_dim = dims[1][1] if len(dims) > 1 and dims[1][0] == 'obs' else None
+    widths = {name: obs_dim if size is None else size for name, size in FIELDS}
+    header, table = table_msg.unpack(dims, data_offset, data, HEADER_SIZE, widths,
+                                     rows_label=ENV_LABEL)
+    if dims[0][1] < 1:
+        raise ValueError('a transition needs at least one env (dim size 0)')
+    seq = header[0]
+    if not np.isfinite(seq) or seq != round(seq):
+        raise ValueError('seq must be a whole number')
+    fields = table_msg.check_fields(table, BOOL_FIELDS, INT_FIELDS)
+    return Transition(seq=int(seq), **fields)
+
+
+def to_msg(tr: Transition):
+    """Return ``tr`` as a ``std_msgs/Float64MultiArray``."""
+    return table_msg.to_msg(*pack(tr))
+
+
+def from_msg(msg) -> Transition:
+    """Return the :class:`Transition` in a ``std_msgs/Float64MultiArray`` (ValueError if bad)."""
+    return unpack(*table_msg.from_msg(msg))

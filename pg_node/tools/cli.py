@@ -1,0 +1,53 @@
+"""
+``python -m pg_node <command>``: one entry point for the tools that need no ``ros2`` CLI.
+
+Each command lives in its own module with a ``main(argv) -> int``; it is imported only when
+asked for, so ``python -m pg_node variance`` never loads rclpy and a command whose module is
+missing says so instead of failing at start-up.
+"""
+import importlib
+import importlib.util
+import sys
+
+#: command -> (module, one-line help)
+COMMANDS = {
+    'train': ('pg_node.tools.train', 'start the training graph (sim, actor, critic, learner)'),
+    'eval': ('pg_node.tools.evaluate', 'evaluate a saved policy checkpoint'),
+    'variance': ('pg_node.tools.variance', 'bias and variance of every gradient estimator'),
+    'bench': ('pg_node.tools.bench', 'throughput, latency and learning benchmarks'),
+    'replay': ('pg_node.ros.replay_node', 'play a rosbag2 MCAP bag back onto its topics'),
+    'monitor': ('pg_node.tools.monitor', 'live terminal view of a running training'),
+    'topics': ('pg_node.tools.topics', "list the graph's topics, types, endpoints and rates"),
+    'plot': ('pg_node.tools.plot', 'learning-curve PNG from a bag or run directory'),
+    'render': ('pg_node.tools.render', 'animation of a recorded episode'),
+    'soak': ('pg_node.tools.soak', 'training with injected faults, and a report'),
+}
+
+
+def usage() -> str:
+    """Return the command list shown by ``python -m pg_node --help``."""
+    lines = ['usage: python -m pg_node <command> [options]', '', 'commands:']
+    for name, (module, text) in COMMANDS.items():
+        available = importlib.util.find_spec(module) is not None
+        lines.append(f'  {name:<10} {text}' + ('' if available else '  (not built yet)'))
+    lines.append('')
+    lines.append("`python -m pg_node <command> --help` describes a command's options.")
+    return '\n'.join(lines)
+
+
+def main(argv=None) -> int:
+    """Dispatch to the command's module."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if not argv or argv[0] in ('-h', '--help'):
+        print(usage())
+        return 0 if argv else 2
+    name, rest = argv[0], argv[1:]
+    if name not in COMMANDS:
+        print(f'pg_node: unknown command {name!r}\n\n{usage()}', file=sys.stderr)
+        return 2
+    module_name = COMMANDS[name][0]
+    if importlib.util.find_spec(module_name) is None:
+        print(f'pg_node: command {name!r} is not available in this version '
+              f'(module {module_name} is missing)', file=sys.stderr)
+        return 2
+    return int(importlib.import_module(module_name).main(rest) or 0)

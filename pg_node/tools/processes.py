@@ -1,0 +1,116 @@
+"""
+Starting and stopping pg_node's node processes from Python (bring-up, tests, benchmarks).
+
+A node started from a non-interactive shell or a script must run in its own session
+(``start_new_session=True``): a child started with ``&`` ignores SIGINT, and a session of its
+own keeps a Ctrl-C meant for the parent from reaching it twice. It is stopped the way
+``ros2 launch`` stops nodes: SIGINT, then SIGTERM, then SIGKILL, waiting between.
+"""
+import contextlib
+import os
+import signal
+import subprocess
+from typing import Dict, Iterator, Optional
+
+from pg_node.common.paths import SOURCE_ROOT
+
+REPO = SOURCE_ROOT
+STOP_WAITS = ((signal.SIGINT, 10.0), (signal.SIGTERM, 5.0), (signal.SIGKILL, 5.0))
+
+
+def child_env(domain_id: Optional[int] = None) -> Dict[str, str]:
+    """
+    Return the environment of a node process: this one, pg_node importable, unbuffered.
+
+    With ``domain_id`` the child joins that ``ROS_DOMAIN_ID`` (tests use one per process so
+    that parallel runs do not hear each other).
+    """
+    env = dict(os.environ, PYTHONUNBUFFERED='1')
+    path = env.get('PYTHONPATH')
+    env['PYTHONPATH'] = f'{REPO}{os.pathsep}{path}' if path else str(REPO)
+    if domain_id is not None:
+        env['ROS_DOMAIN_ID'] = str(domain_id)
+    return env
+
+
+@contextlib.contextmanager
+def signals_handled(signals, handler) -> Iterator[None]:
+    """Handle ``signals`` with ``handler`` inside the block (main thread only), then restore."""
+    old = {sig: signal.signal(sig, handler) for sig in signals}
+    try:
+        yield
+    finally:
+        for sig, previous in old.items():
+            signal.signal(sig, previous)
+
+
+def _interrupt(signum, frame):
+    raise KeyboardInterrupt(f'signal {signal.Signals(signum).name}')
+
+
+def terminate_as_interrupt():
+    """
+    Turn SIGTERM and SIGHUP into KeyboardInterrupt inside the block.
+
+    A supervisor (``train``, ``soak``, ``bench``) starts its nodes in sessions of their own,
+    so a signal sent to the supervisor alone (``timeout``, ``kill``, a closed terminal) does
+    not reach them: without this it dies at once and leaves them running. With it the
+    signal takes the Ctrl-C path, which stops the nodes.
+    """
+    return signals_handled((signal.SIGTERM, signal.SIGHUP), _interrupt)
+
+
+def shutting_down():
+    """Ignore SIGINT, SIGTERM and SIGHUP inside the block: the nodes are being stopped."""
+    return signals_handled((signal.SIGINT, signal.SIGTERM, signal.SIGHUP), signal.SIG_IGN)
+
+
+def signal_process(proc: subprocess.Popen, sig) -> None:
+    """
+    Send ``sig`` to ``proc``, and to its whole process group when it leads one.
+
+    A process started with ``start_new_session=True`` leads its own group, so a bring-up's
+    node children get the signal too.
+    """
+    try:
+        if os.getpgid(proc.pid) == proc.pid:
+            os.killpg(proc.pid, sig)
+        else:
+            proc.send_signal(sig)
+    except ProcessLookupError:
+        pass
+
+
+def stop(proc: subprocess.Popen, waits=STOP_WAITS) -> Optional[int]:
+    """Stop ``proc``: each signal of ``waits`` in turn until it exits; return its exit code."""
+    for sig, wait in waits:
+        if proc.poll() is not None:
+            break
+        signal_process(proc, sig)
+        try:
+            proc.wait(wait)
+        except subprocess.TimeoutExpired:
+            pass
+    return proc.poll()
+
+
+def start_logged(args, log_path, env=None, cwd=REPO) -> subprocess.Popen:
+    """
+    Start ``args`` in its own session, its output going to ``log_path``.
+
+    The log stays open as ``proc.log`` so that :func:`stop_logged` can read it back.
+    """
+    log = open(log_path, 'w+')
+    proc = subprocess.Popen(list(map(str, args)), env=env, cwd=cwd, stdout=log,
+                            stderr=subprocess.STDOUT, start_new_session=True)
+    proc.log = log
+    return proc
+
+
+def stop_logged(proc: subprocess.Popen):
+    """Stop a process of :func:`start_logged`; return ``(exit code, its whole log)``."""
+    stop(proc)
+    proc.log.seek(0)
+    text = proc.log.read()
+    proc.log.close()
+    return proc.returncode, text

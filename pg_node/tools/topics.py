@@ -1,0 +1,123 @@
+"""
+``python -m pg_node topics``: the graph's topics, types, publishers, subscribers and rates.
+
+For users without the ``ros2`` command line (``ros2 topic list -t``, ``ros2 topic info``,
+``ros2 topic hz`` in one). It joins the graph (``ROS_DOMAIN_ID`` as usual), waits
+``--discovery`` seconds for discovery, then listens to every topic whose type is installed
+for ``--duration`` seconds more (topics found meanwhile are listened to from then on) with a
+best-effort, volatile subscription (which matches any
+publisher) taking the serialised bytes only, and prints one row per topic: type, number of
+publishers and of subscribers (its own listener not counted), messages received and rate in
+Hz (over the time between the first and the last message received). ``--json`` prints
+the same as JSON.
+"""
+import argparse
+import json
+import sys
+import time
+
+
+def survey(discovery=1.0, duration=2.0, include_hidden=False, context=None):
+    """Return one dict per topic: name, types, publishers, subscribers, count, rate_hz."""
+    from pg_node.bag import ros_types
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    own = context is None
+    if own:
+        context = rclpy.Context()
+        rclpy.init(context=context)
+    node = rclpy.create_node('pg_node_topics', context=context,
+                             start_parameter_services=False)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    times, listening, topics = {}, set(), {}
+    qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT,
+                     durability=DurabilityPolicy.VOLATILE)
+
+    def refresh():
+        for name, types in node.get_topic_names_and_types():
+            if name in topics or (not include_hidden and any(
+                    part.startswith('_') for part in name.split('/'))):
+                continue
+            topics[name] = types
+            times[name] = []
+            cls = ros_types.message_class(types[0]) if len(types) == 1 else None
+            if cls is None:
+                continue
+
+            def on_message(data, stamps=times[name]):
+                stamps.append(time.monotonic())
+            node.create_subscription(cls, name, on_message, qos, raw=True)
+            listening.add(name)
+
+    try:
+        # discovery goes on while we listen: a topic found late is measured for less time
+        end = time.monotonic() + discovery + duration
+        next_refresh = 0.0
+        while time.monotonic() < end:
+            if time.monotonic() >= next_refresh:
+                refresh()
+                next_refresh = time.monotonic() + 0.25
+            executor.spin_once(timeout_sec=0.05)
+        rows = []
+        for name, types in sorted(topics.items()):
+            stamps = times[name]
+            if name not in listening:
+                rate = None
+            elif len(stamps) >= 2 and stamps[-1] > stamps[0]:
+                rate = (len(stamps) - 1) / (stamps[-1] - stamps[0])
+            else:
+                rate = 0.0
+            subs = node.count_subscribers(name) - (1 if name in listening else 0)
+            rows.append({'name': name, 'types': list(types),
+                         'publishers': node.count_publishers(name), 'subscribers': subs,
+                         'count': len(stamps) if name in listening else None,
+                         'rate_hz': rate})
+        return rows
+    finally:
+        node.destroy_node()
+        if own:
+            rclpy.try_shutdown(context=context)
+
+
+def table(rows):
+    """Return a rich Table of :func:`survey` rows."""
+    from rich.table import Table
+    out = Table(title='ROS 2 topics', header_style='bold')
+    for col, justify in (('topic', 'left'), ('type', 'left'), ('pub', 'right'),
+                         ('sub', 'right'), ('msgs', 'right'), ('rate (Hz)', 'right')):
+        out.add_column(col, justify=justify)
+    for r in rows:
+        rate = '-' if r['rate_hz'] is None else f'{r["rate_hz"]:.1f}'
+        count = 'type not installed' if r['count'] is None else str(r['count'])
+        out.add_row(r['name'], ', '.join(r['types']), str(r['publishers']),
+                    str(r['subscribers']), count, rate)
+    return out
+
+
+def main(argv=None) -> int:
+    """List the topics; return the exit status."""
+    parser = argparse.ArgumentParser(prog='python -m pg_node topics',
+                                     description='Topics with types, endpoints and rates.')
+    parser.add_argument('--duration', type=float, default=2.0,
+                        help='seconds to measure rates over')
+    parser.add_argument('--discovery', type=float, default=1.0,
+                        help='seconds to wait for discovery first')
+    parser.add_argument('--include-hidden', action='store_true')
+    parser.add_argument('--json', action='store_true', help='print JSON')
+    args = parser.parse_args(argv)
+    try:
+        rows = survey(args.discovery, args.duration, args.include_hidden)
+    except KeyboardInterrupt:
+        return 130
+    if args.json:
+        print(json.dumps(rows, indent=1))
+    else:
+        from rich.console import Console
+        Console().print(table(rows))
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,315 @@
+"""
+``python -m pg_node train``: the whole training graph, each node its own process.
+
+Validates the configuration (``--config`` plus ``key=value`` overrides) before anything
+starts, writes the resolved parameters to ``<run_dir>/params.yaml``, starts ``sim_node``,
+``actor_node``, ``critic_node`` and ``learner_node`` (each in its own session, logging to
+``<run_dir>/logs/``), shows a progress bar read from the learner's ``progress.csv``, and
+supervises: a node that dies is restarted (at most ``--max-restarts`` times each, with
+doubling back-off); the learner resumes from its newest checkpoint, the critic V from its
+own, the actor picks up the latched weights, and a restarted simulator starts fresh episodes
+(the learner writes the ones it cut short to the bag as such). When the learner has
+learned ``total_steps`` (or on Ctrl-C) the nodes are stopped with SIGINT (then SIGTERM,
+then SIGKILL), the deterministic policy is evaluated over ``--eval-episodes`` episodes, and
+``summary.json`` and ``learning_curve.png`` are written next to ``checkpoints/``, ``bag/``
+and ``progress.csv``.
+"""
+import argparse
+import csv
+from datetime import datetime
+import json
+import os
+from pathlib import Path
+import subprocess
+import sys
+import time
+
+from pg_node.common.params import ConfigError, load_config, SHARED
+from pg_node.tools.processes import (child_env, shutting_down, signal_process, STOP_WAITS,
+                                     terminate_as_interrupt)
+import yaml
+
+
+def parse_args(argv):
+    """Parse the command line."""
+    parser = argparse.ArgumentParser(
+        prog='python -m pg_node train',
+        description='Train the arm with A2C over the ROS 2 graph (sim, actor, critic, '
+                    'learner nodes as processes).')
+    parser.add_argument('overrides', nargs='*', metavar='key=value',
+                        help='override any parameter (node.key=value for one node only)')
+    parser.add_argument('--config', help='ROS 2 parameter file (default: config/pg_node.yaml)')
+    parser.add_argument('--total-steps', type=int, help='environment steps to learn')
+    parser.add_argument('--seed', type=int, help='seed of everything')
+    parser.add_argument('--run-dir', help='where the run writes everything '
+                                          '(default: runs/<date-time>)')
+    parser.add_argument('--eval-episodes', type=int, default=100, help='default: %(default)s')
+    parser.add_argument('--max-restarts', type=int, default=3,
+                        help='restarts allowed per node (default: %(default)s)')
+    parser.add_argument('--no-progress', action='store_true', help='no progress bar')
+    return parser.parse_args(argv)
+
+
+def resolve_config(args) -> dict:
+    """Return the validated configuration of every node, overrides applied."""
+    from pg_node.common.paths import default_config
+    overrides = list(args.overrides)
+    if args.total_steps is not None:
+        overrides.append(f'total_steps={args.total_steps}')
+    if args.seed is not None:
+        overrides.append(f'seed={args.seed}')
+    run_dir = args.run_dir or os.path.join('runs', datetime.now().strftime('%Y%m%d-%H%M%S'))
+    overrides.append(f'run_dir={os.path.abspath(run_dir)}')
+    return load_config(args.config or default_config(), overrides)
+
+
+def write_params(cfg: dict, path: Path):
+    """Write the resolved configuration as a ROS 2 parameter file (``/**/<node>`` keys)."""
+    sections = {f'/**/{name}': {'ros__parameters': values} for name, values in cfg.items()
+                if name != SHARED}
+    path.write_text('# Resolved parameters of this run, written by python -m pg_node train.\n'
+                    + yaml.safe_dump(sections, sort_keys=False))
+
+
+def node_commands(params: Path, cfg: dict) -> dict:
+    """
+    Return ``{process name: command}`` for the whole graph.
+
+    With ``num_actors`` > 1 each simulator/actor pair runs in its own namespace ``/arm<i>``
+    (its topics become ``/arm<i>/pg_node/transition``...), actor ``i`` gets ``actor_id`` i,
+    and simulator ``i`` seeds its arms from ``seed + i * num_envs`` so that no two arms of
+    the run draw the same episodes.
+    """
+    base = [sys.executable, '-m']
+    ros = ['--ros-args', '--params-file', str(params)]
+    n = cfg[SHARED]['num_actors']
+    cmds = {'critic_node': base + ['pg_node.ros.critic_node'] + ros,
+            'learner_node': base + ['pg_node.ros.learner_node'] + ros}
+    if n == 1:
+        cmds['sim_node'] = base + ['pg_node.ros.sim_node'] + ros
+        cmds['actor_node'] = base + ['pg_node.ros.actor_node'] + ros
+        return cmds
+    for i in range(n):
+        # a later parameter file wins, and only a node's full name reaches one namespace
+        pair = params.with_name(f'params_arm{i}.yaml')
+        pair.write_text(yaml.safe_dump({
+            f'/arm{i}/sim_node': {'ros__parameters': {
+                'seed': cfg[SHARED]['seed'] + i * cfg[SHARED]['num_envs']}},
+            f'/arm{i}/actor_node': {'ros__parameters': {'actor_id': i}}}))
+        extra = ['--params-file', str(pair), '-r', f'__ns:=/arm{i}']
+        cmds[f'sim_node_{i}'] = base + ['pg_node.ros.sim_node'] + ros + extra
+        cmds[f'actor_node_{i}'] = base + ['pg_node.ros.actor_node'] + ros + extra
+    return cmds
+
+
+class Supervisor:
+    """Starts, watches, restarts and stops the node processes."""
+
+    def __init__(self, run_dir: Path, commands: dict, max_restarts: int):
+        self.run_dir = run_dir
+        self.commands = commands
+        self.max_restarts = max_restarts
+        self.procs = {}
+        self.restarts = dict.fromkeys(commands, 0)
+        self.next_start = {}
+        (run_dir / 'logs').mkdir(parents=True, exist_ok=True)
+        self.env = child_env()
+        self.env.setdefault('AMENT_PREFIX_PATH', sys.prefix)
+
+    def start(self, name: str):
+        """Start one node (own session, so signals reach it alone)."""
+        log = open(self.run_dir / 'logs' / f'{name}.log', 'a')
+        self.procs[name] = subprocess.Popen(self.commands[name], stdout=log,
+                                            stderr=subprocess.STDOUT, env=self.env,
+                                            start_new_session=True)
+        log.close()
+
+    def start_all(self):
+        """Start every node."""
+        for name in self.commands:
+            self.start(name)
+
+    def check(self) -> str:
+        """
+        Restart nodes that died; return 'done', 'failed' or 'running'.
+
+        The learner exiting with 0 means training is done.
+        """
+        for name, proc in list(self.procs.items()):
+            code = proc.poll()
+            if code is None:
+                continue
+            if name == 'learner_node' and code == 0:
+                return 'done'
+            if name in self.next_start:
+                if time.monotonic() >= self.next_start[name]:
+                    del self.next_start[name]
+                    self.start(name)
+                continue
+            if self.restarts[name] >= self.max_restarts:
+                self.failed = f'{name} exited with code {code} {self.restarts[name] + 1} times'
+                return 'failed'
+            self.restarts[name] += 1
+            delay = 2.0 ** (self.restarts[name] - 1)
+            print(f'\n{name} exited with code {code}; restarting in {delay:g} s '
+                  f'({self.restarts[name]}/{self.max_restarts}), see '
+                  f'{self.run_dir / "logs" / (name + ".log")}', file=sys.stderr)
+            self.next_start[name] = time.monotonic() + delay
+        return 'running'
+
+    def stop_all(self):
+        """Stop every node: SIGINT, then SIGTERM, then SIGKILL, waiting between."""
+        for sig, wait in STOP_WAITS:
+            alive = [p for p in self.procs.values() if p.poll() is None]
+            for p in alive:
+                signal_process(p, sig)
+            deadline = time.monotonic() + wait
+            while alive and time.monotonic() < deadline:
+                alive = [p for p in alive if p.poll() is None]
+                time.sleep(0.05)
+            if not alive:
+                return
+
+
+def _progress_rows(lines):
+    """Parse ``progress.csv`` lines (header first) into dicts of floats, empty cells NaN."""
+    if lines and not lines[-1].endswith('\n'):
+        lines = lines[:-1]      # the learner is still writing it: not a finished row
+    return [{k: float(v) if v not in ('', None) else float('nan') for k, v in r.items()}
+            for r in csv.DictReader(lines)]
+
+
+def read_progress(path: Path):
+    """
+    Return the rows of ``progress.csv`` as dicts of floats (empty cells NaN).
+
+    The learner may be writing while this reads: a last line without its newline is not
+    finished and is left out, whatever it holds so far.
+    """
+    if not path.exists():
+        return []
+    return _progress_rows(path.read_text().splitlines(keepends=True))
+
+
+def last_progress(path: Path, tail_bytes: int = 8192):
+    """
+    Return the newest finished row of ``progress.csv`` (None if none yet).
+
+    Reads the header and the last ``tail_bytes`` only: a watcher polls this while a long
+    run's file grows by a row per update.
+    """
+    try:
+        with open(path, 'rb') as f:
+            header = f.readline().decode(errors='replace')
+            start = max(f.tell(), f.seek(0, os.SEEK_END) - tail_bytes)
+            f.seek(start)
+            lines = f.read().decode(errors='replace').splitlines(keepends=True)
+    except OSError:
+        return None
+    if start > len(header):
+        lines = lines[1:]       # the tail began inside a row
+    rows = _progress_rows([header] + lines)
+    return rows[-1] if rows else None
+
+
+def evaluate_run(run_dir: Path, episodes: int) -> dict:
+    """Evaluate the newest checkpoint's deterministic policy."""
+    from pg_node.rl.checkpoint import load_latest
+    from pg_node.rl.evaluate import evaluate_policy
+    from pg_node.rl.learner import make_policy
+    state, problems = load_latest(run_dir / 'checkpoints')
+    for p in problems:
+        print(p, file=sys.stderr)
+    if state is None:
+        return {}
+    policy = make_policy(state['obs_dim'], state['act_dim'], state['config'])
+    policy.load_state_dict(state['policy'])
+    res = evaluate_policy(policy, state['config']['model'], episodes, state['config']['seed'])
+    res['policy_version'] = int(state['version'])
+    res['checkpoint'] = str(sorted((run_dir / 'checkpoints').glob('ckpt_*.pt'))[-1])
+    return res
+
+
+def supervise(sup: Supervisor, run_dir: Path, bar, total: int) -> str:
+    """Start the nodes and watch them until done or failed; return the final state."""
+    state = 'running'
+    sup.start_all()
+    while state == 'running':
+        time.sleep(0.5)
+        state = sup.check()
+        last = last_progress(run_dir / 'progress.csv') if bar is not None else None
+        if last is not None:
+            bar.n = min(int(last['env_steps']), total)
+            bar.set_postfix(ret=f"{last['episode_return']:.2f}",
+                            sps=f"{last['steps_per_second']:.0f}",
+                            version=int(last['policy_version']), refresh=False)
+            bar.refresh()
+    return state
+
+
+def main(argv=None) -> int:
+    """Run ``python -m pg_node train``."""
+    args = parse_args(argv)
+    try:
+        cfg = resolve_config(args)
+    except ConfigError as exc:
+        print(f'configuration error: {exc}', file=sys.stderr)
+        return 2
+    run_dir = Path(cfg[SHARED]['run_dir'])
+    run_dir.mkdir(parents=True, exist_ok=True)
+    params = run_dir / 'params.yaml'
+    write_params(cfg, params)
+    total = cfg['learner_node']['total_steps']
+    n_act = cfg[SHARED]['num_actors']
+    print(f'pg_node: training {n_act} x {cfg[SHARED]["num_envs"]} x {cfg[SHARED]["model"]} '
+          f'({cfg[SHARED]["sync_mode"]}) for {total} steps; run dir {run_dir}')
+    sup = Supervisor(run_dir, node_commands(params, cfg), args.max_restarts)
+    bar = None
+    if not args.no_progress:
+        from tqdm import tqdm
+        # disable=None: no bar when stderr is not a terminal (CI logs stay readable)
+        bar = tqdm(total=total, unit='step', unit_scale=True, dynamic_ncols=True,
+                   disable=None, mininterval=1.0)
+    t0 = time.monotonic()
+    state = 'running'
+    interrupted = False
+    try:
+        with terminate_as_interrupt():  # SIGTERM / SIGHUP stop the nodes as Ctrl-C does
+            state = supervise(sup, run_dir, bar, total)
+    except KeyboardInterrupt as exc:
+        interrupted = True
+        print(f'\ninterrupted{f" by {exc}" if str(exc) else ""}: stopping the nodes',
+              file=sys.stderr)
+    finally:
+        with shutting_down():  # a second Ctrl-C must not leave nodes behind
+            sup.stop_all()
+        if bar is not None:
+            bar.close()
+    wall = time.monotonic() - t0
+    if state == 'failed':
+        print(f'training failed: {sup.failed}; logs in {run_dir / "logs"}', file=sys.stderr)
+    rows = read_progress(run_dir / 'progress.csv')
+    summary = {'interrupted': interrupted, 'failed': state == 'failed',
+               'total_steps': int(rows[-1]['env_steps']) if rows else 0,
+               'wall_seconds': rows[-1]['wall_seconds'] if rows else wall,
+               'bringup_seconds': wall, 'restarts': sup.restarts}
+    summary['steps_per_second'] = summary['total_steps'] / max(summary['wall_seconds'], 1e-9)
+    print(f'evaluating the deterministic policy over {args.eval_episodes} episodes ...')
+    summary.update(evaluate_run(run_dir, args.eval_episodes))
+    summary['curve'] = [{'env_steps': r['env_steps'], 'wall_seconds': r['wall_seconds'],
+                         'episode_return': r['episode_return']} for r in rows]
+    summary['config'] = dict(cfg)
+    (run_dir / 'summary.json').write_text(json.dumps(summary, indent=2, default=str))
+    png = run_dir / 'learning_curve.png'
+    if rows:
+        # the same figure as python -m pg_node plot <run dir>: returns, speed, losses, entropy
+        from pg_node.tools.plot import plot_run, RunData
+        plot_run(RunData(run_dir), png)
+    print(f"eval return {summary.get('eval_return', float('nan')):.2f} +/- "
+          f"{summary.get('eval_return_std', float('nan')):.2f} after {summary['total_steps']} "
+          f"steps in {summary['wall_seconds']:.0f} s ({summary['steps_per_second']:.0f} "
+          f'steps/s)')
+    print(f'run dir:    {run_dir}\nbag:        {run_dir / "bag"}\n'
+          f'checkpoint: {summary.get("checkpoint", "none")}\nsummary:    '
+          f'{run_dir / "summary.json"}\ncurve:      {png}')
+    return 1 if state == 'failed' else 0
