@@ -1,4 +1,11 @@
-"""``python -m pg_node eval <checkpoint>``: the deterministic return of a saved policy."""
+"""
+``python -m pg_node eval <run dir or checkpoint>``: the deterministic return of a saved policy.
+
+Takes a run directory (its ``checkpoints/``), a directory of policy checkpoints (the newest
+valid one is used) or one ``ckpt_*.pt`` file. A directory of the critic's checkpoints
+(``<run>/critic``), a ``--model`` whose observation or action size differs from the one the
+policy was trained on, and an unreadable file are refused in one line.
+"""
 import argparse
 import json
 from pathlib import Path
@@ -10,35 +17,79 @@ from pg_node.rl.learner import make_policy
 import torch
 
 
-def main(argv=None) -> int:
-    """Run ``python -m pg_node eval``."""
-    parser = argparse.ArgumentParser(prog='python -m pg_node eval',
-                                     description='Evaluate a saved policy checkpoint.')
-    parser.add_argument('checkpoint', help='a ckpt_*.pt file, or a directory of them '
-                                           '(the newest valid one is used)')
-    parser.add_argument('--episodes', type=int, default=100, help='default: %(default)s')
-    parser.add_argument('--seed', type=int, default=0, help='default: %(default)s')
-    parser.add_argument('--model', help='arm model (default: the one it was trained on)')
-    parser.add_argument('--json', action='store_true', help='print JSON')
-    args = parser.parse_args(argv)
-    path = Path(args.checkpoint)
+def _positive_int(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f'must be >= 1, got {value}')
+    return value
+
+
+def load_policy_state(path: Path):
+    """
+    Return ``(state, error)``: the policy checkpoint at ``path``, or why there is none.
+
+    ``path`` is a run directory (with ``checkpoints/``), a directory of ``ckpt_*.pt`` files
+    or one such file.
+    """
+    if path.is_dir() and (path / 'checkpoints').is_dir():
+        path = path / 'checkpoints'
     if path.is_dir():
         state, problems = load_latest(path)
         for p in problems:
             print(p, file=sys.stderr)
         if state is None:
-            print(f'no readable checkpoint in {path}', file=sys.stderr)
-            return 1
-    else:
+            return None, (f'no readable checkpoint in {path} (give a run directory, its '
+                          f'checkpoints/ or a ckpt_*.pt file)')
+    elif path.exists():
         try:
             state = torch.load(path, map_location='cpu', weights_only=False)
         except Exception as exc:  # noqa: B902 - report any unreadable file clearly
-            print(f'cannot read checkpoint {path}: {exc}', file=sys.stderr)
-            return 1
+            return None, f'cannot read checkpoint {path}: {exc}'
+    else:
+        return None, f'no such file or directory: {path}'
+    if not isinstance(state, dict) or not {'policy', 'config', 'obs_dim'} <= set(state):
+        kind = 'critic (value function)' if isinstance(state, dict) and 'value_fn' in state \
+            else 'not a policy'
+        return None, (f'{path} holds {kind} checkpoints, not policy ones; give the run '
+                      f'directory or its checkpoints/')
+    return state, None
+
+
+def main(argv=None) -> int:
+    """Run ``python -m pg_node eval``."""
+    parser = argparse.ArgumentParser(prog='python -m pg_node eval',
+                                     description='Evaluate a saved policy checkpoint.')
+    parser.add_argument('checkpoint', help='a run directory, its checkpoints/ (the newest '
+                                           'valid one is used) or a ckpt_*.pt file')
+    parser.add_argument('--episodes', type=_positive_int, default=100,
+                        help='default: %(default)s')
+    parser.add_argument('--seed', type=int, default=0, help='default: %(default)s')
+    parser.add_argument('--model', help='arm model (default: the one it was trained on)')
+    parser.add_argument('--json', action='store_true', help='print JSON')
+    args = parser.parse_args(argv)
+    state, error = load_policy_state(Path(args.checkpoint))
+    if error:
+        print(f'eval: {error}', file=sys.stderr)
+        return 1
     cfg = state['config']
+    model = args.model or cfg['model']
+    from pg_node.common.paths import resolve_model
+    from pg_node.sim.arm_task import ArmTask
+    try:
+        task = ArmTask(resolve_model(model), num_envs=1)
+    except (ValueError, OSError) as exc:
+        print(f'eval: --model {model}: {exc}', file=sys.stderr)
+        return 2
+    sizes = (task.obs_dim, task.act_dim)
+    task.close()
+    if sizes != (state['obs_dim'], state['act_dim']):
+        print(f'eval: --model {model} has {sizes[0]} observations and {sizes[1]} actions; the '
+              f'policy was trained on {cfg["model"]} with {state["obs_dim"]} and '
+              f'{state["act_dim"]}', file=sys.stderr)
+        return 2
     policy = make_policy(state['obs_dim'], state['act_dim'], cfg)
     policy.load_state_dict(state['policy'])
-    res = evaluate_policy(policy, args.model or cfg['model'], args.episodes, args.seed)
+    res = evaluate_policy(policy, model, args.episodes, args.seed)
     res['policy_version'] = int(state['version'])
     del res['eval_returns']
     if args.json:

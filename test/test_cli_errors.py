@@ -1,0 +1,71 @@
+"""
+Bad input to the command-line tools and nodes: one line on stderr, a non-zero exit code.
+
+Each case runs the real command as a process and checks its exit code, that stderr names
+the problem, and that no traceback reached the user.
+"""
+import os
+from pathlib import Path
+import subprocess
+import sys
+
+from pg_node.common.params import load_config
+from pg_node.common.paths import default_config
+from pg_node.rl.checkpoint import save_checkpoint
+from pg_node.rl.learner import Learner
+import pytest
+
+REPO = Path(__file__).resolve().parent.parent
+SAMPLE = REPO / 'bags' / 'sample'
+DOMAIN_ID = int(os.environ.get('ROS_DOMAIN_ID', 0)) or 120 + os.getpid() % 90
+
+
+def run(*args, timeout=120, module=None):
+    """Run ``python -m pg_node <args>`` (or ``python -m <module> <args>``) in the test domain."""
+    env = dict(os.environ, PYTHONPATH=str(REPO), ROS_DOMAIN_ID=str(DOMAIN_ID),
+               AMENT_PREFIX_PATH=os.environ.get('AMENT_PREFIX_PATH', sys.prefix))
+    env.pop('MUJOCO_GL', None)
+    cmd = [sys.executable, '-m', module or 'pg_node', *map(str, args)]
+    return subprocess.run(cmd, env=env, cwd=REPO, capture_output=True, text=True,
+                          timeout=timeout)
+
+
+def refused(done, code, *words):
+    """Assert ``done`` exited with ``code``, one clear line naming ``words``, no traceback."""
+    assert done.returncode == code, (done.returncode, done.stdout, done.stderr)
+    assert 'Traceback' not in done.stderr and 'Traceback' not in done.stdout, done.stderr
+    lines = [ln for ln in done.stderr.splitlines() if ln.strip()]
+    assert lines, done.stdout
+    for word in words:
+        assert word in done.stderr, (word, done.stderr)
+
+
+@pytest.fixture(scope='module')
+def run_dir(tmp_path_factory):
+    """Return a run directory with one policy (reacher2) and one critic checkpoint."""
+    root = tmp_path_factory.mktemp('run')
+    sections = load_config(default_config(), [f'run_dir={root}'])
+    cfg = {k: v for section in sections.values() for k, v in section.items()}
+    Learner(10, 2, cfg).save(root / 'checkpoints')
+    save_checkpoint(root / 'critic', 1, {'value_fn': {}, 'vf_opt': {}})
+    return root
+
+
+# -- eval -------------------------------------------------------------------------------------
+def test_eval_accepts_a_run_dir(run_dir):
+    done = run('eval', run_dir, '--episodes', 2)
+    assert done.returncode == 0, done.stderr
+    assert 'policy version 0: return' in done.stdout
+
+
+def test_eval_refuses_the_critic_dir(run_dir):
+    refused(run('eval', run_dir / 'critic', '--episodes', 2), 1, 'critic', 'not policy')
+
+
+def test_eval_refuses_a_model_of_other_sizes(run_dir):
+    refused(run('eval', run_dir / 'checkpoints', '--model', 'arm5_3d', '--episodes', 2), 2,
+            'arm5_3d', 'trained on reacher2')
+
+
+def test_eval_refuses_zero_episodes(run_dir):
+    refused(run('eval', run_dir, '--episodes', 0), 2, '--episodes')
