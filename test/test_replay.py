@@ -144,6 +144,26 @@ def test_info_lists_topics(capsys):
     assert 'reliable/transient_local/depth 4' in out  # /target as recorded
 
 
+def test_info_refuses_a_missing_or_empty_bag_in_one_line(tmp_path, capsys):
+    assert main(['--info', str(tmp_path / 'nothing-here')]) == 1
+    assert capsys.readouterr().err.strip() == f'replay: no bag at {tmp_path / "nothing-here"}'
+    (tmp_path / 'empty').mkdir()
+    assert main(['--info', str(tmp_path / 'empty')]) == 1
+    assert capsys.readouterr().err.strip() == f'replay: no .mcap files in {tmp_path / "empty"}'
+
+
+def test_info_accepts_a_run_dir(tmp_path, capsys):
+    import shutil
+    shutil.copytree(SAMPLE, tmp_path / 'run' / 'bag')
+    assert main(['--info', str(tmp_path / 'run')]) == 0
+    assert '/joint_states' in capsys.readouterr().out
+
+
+def test_negative_rate_is_a_usage_error(capsys):
+    assert main([str(SAMPLE), '--rate', '-1']) == 2
+    assert 'argument --rate/-r: must be >= 0' in capsys.readouterr().err
+
+
 # -- over DDS ---------------------------------------------------------------------------------
 @pytest.mark.e2e
 def test_round_trip_as_fast_as_possible_equals_the_bag(tmp_path):

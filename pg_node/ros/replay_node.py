@@ -154,6 +154,8 @@ class ReplayNode(Node):
         if not p['bag']:
             raise ValueError('no bag given (parameter bag, or the first argument)')
         self.rate = float(p['rate'])
+        if not self.rate >= 0:
+            raise ValueError(f'rate must be >= 0 (0: as fast as possible), not {self.rate:g}')
         self.as_fast_as_possible = self.rate <= 0 or math.isinf(self.rate)
         self.reader = BagReader(p['bag'], warn=False)
         self.remap = parse_remaps(p['remap'])
@@ -395,14 +397,29 @@ def split_ros_args(argv):
     return plain, ros
 
 
+def _non_negative(text: str) -> float:
+    value = float(text)
+    if not value >= 0:
+        raise argparse.ArgumentTypeError(f'must be >= 0 (0: as fast as possible), got {text}')
+    return value
+
+
+def resolve_bag(path: str) -> str:
+    """Return the bag of ``path``: its ``bag/`` when it is a run directory, else ``path``."""
+    from pathlib import Path
+    return str(Path(path) / 'bag') if (Path(path) / 'bag').is_dir() else path
+
+
 def build_parser() -> argparse.ArgumentParser:
     """Return the argparse parser of ``python -m pg_node replay``."""
     parser = argparse.ArgumentParser(
         prog='python -m pg_node replay',
         description='Play a rosbag2 MCAP bag back onto its topics (like ros2 bag play). '
                     'Options override -p parameters given after --ros-args.')
-    parser.add_argument('bag', nargs='?', help='bag directory or .mcap file')
-    parser.add_argument('--rate', '-r', type=float, help='speed factor; 0: as fast as possible')
+    parser.add_argument('bag', nargs='?',
+                        help='bag directory, .mcap file, or run directory (with bag/)')
+    parser.add_argument('--rate', '-r', type=_non_negative,
+                        help='speed factor; 0: as fast as possible')
     parser.add_argument('--start-offset', type=float, help='seconds of the bag to skip')
     parser.add_argument('--topics', nargs='+', help='play only these topics')
     parser.add_argument('--remap', nargs='+', metavar='FROM:=TO', help='rename topics')
@@ -425,7 +442,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 def print_info(path) -> int:
     """Print what ``ros2 bag info`` would, in short; return the exit status."""
-    reader = BagReader(path, warn=False)
+    try:
+        reader = BagReader(path, warn=False)
+    except (ValueError, OSError) as exc:
+        print(f'replay: {exc}', file=sys.stderr)
+        return EXIT_NOTHING
     topics = reader.topics
     width = max((len(n) for n in topics), default=5)
     print(f'bag: {reader.path}  files: {len(reader.files)}')
@@ -450,7 +471,9 @@ def main(args=None) -> int:
         if not opts.bag:
             print('--info needs a bag', file=sys.stderr)
             return 2
-        return print_info(opts.bag)
+        return print_info(resolve_bag(opts.bag))
+    if opts.bag:
+        opts.bag = resolve_bag(opts.bag)
     values = {'bag': opts.bag, 'rate': opts.rate, 'start_offset': opts.start_offset,
               'topics': opts.topics, 'remap': opts.remap, 'loop': opts.loop,
               'clock': opts.clock, 'clock_rate': opts.clock_rate,
