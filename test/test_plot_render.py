@@ -145,3 +145,16 @@ def test_render_sample_episode(tmp_path):
 def test_render_rejects_missing_episode(tmp_path):
     done = run_render(tmp_path, SAMPLE, '--episode', 99, '-o', tmp_path / 'x.gif')
     assert done.returncode == 1 and 'out of range' in done.stderr
+
+
+@pytest.mark.e2e
+def test_render_refuses_mp4_without_its_codec_and_a_zero_width(tmp_path):
+    import importlib.util
+    if importlib.util.find_spec('imageio_ffmpeg') is None:
+        done = run_render(tmp_path, SAMPLE, '-o', tmp_path / 'e.mp4')
+        assert done.returncode == 2 and 'Traceback' not in done.stderr, done.stderr
+        assert 'pip install imageio-ffmpeg' in done.stderr and '.gif' in done.stderr
+        assert not (tmp_path / 'e.mp4').exists()
+    done = run_render(tmp_path, SAMPLE, '--width', 0, '-o', tmp_path / 'x.gif')
+    assert done.returncode == 2 and 'argument --width: must be >= 1' in done.stderr
+    assert 'Traceback' not in done.stderr

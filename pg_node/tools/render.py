@@ -15,7 +15,8 @@ start (all recorded arms, or only ``--arm``'s). ``--list`` prints them.
 Software rendering: without a display, MuJoCo needs ``MUJOCO_GL=osmesa`` (Debian
 ``libosmesa6``) or ``egl``; this module sets ``osmesa`` when ``MUJOCO_GL`` is unset, before
 it imports MuJoCo. The model comes from ``--model``, else the bag's ``pg_node.model``
-custom data, else ``reacher2``. Output: GIF (Pillow); ``.mp4`` needs ``imageio-ffmpeg``.
+custom data, else ``reacher2``. Output: GIF (Pillow); ``.mp4`` needs ``imageio-ffmpeg``
+(without it ``-o x.mp4`` is refused before anything is rendered).
 """
 import argparse
 from dataclasses import dataclass, field
@@ -173,6 +174,17 @@ def render_episode(ep: Episode, model_path: str, width=480, height=480, every=1,
     return frames
 
 
+def mp4_writer_missing() -> str:
+    """Return why an ``.mp4`` cannot be written here ('' when it can)."""
+    import importlib.util
+    if importlib.util.find_spec('imageio') is None:
+        return 'writing .mp4 needs imageio and imageio-ffmpeg (pip install imageio-ffmpeg)'
+    if importlib.util.find_spec('imageio_ffmpeg') is None:
+        return ('writing .mp4 needs imageio-ffmpeg (pip install imageio-ffmpeg), which is not '
+                'installed; .gif works without it')
+    return ''
+
+
 def write_animation(frames, path: Path, fps: float):
     """Write frames as an animated GIF (Pillow), or MP4 when imageio-ffmpeg is installed."""
     path = Path(path)
@@ -187,6 +199,20 @@ def write_animation(frames, path: Path, fps: float):
                    duration=max(20, int(round(1000 / fps))), optimize=False)
 
 
+def _positive_int(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f'must be >= 1, got {value}')
+    return value
+
+
+def _positive_float(text: str) -> float:
+    value = float(text)
+    if not 0 < value < float('inf'):
+        raise argparse.ArgumentTypeError(f'must be > 0, got {text}')
+    return value
+
+
 def main(argv=None) -> int:
     """Render one recorded episode; return the exit status."""
     parser = argparse.ArgumentParser(prog='python -m pg_node render',
@@ -197,18 +223,23 @@ def main(argv=None) -> int:
     parser.add_argument('--arm', type=int, help="count only this arm's episodes")
     parser.add_argument('-o', '--output', type=Path, default=Path('episode.gif'))
     parser.add_argument('--model', help='MJCF path or shipped model name')
-    parser.add_argument('--width', type=int, default=480)
-    parser.add_argument('--height', type=int, default=480)
-    parser.add_argument('--fps', type=float, help='frames per second (default: real time)')
-    parser.add_argument('--every', type=int, default=1, help='render every k-th step')
+    parser.add_argument('--width', type=_positive_int, default=480, help='pixels')
+    parser.add_argument('--height', type=_positive_int, default=480, help='pixels')
+    parser.add_argument('--fps', type=_positive_float,
+                        help='frames per second (default: real time)')
+    parser.add_argument('--every', type=_positive_int, default=1,
+                        help='render every k-th step')
     parser.add_argument('--list', action='store_true', help='list the episodes and exit')
     args = parser.parse_args(argv)
+    if args.output.suffix.lower() == '.mp4' and not args.list and mp4_writer_missing():
+        print(f'render: -o {args.output}: {mp4_writer_missing()}', file=sys.stderr)
+        return 2
     bag = Path(args.bag)
     if (bag / 'bag').is_dir():
         bag = bag / 'bag'
     try:
         episodes = recorded_episodes(bag)
-    except FileNotFoundError as exc:
+    except (ValueError, OSError) as exc:
         print(f'render: {exc}', file=sys.stderr)
         return 1
     if args.arm is not None:
@@ -227,15 +258,23 @@ def main(argv=None) -> int:
               file=sys.stderr)
         return 1
     ep = episodes[args.episode]
-    frames = render_episode(ep, _model_path(bag, args.model), args.width, args.height,
-                            max(1, args.every))
+    try:
+        model_path = _model_path(bag, args.model)
+    except (ValueError, OSError) as exc:
+        print(f'render: --model {args.model}: {exc}', file=sys.stderr)
+        return 2
+    frames = render_episode(ep, model_path, args.width, args.height, args.every)
     if args.fps:
         fps = args.fps
     elif len(ep.stamps) > 1:
         fps = min(50.0, 1e9 / np.median(np.diff(ep.stamps)) / max(1, args.every))
     else:
         fps = 10.0
-    write_animation(frames, args.output, fps)
+    try:
+        write_animation(frames, args.output, fps)
+    except (ValueError, OSError) as exc:
+        print(f'render: cannot write {args.output}: {exc} (.gif always works)', file=sys.stderr)
+        return 1
     print(f'wrote {args.output}: {len(frames)} frames of {args.width}x{args.height} at '
           f'{fps:g} fps, arm {ep.arm}, return {ep.ret:.3f}')
     return 0
