@@ -5,6 +5,7 @@ import sys
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from domains import ros_domain
 from geometry_msgs.msg import PointStamped
 import numpy as np
 from pg_node.common.paths import resolve_model
@@ -23,7 +24,7 @@ from visualization_msgs.msg import MarkerArray
 
 REPO = Path(__file__).resolve().parent.parent
 # one DDS domain per test process, so parallel runs do not hear each other
-DOMAIN_ID = 120 + os.getpid() % 100
+DOMAIN_ID = ros_domain(base=120, spread=100)
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
 

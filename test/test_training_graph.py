@@ -14,6 +14,7 @@ import subprocess
 import sys
 import time
 
+from domains import ros_domain
 import numpy as np
 from pg_node.bag.writer import reindex
 from pg_node.common.params import load_config
@@ -31,7 +32,7 @@ from rosbags.typesys import get_typestore, Stores
 pytestmark = [pytest.mark.e2e, pytest.mark.slow]
 
 REPO = Path(__file__).resolve().parent.parent
-DOMAIN_ID = 20 + os.getpid() % 80
+DOMAIN_ID = ros_domain(base=20, spread=80)
 STEPS = 300_000
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 
@@ -240,7 +241,7 @@ def test_resume_and_survive_a_learner_sigkill(run):
             if rows and float(rows[-1]['env_steps']) > STEPS + 60_000:
                 break
             time.sleep(0.2)
-        out = subprocess.run(['pgrep', '-f', f'pg_node.learner_node.*{run_dir}'],
+        out = subprocess.run(['pgrep', '-f', f'pg_node.ros.learner_node.*{run_dir}'],
                              capture_output=True, text=True).stdout.split()
         assert len(out) == 1, out
         os.kill(int(out[0]), signal.SIGKILL)
