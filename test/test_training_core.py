@@ -192,6 +192,38 @@ def test_learner_checkpoint_resume(tmp_path):
         assert torch.equal(p, q)
 
 
+def test_live_settings_reach_the_updates_and_the_configured_rate_survives_a_resume(tmp_path):
+    """``configure`` (what ``ros2 param set`` calls) changes what the next update uses."""
+    cfg = _cfg(algo='ppo')
+    c = {**cfg['learner_node'], **cfg['actor_node']}
+    a = Learner(4, 1, c)
+    for name, value in (('learning_rate', 3e-4), ('ent_coef', 0.01), ('clip_range', 0.1),
+                        ('n_epochs', 3), ('batch_size', 2), ('max_grad_norm', 0.0),
+                        ('normalize_advantage', False)):
+        a.configure(name, value)
+        assert c[name] == value
+    u = a.update
+    assert [g['lr'] for g in u.opt.param_groups] == [3e-4]
+    assert (u.ent_coef, u.clip_range, u.n_epochs, u.batch_size, u.max_grad_norm,
+            u.normalize_advantage) == (0.01, 0.1, 3, 2, 0.0, False)
+    a.save(tmp_path)
+    # resumed with another configured rate: the configuration wins over the saved optimiser
+    b = Learner(4, 1, {**c, 'learning_rate': 5e-3})
+    b.resume(tmp_path)
+    assert b.update.learning_rate == 5e-3 and a.update.learning_rate == 3e-4
+    critic = Critic(4, cfg['critic_node'])
+    for name, value, attr, want in (('vf_learning_rate', 2e-3, 'learning_rate', 2e-3),
+                                    ('vf_coef', 1.0, 'vf_coef', 1.0),
+                                    ('vf_max_grad_norm', 1.0, 'max_grad_norm', 1.0),
+                                    ('vf_epochs', 4, 'n_epochs', 4),
+                                    ('vf_batch_size', 0, 'batch_size', None),
+                                    ('gamma', 0.99, None, None)):
+        critic.configure(name, value)
+        assert critic.cfg[name] == value
+        if attr is not None:
+            assert getattr(critic.update, attr) == want
+
+
 def _random_rollout(n_steps, truncate_at, seed, n_envs=3, obs_dim=4):
     """Return a rollout of random numbers, every episode truncated at ``truncate_at``."""
     buf = RolloutBuffer(n_steps, n_envs, obs_dim, 1)

@@ -38,6 +38,8 @@ class Param:
     low_inclusive: bool = True
     #: extra check: called with the value, raises ValueError/OSError with the reason
     validate: Optional[Callable[[Any], Any]] = None
+    #: True: may change while the node runs (``ros2 param set``); False: read-only
+    live: bool = False
 
     def allowed(self) -> str:
         """Describe the allowed values in words."""
@@ -134,7 +136,7 @@ ACTOR_PARAMS: Dict[str, Param] = {
     'state_dependent_std': Param(False, 'log-std from a network head instead of a parameter'),
     'actor_id': Param(0, 'id of this actor when several feed one critic/learner', low=0),
     'rollout_resend_timeout': Param(5.0, 'sync mode: seconds without new weights before the '
-                                         'last rollout is sent again', **POSITIVE),
+                                         'last rollout is sent again', **POSITIVE, live=True),
 }
 
 CRITIC_PARAMS: Dict[str, Param] = {
@@ -142,38 +144,39 @@ CRITIC_PARAMS: Dict[str, Param] = {
                        choices=('total_return', 'reward_to_go', 'constant_baseline',
                                 'optimal_baseline', 'time_baseline', 'value_baseline',
                                 'td_residual', 'gae')),
-    'gamma': Param(0.9, 'discount factor', low=0.0, high=1.0),
+    'gamma': Param(0.9, 'discount factor', low=0.0, high=1.0, live=True),
     'gae_lambda': Param(0.95, 'GAE lambda (also of the TD(lambda) value target)',
-                        low=0.0, high=1.0),
+                        low=0.0, high=1.0, live=True),
     'value_target': Param('td_lambda', 'targets V is fitted to: td_lambda (GAE + V) or mc '
                                        '(empirical discounted return, section 4.5.1)',
                           choices=('td_lambda', 'mc')),
-    'vf_learning_rate': Param(1e-3, 'learning rate of the value network', **POSITIVE),
-    'vf_coef': Param(0.5, 'weight of the value loss', **POSITIVE),
-    'vf_epochs': Param(1, 'passes over each batch when fitting V', low=1),
-    'vf_batch_size': Param(0, 'minibatch size when fitting V (0: the whole batch)', low=0),
+    'vf_learning_rate': Param(1e-3, 'learning rate of the value network', **POSITIVE, live=True),
+    'vf_coef': Param(0.5, 'weight of the value loss', **POSITIVE, live=True),
+    'vf_epochs': Param(1, 'passes over each batch when fitting V', low=1, live=True),
+    'vf_batch_size': Param(0, 'minibatch size when fitting V (0: the whole batch)', low=0,
+                           live=True),
     'vf_optimizer': Param('adam', 'optimiser of the value network', choices=('rmsprop', 'adam')),
-    'vf_max_grad_norm': Param(0.5, 'gradient clipping of V (0: none)', low=0.0),
-    'checkpoint_every': Param(100, 'batches between checkpoints of V', low=1),
+    'vf_max_grad_norm': Param(0.5, 'gradient clipping of V (0: none)', low=0.0, live=True),
+    'checkpoint_every': Param(100, 'batches between checkpoints of V', low=1, live=True),
 }
 
 LEARNER_PARAMS: Dict[str, Param] = {
     'algo': Param('a2c', 'a2c: one gradient step per batch; ppo: clipped surrogate, epochs',
                   choices=('a2c', 'ppo')),
-    'learning_rate': Param(1e-3, 'learning rate of the policy', **POSITIVE),
+    'learning_rate': Param(1e-3, 'learning rate of the policy', **POSITIVE, live=True),
     'optimizer': Param('adam', 'optimiser of the policy', choices=('rmsprop', 'adam')),
-    'ent_coef': Param(0.0, 'entropy bonus weight', low=0.0),
-    'max_grad_norm': Param(0.5, 'gradient clipping of the policy (0: none)', low=0.0),
-    'normalize_advantage': Param(True, 'scale phi to zero mean and unit std per batch'),
-    'n_epochs': Param(10, 'ppo: passes over each batch', low=1),
-    'batch_size': Param(64, 'ppo: minibatch size', low=1),
-    'clip_range': Param(0.2, 'ppo: clip range of the probability ratio', **POSITIVE),
-    'total_steps': Param(2_000_000, 'environment steps (all arms) to train for', low=1),
-    'checkpoint_every': Param(100, 'policy versions between checkpoints', low=1),
+    'ent_coef': Param(0.0, 'entropy bonus weight', low=0.0, live=True),
+    'max_grad_norm': Param(0.5, 'gradient clipping of the policy (0: none)', low=0.0, live=True),
+    'normalize_advantage': Param(True, 'scale phi to zero mean and unit std per batch', live=True),
+    'n_epochs': Param(10, 'ppo: passes over each batch', low=1, live=True),
+    'batch_size': Param(64, 'ppo: minibatch size', low=1, live=True),
+    'clip_range': Param(0.2, 'ppo: clip range of the probability ratio', **POSITIVE, live=True),
+    'total_steps': Param(2_000_000, 'environment steps (all arms) to train for', low=1, live=True),
+    'checkpoint_every': Param(100, 'policy versions between checkpoints', low=1, live=True),
     'record_arms': Param(4, 'arms of actor 0 whose every step is written to the bag '
                             '(episode summaries are written for all arms)', low=0),
     'bag_split_episodes': Param(2000, 'episode summaries per bag file before a split', low=1),
-    'exit_when_done': Param(True, 'stop the learner once total_steps are learned'),
+    'exit_when_done': Param(True, 'stop the learner once total_steps are learned', live=True),
 }
 
 SIM_PARAMS: Dict[str, Param] = {
@@ -185,17 +188,18 @@ SIM_PARAMS: Dict[str, Param] = {
     'mode': Param('lock_step', 'lock_step: one control step per command; real_time: wall '
                                'clock', choices=('lock_step', 'real_time')),
     'lock_step_timeout': Param(1.0, 'seconds without a command before the last transition '
-                                    'is re-sent (lock_step)', **POSITIVE),
+                                    'is re-sent (lock_step)', **POSITIVE, live=True),
     'command_timeout': Param(0.5, 'seconds after which a held command drops to zero torque '
-                                  '(real_time)', **POSITIVE),
-    'real_time_factor': Param(1.0, 'simulated seconds per wall second (real_time)', **POSITIVE),
+                                  '(real_time)', **POSITIVE, live=True),
+    'real_time_factor': Param(1.0, 'simulated seconds per wall second (real_time)', **POSITIVE,
+                              live=True),
     'start_paused': Param(False, 'start paused (step with ~/step_simulation)'),
     'marker_rate': Param(10.0, 'MarkerArray rate in Hz of wall time; 0 turns markers off',
-                         low=0.0),
+                         low=0.0, live=True),
     'marker_spacing': Param(0.7, 'distance in m between arms drawn on the marker grid',
-                            low=0.0),
-    'frame_id': Param('world', 'frame of the markers'),
-    'diagnostics_rate': Param(1.0, 'diagnostics rate in Hz of wall time', **POSITIVE),
+                            low=0.0, live=True),
+    'frame_id': Param('world', 'frame of the markers', live=True),
+    'diagnostics_rate': Param(1.0, 'diagnostics rate in Hz of wall time', **POSITIVE, live=True),
 }
 
 SCHEMA: Dict[str, Dict[str, Param]] = {

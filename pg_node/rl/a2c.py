@@ -90,6 +90,16 @@ class PolicyUpdate:
         self.gen = torch.Generator().manual_seed(seed)
         self.skipped = 0
 
+    @property
+    def learning_rate(self) -> float:
+        """Return the optimiser's learning rate; setting it sets every parameter group's."""
+        return self.opt.param_groups[0]['lr']
+
+    @learning_rate.setter
+    def learning_rate(self, value: float):
+        for group in self.opt.param_groups:
+            group['lr'] = value
+
     def _loss(self, b: PolicyBatch, idx):
         obs, act, old_logp, adv = b.obs[idx], b.act[idx], b.logp[idx], b.adv[idx]
         if self.normalize_advantage:
@@ -152,6 +162,16 @@ class ValueUpdate:
         self.batch_size = batch_size
         self.gen = torch.Generator().manual_seed(seed)
         self.skipped = 0
+
+    @property
+    def learning_rate(self) -> float:
+        """Return the optimiser's learning rate; setting it sets every parameter group's."""
+        return self.opt.param_groups[0]['lr']
+
+    @learning_rate.setter
+    def learning_rate(self, value: float):
+        for group in self.opt.param_groups:
+            group['lr'] = value
 
     def update(self, obs, ret) -> Dict[str, float]:
         """Regress V(obs) on ``ret``; return ``value_loss`` and ``explained_variance``."""

@@ -22,6 +22,11 @@ import torch
 class Critic:
     """A value network, its optimiser, and the estimator settings."""
 
+    #: settings that may change between batches: config key -> attribute of V's update
+    UPDATE_SETTINGS = {'vf_learning_rate': 'learning_rate', 'vf_coef': 'vf_coef',
+                       'vf_max_grad_norm': 'max_grad_norm', 'vf_epochs': 'n_epochs',
+                       'vf_batch_size': 'batch_size'}
+
     def __init__(self, obs_dim: int, cfg: Dict):
         torch.manual_seed(cfg['seed'] + 1)
         self.cfg = cfg
@@ -83,6 +88,14 @@ class Critic:
         # rows are time-major (t, n); segment ids are per (t, n) as well
         return segment_score_sq(policy, obs, act, seg.reshape(-1)).reshape(seg.shape)
 
+    def configure(self, name: str, value) -> None:
+        """Change one setting between batches (``ros2 param set``); the next batch uses it."""
+        self.cfg[name] = value
+        if name in self.UPDATE_SETTINGS:
+            if name == 'vf_batch_size':
+                value = value or None                   # 0: the whole batch
+            setattr(self.update, self.UPDATE_SETTINGS[name], value)
+
     def state(self) -> Dict:
         """Return what a checkpoint keeps of the critic."""
         return {'value_fn': self.value_fn.state_dict(), 'vf_opt': self.update.opt.state_dict()}
@@ -91,3 +104,4 @@ class Critic:
         """Restore from :meth:`state`'s output."""
         self.value_fn.load_state_dict(state['value_fn'])
         self.update.opt.load_state_dict(state['vf_opt'])
+        self.update.learning_rate = self.cfg['vf_learning_rate']   # the run's setting decides

@@ -28,6 +28,12 @@ def make_policy(obs_dim: int, act_dim: int, cfg: Dict) -> GaussianPolicy:
 class Learner:
     """The policy, its optimiser and its version."""
 
+    #: settings that may change between updates: config key -> attribute of the update
+    UPDATE_SETTINGS = {'learning_rate': 'learning_rate', 'ent_coef': 'ent_coef',
+                       'max_grad_norm': 'max_grad_norm',
+                       'normalize_advantage': 'normalize_advantage', 'clip_range': 'clip_range',
+                       'n_epochs': 'n_epochs', 'batch_size': 'batch_size'}
+
     def __init__(self, obs_dim: int, act_dim: int, cfg: Dict):
         self.cfg = cfg
         self.policy = make_policy(obs_dim, act_dim, cfg)
@@ -64,6 +70,12 @@ class Learner:
         stats['policy_version'] = float(self.version)
         return stats
 
+    def configure(self, name: str, value) -> None:
+        """Change one setting between updates (``ros2 param set``); the next update uses it."""
+        self.cfg[name] = value
+        if name in self.UPDATE_SETTINGS:
+            setattr(self.update, self.UPDATE_SETTINGS[name], value)
+
     def weights(self):
         """Return ``(layout, vector)`` of the current policy, for the actors."""
         return flatten_state(self.policy)
@@ -84,6 +96,9 @@ class Learner:
         if state is not None:
             self.policy.load_state_dict(state['policy'])
             self.update.opt.load_state_dict(state['opt'])
+            # the optimiser's state holds the learning rate it was saved with: the run's
+            # configuration decides, as for every other setting
+            self.update.learning_rate = self.cfg['learning_rate']
             self.version = int(state['version'])
             self.env_steps = int(state.get('env_steps', 0))
         return state, problems

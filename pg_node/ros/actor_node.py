@@ -29,7 +29,8 @@ from pg_node.rl.weights import load_flat_state
 from pg_node.ros import messages
 from pg_node.ros import table_msg
 from pg_node.ros import transition
-from pg_node.ros.node_utils import declare_params, Diagnostics, LATCHED, RateCounter, RELIABLE, run
+from pg_node.ros.node_utils import Diagnostics, LATCHED, RateCounter, RELIABLE, run
+from pg_node.ros.parameters import declare_params
 from pg_node.sim.arm_task import ArmSpec
 from rclpy.node import Node
 from std_msgs.msg import Float64MultiArray

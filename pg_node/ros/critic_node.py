@@ -33,7 +33,8 @@ from pg_node.rl.rollout_buffer import RolloutArrays
 from pg_node.rl.weights import load_flat_state
 from pg_node.ros import messages
 from pg_node.ros import table_msg
-from pg_node.ros.node_utils import declare_params, Diagnostics, LATCHED, RateCounter, RELIABLE, run
+from pg_node.ros.node_utils import Diagnostics, LATCHED, RateCounter, RELIABLE, run
+from pg_node.ros.parameters import declare_params
 from rclpy.node import Node
 from std_msgs.msg import Float64MultiArray
 import torch
@@ -49,7 +50,8 @@ class CriticNode(Node):
         torch.set_num_threads(1)
         self.cfg = declare_params(self, {**params_for('critic_node'),
                                          **{k: v for k, v in params_for('actor_node').items()
-                                            if k in ('log_std_init', 'state_dependent_std')}})
+                                            if k in ('log_std_init', 'state_dependent_std')}},
+                                  self.on_parameter)
         self.critic = None
         self.policy = None
         self.policy_weights = None
@@ -73,6 +75,11 @@ class CriticNode(Node):
         self.get_logger().info(f'critic: phi = {self.cfg["estimator"]}, gamma '
                                f'{self.cfg["gamma"]}, lambda {self.cfg["gae_lambda"]}, '
                                f'{self.cfg["num_actors"]} actor(s), {self.cfg["sync_mode"]}')
+
+    def on_parameter(self, name: str, value) -> None:
+        """Apply a live parameter to V's update (the critic is built at the first rollout)."""
+        if self.critic is not None:
+            self.critic.configure(name, value)
 
     def _ensure_critic(self, obs_dim: int):
         if self.critic is not None:

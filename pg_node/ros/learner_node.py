@@ -36,7 +36,8 @@ from pg_node.common.paths import resolve_model
 from pg_node.rl.learner import EpisodeStats, Learner
 from pg_node.ros import messages
 from pg_node.ros import table_msg
-from pg_node.ros.node_utils import declare_params, Diagnostics, LATCHED, RateCounter, RELIABLE, run
+from pg_node.ros.node_utils import Diagnostics, LATCHED, RateCounter, RELIABLE, run
+from pg_node.ros.parameters import declare_params
 from rclpy.node import Node
 from std_msgs.msg import Float64, Float64MultiArray
 import torch
@@ -54,7 +55,8 @@ class LearnerNode(Node):
         super().__init__('learner_node')
         torch.set_num_threads(1)
         self.cfg = declare_params(self, {**params_for('learner_node'),
-                                         **params_for('actor_node')})
+                                         **params_for('actor_node')},
+                                  lambda name, value: self.learner.configure(name, value))
         import mujoco
         from pg_node.sim.arm_task import ArmSpec
         model_path = resolve_model(self.cfg['model'])

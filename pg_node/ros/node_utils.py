@@ -1,5 +1,5 @@
 """
-What pg_node's nodes share: parameters from the table, the ``main`` loop, diagnostics.
+What pg_node's nodes share: QoS profiles, the ``main`` loop, diagnostics, rate counters.
 
 Kept apart from the math: only nodes import this module.
 """
@@ -8,11 +8,10 @@ import time
 from typing import Callable, Dict, Optional
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from pg_node.common.params import ConfigError, known_keys, Param
-from rcl_interfaces.msg import ParameterDescriptor
+from pg_node.common.params import ConfigError
 import rclpy
-from rclpy.exceptions import InvalidParameterTypeException
 from rclpy.executors import ExternalShutdownException
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
@@ -23,35 +22,6 @@ LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
 #: Reliable, volatile, a few deep: the rollouts and batches between training nodes.
 RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
                       durability=DurabilityPolicy.VOLATILE, history=HistoryPolicy.KEEP_LAST)
-
-
-def declare_params(node: Node, table: Dict[str, Param]) -> Dict:
-    """
-    Declare every parameter of ``table`` on ``node`` and return the checked values.
-
-    Raises :class:`~pg_node.common.params.ConfigError` naming the parameter when a value given in
-    the parameter file or on the command line is not allowed, or when a parameter given
-    there is known to no pg_node node (a typo: ROS would silently ignore it). A key that
-    another node reads is accepted, as a shared parameter file gives every node all of them.
-    """
-    allowed = known_keys() | set(table) | {'use_sim_time', 'start_type_description_service'}
-    for name in sorted(getattr(node, '_parameter_overrides', {})):
-        if name not in allowed and not name.startswith('qos_overrides.'):
-            raise ConfigError(f"unknown parameter '{node.get_name()}.{name}'; allowed: "
-                              f'{", ".join(table)}')
-    values = {}
-    for name, param in table.items():
-        key = f'{node.get_name()}.{name}'
-        descriptor = ParameterDescriptor(description=param.description)
-        try:
-            node.declare_parameter(name, param.default, descriptor)
-        except InvalidParameterTypeException:
-            # a value of another type than the default's (n_steps:=eight, gamma:=1): say
-            # what is allowed, or take it where the table converts it (an int for a float)
-            value = param.check(key, node._parameter_overrides[name].value)
-            node.declare_parameter(name, value, descriptor, ignore_override=True)
-        values[name] = param.check(key, node.get_parameter(name).value)
-    return values
 
 
 class Diagnostics:
@@ -110,6 +80,12 @@ def run(make_node: Callable[[], Node], args=None,
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except _rclpy.RCLError:
+        if rclpy.ok():
+            raise
+        # SIGTERM (or SIGINT) shut the context down from rclpy's signal handler while a
+        # callback was publishing or the executor was building its wait set: that is the
+        # stop it asked for, not an error (cleanup below closes files, it publishes nothing)
     except ConfigError as exc:
         print(f'configuration error: {exc}', file=sys.stderr)
         code = 2

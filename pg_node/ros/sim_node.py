@@ -73,7 +73,8 @@ from pg_node.common.params import params_for
 from pg_node.common.paths import resolve_model
 from pg_node.ros import table_msg
 from pg_node.ros import transition
-from pg_node.ros.node_utils import declare_params, run
+from pg_node.ros.node_utils import run
+from pg_node.ros.parameters import declare_params
 from pg_node.sim.arm_task import ArmTask
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -105,7 +106,7 @@ class SimNode(Node):
     def __init__(self):
         """Declare parameters, build the task and the ROS interfaces, publish the start."""
         super().__init__('sim_node')
-        p = declare_params(self, params_for('sim_node'))
+        p = declare_params(self, params_for('sim_node'), self.on_parameter)
         self.mode = p['mode']
         self.task = ArmTask(resolve_model(p['model']), num_envs=p['num_envs'], seed=p['seed'],
                             frame_skip=p['frame_skip'],
@@ -116,9 +117,7 @@ class SimNode(Node):
         n, spec = self.task.num_envs, self.task.spec
         self.n_cmd = n * self.task.act_dim
         self.joint_names = [f'arm{i}/{name}' for i in range(n) for name in spec.joint_names]
-        cols = math.ceil(math.sqrt(n))
-        self.offsets = np.array([[(i % cols) * p['marker_spacing'],
-                                  (i // cols) * p['marker_spacing'], 0.0] for i in range(n)])
+        self.offsets = self.grid_offsets(p['marker_spacing'])
         self.counters = {'steps': 0, 'commands_received': 0, 'commands_dropped_size': 0,
                          'commands_dropped_nonfinite': 0, 'commands_dropped_absurd': 0,
                          'commands_clipped': 0,
@@ -148,19 +147,46 @@ class SimNode(Node):
         self.create_service(Trigger, '~/reset_world', self.on_reset_world)
         self.create_service(SetBool, '~/set_pause', self.on_set_pause)
         self.create_service(Trigger, '~/step_simulation', self.on_step_simulation)
-        if p['marker_rate'] > 0:
-            self.create_timer(1.0 / p['marker_rate'], self.publish_markers)
-        self.create_timer(1.0 / max(p['diagnostics_rate'], 1e-3), self.publish_diagnostics)
+        self.timers_by_param = {
+            'marker_rate': self.create_timer(1.0, self.publish_markers),
+            'diagnostics_rate': self.create_timer(1.0, self.publish_diagnostics)}
         if self.mode == 'real_time':
-            self.create_timer(self.task.dt / p['real_time_factor'], self.on_real_time_tick)
+            self.timers_by_param['real_time_factor'] = self.create_timer(
+                1.0, self.on_real_time_tick)
         else:
-            self.create_timer(min(0.1, p['lock_step_timeout'] / 2), self.on_lock_step_watch)
+            self.timers_by_param['lock_step_timeout'] = self.create_timer(
+                1.0, self.on_lock_step_watch)
+        for name in self.timers_by_param:
+            self.on_parameter(name, p[name])
 
         obs = self.task.reset()
         self.publish_state(self._reset_transition(obs))
         self.get_logger().info(
             f'{self.mode}: {n} x {p["model"]} ({self.task.act_dim} actuators, joints '
             f'{", ".join(spec.joint_names)}), dt {self.task.dt:g} s')
+
+    def grid_offsets(self, spacing: float) -> np.ndarray:
+        """Return where each arm is drawn: a square grid ``spacing`` apart."""
+        n = self.task.num_envs
+        cols = math.ceil(math.sqrt(n))
+        return np.array([[(i % cols) * spacing, (i // cols) * spacing, 0.0] for i in range(n)])
+
+    def on_parameter(self, name: str, value) -> None:
+        """Apply a live parameter: the timers' periods and the marker grid follow it."""
+        periods = {'marker_rate': lambda v: 1.0 / v if v > 0 else None,
+                   'diagnostics_rate': lambda v: 1.0 / v,
+                   'real_time_factor': lambda v: self.task.dt / v,
+                   'lock_step_timeout': lambda v: min(0.1, v / 2)}
+        if name == 'marker_spacing':
+            self.offsets = self.grid_offsets(value)
+        timer = self.timers_by_param.get(name)
+        if timer is not None:
+            period = periods[name](value)
+            if period is None:
+                timer.cancel()
+            else:
+                timer.timer_period_ns = int(period * 1e9)
+                timer.reset()
 
     @property
     def sim_time(self) -> float:
