@@ -16,6 +16,7 @@ import sys
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray
+from domains import ros_domains
 import numpy as np
 from pg_node.bag.recorder import EpisodeRecorder, parse_episode
 from pg_node.bag.writer import reindex
@@ -38,8 +39,7 @@ from std_msgs.msg import Float64MultiArray
 
 REPO = Path(__file__).resolve().parent.parent
 # five DDS domains of this test process: one per node of the bad-input tests, one for runs
-BASE_DOMAIN = 100 + (os.getpid() % 25) * 5
-SIM, ACTOR, CRITIC, LEARNER, GRAPH = range(BASE_DOMAIN, BASE_DOMAIN + 5)
+SIM, ACTOR, CRITIC, LEARNER, GRAPH = ros_domains(5, base=100, spread=25)
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 # a test publisher with history, so that messages sent 0.1 s apart are all delivered
 LATCHED_10 = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
@@ -487,7 +487,7 @@ def wait_for_progress(proc, run_dir, deadline, min_steps=0.0):
 
 def node_pids(run_dir, node=r'.*_node'):
     """Return the pids of a run's node processes (all, or ``node``), named by its run dir."""
-    out = subprocess.run(['pgrep', '-f', f'pg_node[.]{node} .*{run_dir}'],
+    out = subprocess.run(['pgrep', '-f', f'pg_node[.]ros[.]{node} .*{run_dir}'],
                          capture_output=True, text=True).stdout.split()
     return [int(p) for p in out]
 
@@ -576,6 +576,145 @@ def test_sigkill_of_each_node_mid_run(tmp_path):
     assert sim_restarts == n_envs                   # every arm saw the restart once
     assert skipped <= n_envs                        # at most one per arm, at the crash
     assert len(done) > 5 * n_envs
+
+
+# --- SIGTERM, SIGINT and SIGKILL of each node in one run ------------------------------------
+
+SIGNALS = (signal.SIGTERM, signal.SIGINT, signal.SIGKILL)
+STOPS = [(node, sig) for sig in SIGNALS
+         for node in ('sim_node', 'actor_node', 'critic_node', 'learner_node')]
+STOP_EVERY = 25_000
+
+
+def full_mcap_check(path):
+    """Read an MCAP file as a strict reader does: every record and CRC, the summary, all data."""
+    from mcap.reader import make_reader
+    from mcap.stream_reader import StreamReader
+    with open(path, 'rb') as f:
+        records = list(StreamReader(f, skip_magic=False, validate_crcs=True).records)
+    assert type(records[-1]).__name__ == 'Footer', (path, type(records[-1]).__name__)
+    assert any(type(r).__name__ == 'DataEnd' for r in records), path
+    with open(path, 'rb') as f:
+        reader = make_reader(f, validate_crcs=True)
+        summary = reader.get_summary()
+        assert summary is not None and summary.statistics is not None, path
+        count = sum(1 for _ in reader.iter_messages())
+    assert count == summary.statistics.message_count, path
+
+
+def bag_dirs(run_dir):
+    """Return the learner's bag directories of a run in the order they were written."""
+    return sorted(run_dir.glob('bag*'), key=lambda p: int(p.name.partition('_')[2] or 0))
+
+
+@pytest.mark.e2e
+@pytest.mark.slow
+def test_sigterm_sigint_and_sigkill_of_each_node_mid_run(tmp_path):
+    """
+    Stop each node mid-run with SIGTERM, then each with SIGINT, then each with SIGKILL.
+
+    SIGTERM is what ``ros2 launch`` escalates to, and what docker and systemd send; it must
+    do what Ctrl-C does: the node closes its bag whole, writes its checkpoint, exits with 0
+    and prints no traceback. The supervisor restarts every node that stopped before the
+    learner finished (a learner's exit code 0 means done only when it learned
+    ``total_steps``). The run finishes; every MCAP file of a learner stopped by SIGTERM or
+    SIGINT passes the mcap reader's full validation without reindex.
+    """
+    run_dir = tmp_path / 'run'
+    total = STOP_EVERY * (len(STOPS) + 2)
+    cmd = [sys.executable, '-m', 'pg_node', 'train', '--run-dir', str(run_dir),
+           '--no-progress', '--total-steps', str(total), '--eval-episodes', '10',
+           '--max-restarts', str(len(SIGNALS))]
+    proc = subprocess.Popen(cmd, env=env(GRAPH), cwd=REPO, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    killed_bag = None
+    try:
+        deadline = time.monotonic() + 900
+        for k, (node, sig) in enumerate(STOPS):
+            wait_for_progress(proc, run_dir, deadline, STOP_EVERY * (k + 1))
+            pids = node_pids(run_dir, node)
+            while len(pids) != 1:                   # restarted a moment ago, not up yet
+                assert time.monotonic() < deadline and proc.poll() is None, (node, pids)
+                time.sleep(0.2)
+                pids = node_pids(run_dir, node)
+            if node == 'learner_node' and sig == signal.SIGKILL:
+                killed_bag = bag_dirs(run_dir)[-1]
+            os.kill(pids[0], sig)
+        text = proc.communicate(timeout=900)[0]
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 0, text[-3000:]
+    summary = json.loads((run_dir / 'summary.json').read_text())
+    assert summary['total_steps'] >= total
+    for node in ('sim_node', 'actor_node', 'critic_node', 'learner_node'):
+        assert summary['restarts'][node] == len(SIGNALS), (node, summary['restarts'])
+        assert text.count(f'{node} exited with code 0; restarting') == 2, text[-3000:]
+        assert f'{node} exited with code -9; restarting' in text
+        log = (run_dir / 'logs' / f'{node}.log').read_text()
+        assert 'Traceback' not in log, log[-3000:]
+    bags = bag_dirs(run_dir)
+    assert killed_bag in bags and len(bags) == 4, bags
+    for bag in bags:
+        if bag != killed_bag:
+            files = sorted(bag.glob('*.mcap'))
+            assert files, bag
+            for f in files:
+                full_mcap_check(f)
+            Reader(bag).open()
+    # the learner saved a checkpoint at each of its two clean stops and resumed from it
+    resumed = re.findall(r'resumed policy version (\d+)',
+                         (run_dir / 'logs' / 'learner_node.log').read_text())
+    assert len(resumed) == 3, resumed
+
+
+@pytest.mark.e2e
+@pytest.mark.slow
+def test_sigterm_stops_each_node_cleanly_with_sigint_ignored(tmp_path):
+    """
+    Nodes started as a non-interactive shell starts ``cmd &`` (SIGINT ignored), then SIGTERM.
+
+    The graph trains; SIGTERM to each node (what docker, systemd and ``ros2 launch`` send)
+    ends it with exit code 0 and no traceback, whatever callback was running: rclpy's
+    handler shuts the context down under a callback that may be publishing. The learner
+    closes its bag whole: every file passes the mcap reader's full validation.
+    """
+    run_dir = tmp_path / 'run'
+    params = [f'run_dir:={run_dir}', 'num_envs:=8', 'total_steps:=100000000']
+    ignore_sigint = lambda: signal.signal(signal.SIGINT, signal.SIG_IGN)  # noqa: E731
+    procs = {}
+    for node in ('sim_node', 'actor_node', 'critic_node', 'learner_node'):
+        args = [sys.executable, '-m', f'pg_node.ros.{node}', '--ros-args']
+        for p in params:
+            args += ['-p', p]
+        log = open(tmp_path / f'{node}.log', 'w+')
+        procs[node] = subprocess.Popen(args, env=env(GRAPH), cwd=REPO, stdout=log,
+                                       stderr=subprocess.STDOUT, start_new_session=True,
+                                       preexec_fn=ignore_sigint)
+        procs[node].log = log
+    try:
+        deadline = time.monotonic() + 120
+        while (last_progress(run_dir / 'progress.csv') or {}).get('env_steps', 0) < 20_000:
+            assert time.monotonic() < deadline, 'the graph did not train'
+            assert all(p.poll() is None for p in procs.values())
+            time.sleep(0.2)
+        for node, proc in procs.items():
+            proc.send_signal(signal.SIGTERM)
+            proc.wait(timeout=30)
+    finally:
+        for proc in procs.values():
+            if proc.poll() is None:
+                proc.kill()
+    for node, proc in procs.items():
+        proc.log.seek(0)
+        log = proc.log.read()
+        assert proc.returncode == 0, (node, log[-3000:])
+        assert 'Traceback' not in log, (node, log[-3000:])
+    files = sorted((run_dir / 'bag').glob('*.mcap'))
+    assert files
+    for f in files:
+        full_mcap_check(f)
+    Reader(run_dir / 'bag').open()
 
 
 # --- a short soak ---------------------------------------------------------------------------

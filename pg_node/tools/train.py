@@ -23,6 +23,7 @@ from pathlib import Path
 import subprocess
 import sys
 import time
+from typing import Optional
 
 from pg_node.common.params import ConfigError, load_config, SHARED
 from pg_node.tools.processes import (child_env, shutting_down, signal_process, STOP_WAITS,
@@ -105,9 +106,11 @@ def node_commands(params: Path, cfg: dict) -> dict:
 class Supervisor:
     """Starts, watches, restarts and stops the node processes."""
 
-    def __init__(self, run_dir: Path, commands: dict, max_restarts: int):
+    def __init__(self, run_dir: Path, commands: dict, max_restarts: int,
+                 total_steps: Optional[int] = None):
         self.run_dir = run_dir
         self.commands = commands
+        self.total_steps = total_steps
         self.max_restarts = max_restarts
         self.procs = {}
         self.restarts = dict.fromkeys(commands, 0)
@@ -133,13 +136,15 @@ class Supervisor:
         """
         Restart nodes that died; return 'done', 'failed' or 'running'.
 
-        The learner exiting with 0 means training is done.
+        The learner exiting with 0 means training is done, if it learned ``total_steps``
+        (when given): a learner stopped by SIGTERM or SIGINT also exits with 0, and is
+        restarted as any node that stopped early.
         """
         for name, proc in list(self.procs.items()):
             code = proc.poll()
             if code is None:
                 continue
-            if name == 'learner_node' and code == 0:
+            if name == 'learner_node' and code == 0 and self._learned_all():
                 return 'done'
             if name in self.next_start:
                 if time.monotonic() >= self.next_start[name]:
@@ -156,6 +161,12 @@ class Supervisor:
                   f'{self.run_dir / "logs" / (name + ".log")}', file=sys.stderr)
             self.next_start[name] = time.monotonic() + delay
         return 'running'
+
+    def _learned_all(self) -> bool:
+        if self.total_steps is None:
+            return True
+        row = last_progress(self.run_dir / 'progress.csv')
+        return row is not None and row['env_steps'] >= self.total_steps
 
     def stop_all(self):
         """Stop every node: SIGINT, then SIGTERM, then SIGKILL, waiting between."""
@@ -263,7 +274,7 @@ def main(argv=None) -> int:
     n_act = cfg[SHARED]['num_actors']
     print(f'pg_node: training {n_act} x {cfg[SHARED]["num_envs"]} x {cfg[SHARED]["model"]} '
           f'({cfg[SHARED]["sync_mode"]}) for {total} steps; run dir {run_dir}')
-    sup = Supervisor(run_dir, node_commands(params, cfg), args.max_restarts)
+    sup = Supervisor(run_dir, node_commands(params, cfg), args.max_restarts, total)
     bar = None
     if not args.no_progress:
         from tqdm import tqdm
