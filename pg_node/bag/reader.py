@@ -6,40 +6,25 @@ or a bare ``.mcap`` file. :class:`BagReader` lists the topics (type, message cou
 QoS) and iterates the messages of all files in log-time order as raw CDR bytes, optionally
 deserialised into the installed rclpy message classes.
 
-Every file is read by a linear scan of its records, never through its summary section, so
-a file whose writer was killed (no summary, no footer, a chunk cut in half) still yields
-every message up to the damage. The reader then records a :class:`Damage` (file, byte
-offset, reason) in :attr:`BagReader.problems` and carries on with the next file; it never
-hangs on a corrupted length field, because every length is checked against the file size
-before anything is read.
+The records are read by the ``mcap`` library (``mcap.stream_reader.StreamReader``; each
+chunk opened, and its CRC checked, by ``breakup_chunk``) in one linear pass over each file,
+never through its summary section, so a file whose writer was killed (no summary, no
+footer, a chunk cut in half) still yields every message up to the damage. The reader then
+records a :class:`Damage` (file, byte offset, reason) in :attr:`BagReader.problems` and
+carries on with the next file; it never hangs on a corrupted length field, because the
+file the library reads from refuses, before reading, any read that runs past its end.
 """
 import heapq
 import os
 from pathlib import Path
-import struct
 from typing import NamedTuple, Optional
 import warnings
-import zlib
 
+from mcap.exceptions import InvalidMagic
+from mcap.records import Channel, Chunk, DataEnd, Message, Metadata, Schema
+from mcap.stream_reader import breakup_chunk, CRCValidationError, StreamReader
 from pg_node.bag import ros_types
 import yaml
-
-MAGIC = b'\x89MCAP0\r\n'
-OP_HEADER = 0x01
-OP_FOOTER = 0x02
-OP_SCHEMA = 0x03
-OP_CHANNEL = 0x04
-OP_MESSAGE = 0x05
-OP_CHUNK = 0x06
-OP_METADATA = 0x0C
-OP_DATA_END = 0x0F
-
-_U16 = struct.Struct('<H')
-_U32 = struct.Struct('<I')
-_U64 = struct.Struct('<Q')
-_RECORD_HEAD = struct.Struct('<BQ')
-_MESSAGE_HEAD = struct.Struct('<HIQQ')
-_CHUNK_HEAD = struct.Struct('<QQQI')
 
 
 class Damage(NamedTuple):
@@ -79,256 +64,109 @@ class BagMessage(NamedTuple):
     msg: object = None
 
 
-class Schema(NamedTuple):
-    """An MCAP schema record."""
+class _PastTheEnd(Exception):
+    """A read asked for more bytes than the file has left."""
 
-    id: int  # noqa: A003 - the MCAP record field's name
-    name: str
-    encoding: str
-    data: bytes
-
-
-class Channel(NamedTuple):
-    """An MCAP channel record."""
-
-    id: int  # noqa: A003 - the MCAP record field's name
-    schema_id: int
-    topic: str
-    message_encoding: str
-    metadata: dict
+    def __init__(self, wanted, left):
+        super().__init__(wanted, left)
+        self.wanted, self.left = wanted, left
 
 
-class _Malformed(Exception):
-    pass
+class _Bounded:
+    """The file as StreamReader sees it: a read that would run past its end raises first."""
 
+    def __init__(self, f):
+        self._f = f
+        self.size = os.fstat(f.fileno()).st_size
+        self.tell = f.tell
 
-def _string(buf, pos):
-    (n,) = _U32.unpack_from(buf, pos)
-    pos += 4
-    if pos + n > len(buf):
-        raise _Malformed('string runs past its record')
-    return bytes(buf[pos:pos + n]).decode('utf-8'), pos + n
-
-
-def _str_map(buf, pos):
-    (n,) = _U32.unpack_from(buf, pos)
-    pos += 4
-    end = pos + n
-    if end > len(buf):
-        raise _Malformed('map runs past its record')
-    out = {}
-    while pos < end:
-        key, pos = _string(buf, pos)
-        value, pos = _string(buf, pos)
-        out[key] = value
-    return out, end
-
-
-def _parse_schema(body):
-    (sid,) = _U16.unpack_from(body, 0)
-    name, pos = _string(body, 2)
-    encoding, pos = _string(body, pos)
-    (n,) = _U32.unpack_from(body, pos)
-    pos += 4
-    if pos + n > len(body):
-        raise _Malformed('schema data runs past its record')
-    return Schema(sid, name, encoding, bytes(body[pos:pos + n]))
-
-
-def _parse_channel(body):
-    cid, sid = struct.unpack_from('<HH', body, 0)
-    topic, pos = _string(body, 4)
-    encoding, pos = _string(body, pos)
-    metadata, pos = _str_map(body, pos)
-    return Channel(cid, sid, topic, encoding, metadata)
-
-
-def _decompress(compression, data, size):
-    if compression == '':
-        return data
-    if compression == 'zstd':
-        import zstandard
-        return zstandard.ZstdDecompressor().decompress(data, max_output_size=size)
-    if compression == 'lz4':
-        import lz4.frame
-        return lz4.frame.decompress(data)
-    raise _Malformed(f'unsupported chunk compression {compression!r}')
+    def read(self, n=-1):
+        left = self.size - self._f.tell()
+        if n > left:
+            raise _PastTheEnd(n, left)
+        return self._f.read(n)
 
 
 class McapScan:
     """
-    Linear, damage-tolerant scan of one MCAP file.
+    Linear, damage-tolerant scan of one MCAP file by ``mcap``'s ``StreamReader``.
 
-    Iterating yields ``(kind, value)`` events in file order: ``('schema', Schema)``,
-    ``('channel', Channel)``, ``('messages', [(channel_id, sequence, log_time,
-    publish_time, data), ...])`` for each chunk (or loose message) and
-    ``('metadata', (name, dict))``. After the iteration, :attr:`damage` is None for a
-    complete file or the :class:`Damage` where reading stopped, and :attr:`end_offset` is
-    the end of the last record read whole.
+    Iterating yields the data section's ``mcap.records`` in file order: ``Schema``,
+    ``Channel``, ``Message`` and ``Metadata``, each chunk's records in its place (a chunk is
+    decompressed and its CRC checked whole first, so a bad chunk yields nothing), or with
+    ``open_chunks=False`` the ``Chunk`` records themselves. :attr:`record_offset` is where
+    the top-level record being yielded starts (the chunk, for the records it holds). After
+    the iteration, :attr:`complete` tells whether the file was read to its end (footer and
+    magic), else :attr:`damage` is the :class:`Damage` where reading stopped;
+    :attr:`schemas` and :attr:`channels` (by id) and :attr:`metadata` (``(name, dict)``)
+    hold what was read.
     """
 
-    def __init__(self, path, verify_crc=True):
+    def __init__(self, path, verify_crc=True, open_chunks=True):
         """Prepare to scan ``path``; nothing is read until iteration."""
         self.path = str(path)
         self.verify_crc = verify_crc
+        self.open_chunks = open_chunks
         self.damage: Optional[Damage] = None
         self.complete = False
-        self.end_offset = 0
-        self.header = None
+        self.record_offset = 0
         self.schemas = {}
         self.channels = {}
         self.metadata = []
-        self.chunks = 0
-
-    def _stop(self, offset, reason):
-        self.damage = Damage(self.path, offset, reason)
 
     def __iter__(self):
-        """Yield the file's records as events, stopping cleanly at the first damage."""
+        """Yield the file's records, stopping cleanly at the first damage."""
         try:
-            size = os.path.getsize(self.path)
             f = open(self.path, 'rb')
         except OSError as exc:
-            self._stop(0, f'cannot open: {exc}')
+            self.damage = Damage(self.path, 0, f'cannot open: {exc}')
             return
         with f:
-            if f.read(8) != MAGIC:
-                self._stop(0, 'not an MCAP file (bad magic)')
-                return
-            pos = 8
-            self.end_offset = pos
+            stream = _Bounded(f)
+            # chunks come whole, opened below; the data section's CRC is not checked
+            records = StreamReader(stream, emit_chunks=True, record_size_limit=None).records
+            at = 0              # where the record being read starts
+            summary = False     # past the data section: schemas and channels repeated
             while True:
-                head = f.read(9)
-                if not head:
-                    self._stop(pos, 'file ends without a footer (writer did not finish)')
+                try:
+                    record = next(records, None)
+                    inner = (record,)
+                    if isinstance(record, Chunk) and self.open_chunks:
+                        inner = breakup_chunk(record, validate_crc=self.verify_crc)
+                except Exception as exc:  # noqa: B902 - any failure inside the file is damage
+                    self.damage = Damage(self.path, at, _reason(exc, at == stream.tell()))
                     return
-                if len(head) < 9:
-                    self._stop(pos, 'truncated record header')
-                    return
-                opcode, length = _RECORD_HEAD.unpack(head)
-                if pos + 9 + length > size:
-                    self._stop(pos, f'truncated record (opcode 0x{opcode:02x}, {length} bytes '
-                                    f'declared, {size - pos - 9} left)')
-                    return
-                if opcode == OP_FOOTER:
-                    self.end_offset = pos + 9 + length
+                if record is None:
                     self.complete = True
                     return
-                if opcode not in (OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK, OP_METADATA,
-                                  OP_HEADER):
-                    f.seek(length, os.SEEK_CUR)
-                    pos += 9 + length
-                    self.end_offset = pos
-                    if opcode == OP_DATA_END:
-                        self.complete = True
-                    continue
-                body = f.read(length)
-                try:
-                    events = self._events(opcode, body)
-                except (_Malformed, struct.error, UnicodeDecodeError, ValueError,
-                        RuntimeError) as exc:
-                    self._stop(pos, f'corrupted record (opcode 0x{opcode:02x}): {exc}')
-                    return
-                except Exception as exc:  # noqa: B902 - decompressor errors of any kind
-                    self._stop(pos, f'corrupted record (opcode 0x{opcode:02x}): {exc!r}')
-                    return
-                pos += 9 + length
-                self.end_offset = pos
-                yield from events
-
-    def _events(self, opcode, body):
-        """Parse one top-level record whole (so that a bad chunk yields nothing)."""
-        if opcode == OP_HEADER:
-            profile, p = _string(body, 0)
-            library, _ = _string(body, p)
-            self.header = (profile, library)
-            return []
-        if opcode == OP_METADATA:
-            name, p = _string(body, 0)
-            data, _ = _str_map(body, p)
-            self.metadata.append((name, data))
-            return [('metadata', (name, data))]
-        if opcode == OP_CHUNK:
-            return self._chunk_events(body)
-        return self._inner_events(opcode, memoryview(body), loose=True)
-
-    def _chunk_events(self, body):
-        _, _, usize, crc = _CHUNK_HEAD.unpack_from(body, 0)
-        compression, p = _string(body, _CHUNK_HEAD.size)
-        (n,) = _U64.unpack_from(body, p)
-        p += 8
-        if p + n > len(body):
-            raise _Malformed('chunk records run past the chunk')
-        data = _decompress(compression, bytes(body[p:p + n]), usize)
-        if len(data) != usize:
-            raise _Malformed(f'chunk decompressed to {len(data)} bytes, expected {usize}')
-        if self.verify_crc and crc and zlib.crc32(data) != crc:
-            raise _Malformed('chunk CRC mismatch')
-        events, messages = [], []
-        view = memoryview(data)
-        q = 0
-        while q < len(view):
-            if q + 9 > len(view):
-                raise _Malformed('truncated record inside chunk')
-            opcode, length = _RECORD_HEAD.unpack_from(view, q)
-            q += 9
-            if q + length > len(view):
-                raise _Malformed('record runs past the end of its chunk')
-            inner = view[q:q + length]
-            q += length
-            if opcode == OP_MESSAGE:
-                cid, seq, log, pub = _MESSAGE_HEAD.unpack_from(inner, 0)
-                messages.append((cid, seq, log, pub, bytes(inner[_MESSAGE_HEAD.size:])))
-            else:
-                events += self._inner_events(opcode, inner, loose=False)
-        self.chunks += 1
-        events.append(('messages', messages))  # also when empty: one event per chunk
-        return events
-
-    def _inner_events(self, opcode, body, loose):
-        if opcode == OP_SCHEMA:
-            schema = _parse_schema(body)
-            self.schemas[schema.id] = schema
-            return [('schema', schema)]
-        if opcode == OP_CHANNEL:
-            channel = _parse_channel(body)
-            self.channels[channel.id] = channel
-            return [('channel', channel)]
-        if opcode == OP_MESSAGE:
-            cid, seq, log, pub = _MESSAGE_HEAD.unpack_from(body, 0)
-            return [('messages', [(cid, seq, log, pub, bytes(body[_MESSAGE_HEAD.size:]))])]
-        return []
+                self.record_offset = at
+                for r in inner:
+                    if isinstance(r, Schema):
+                        self.schemas[r.id] = r
+                    elif isinstance(r, Channel):
+                        self.channels[r.id] = r
+                    elif isinstance(r, Metadata):
+                        self.metadata.append((r.name, r.metadata))
+                    elif isinstance(r, DataEnd):
+                        summary = True
+                    if not summary and isinstance(r, (Schema, Channel, Message, Metadata,
+                                                      Chunk)):
+                        yield r
+                at = stream.tell()
 
 
-def _record_start_times(path):
-    """
-    Return the earliest log time of each chunk and loose message, in file order.
-
-    Reads only record headers (seeking over bodies), so it is cheap; it stops at the
-    first record that runs past the end of the file.
-    """
-    starts = []
-    try:
-        size = os.path.getsize(path)
-        with open(path, 'rb') as f:
-            if f.read(8) != MAGIC:
-                return starts
-            pos = 8
-            while pos + 9 <= size:
-                f.seek(pos)
-                opcode, length = _RECORD_HEAD.unpack(f.read(9))
-                if pos + 9 + length > size or opcode == OP_FOOTER:
-                    break
-                if opcode == OP_CHUNK and length >= 16:
-                    first, last = struct.unpack('<QQ', f.read(16))
-                    # an empty chunk (schemas and channels only) holds nothing back
-                    starts.append(float('inf') if first == last == 0 else first)
-                elif opcode == OP_MESSAGE and length >= 14:
-                    starts.append(struct.unpack('<6xQ', f.read(14))[0])
-                pos += 9 + length
-    except OSError:
-        pass
-    return starts
+def _reason(exc, at_record_start):
+    """Say why reading stopped, from the exception that stopped it."""
+    if isinstance(exc, _PastTheEnd):
+        if at_record_start and exc.left == 0:
+            return 'file ends without a footer (writer did not finish)'
+        return (f'truncated record: it runs past the end of the file ({exc.wanted} more '
+                f'bytes wanted, {exc.left} left)')
+    if isinstance(exc, InvalidMagic):
+        return 'not an MCAP file (bad magic)'
+    if isinstance(exc, CRCValidationError):
+        return f'corrupted record: CRC mismatch ({exc})'
+    return f'corrupted record: {exc!r}'
 
 
 def _file_messages(scan, file_index):
@@ -336,51 +174,62 @@ def _file_messages(scan, file_index):
     Yield ``(log_time, file_index, n, topic, msg_type, data)`` in log-time order.
 
     A heap holds the messages read so far; one is given out once no later chunk of the
-    file can hold an earlier message, which the chunk headers' start times tell (read
-    ahead of time). Ties keep file order.
+    file can hold an earlier message, which the chunks' start times tell (read ahead of
+    time by a scan that does not open the chunks). Ties keep file order.
     """
-    starts = _record_start_times(scan.path)
-    later = [float('inf')] * (len(starts) + 1)
+    ahead = McapScan(scan.path, verify_crc=False, open_chunks=False)
+    offsets, starts = [], []
+    for r in ahead:
+        if isinstance(r, (Chunk, Message)):
+            offsets.append(ahead.record_offset)
+            starts.append(r.message_start_time if isinstance(r, Chunk) else r.log_time)
+    later = [float('inf')] * (len(starts) + 1)   # later[k]: earliest start from record k on
     for i in range(len(starts) - 1, -1, -1):
         later[i] = min(starts[i], later[i + 1])
     heap = []
     n = 0
     k = 0
+    current = None
     resolved = {}
-    for kind, value in scan:
-        if kind == 'channel':
-            schema = scan.schemas.get(value.schema_id)
-            resolved[value.id] = (value.topic, schema.name if schema else '')
-        if kind != 'messages':
+    for record in scan:
+        if isinstance(record, Channel):
+            schema = scan.schemas.get(record.schema_id)
+            resolved[record.id] = (record.topic, schema.name if schema else '')
+        if not isinstance(record, Message):
             continue
-        bound = later[k] if k < len(later) else float('inf')
-        k += 1
-        while heap and heap[0][0] <= bound:
-            yield heapq.heappop(heap)
-        for cid, _, log, _, data in value:
-            topic_type = resolved.get(cid)
-            if topic_type is not None:  # a message before its channel: skip it
-                heapq.heappush(heap, (log, file_index, n, topic_type[0], topic_type[1], data))
-                n += 1
+        if scan.record_offset != current:
+            current = scan.record_offset
+            while k < len(offsets) and offsets[k] < current:
+                k += 1
+            while heap and heap[0][0] <= later[k]:
+                yield heapq.heappop(heap)
+        topic_type = resolved.get(record.channel_id)
+        if topic_type is not None:  # a message before its channel: skip it
+            heapq.heappush(heap, (record.log_time, file_index, n, *topic_type, record.data))
+            n += 1
     while heap:
         yield heapq.heappop(heap)
+
+
+def read_metadata_yaml(directory):
+    """Return the ``rosbag2_bagfile_information`` of ``directory/metadata.yaml``, or None."""
+    try:
+        meta = yaml.safe_load((Path(directory) / 'metadata.yaml').read_text())
+        return dict(meta['rosbag2_bagfile_information'])
+    except (yaml.YAMLError, KeyError, TypeError, ValueError, OSError):
+        return None
 
 
 def _find_bag_files(path: Path):
     """Return (metadata dict or None, list of .mcap paths) for a bag dir or .mcap file."""
     if path.is_file():
         return None, [path]
-    meta_path = path / 'metadata.yaml'
-    if meta_path.is_file():
-        try:
-            meta = yaml.safe_load(meta_path.read_text())['rosbag2_bagfile_information']
-        except (yaml.YAMLError, KeyError, TypeError, OSError):
-            meta = None
-        if meta is not None:
-            files = [path / Path(p).name for p in meta.get('relative_file_paths', [])]
-            files = [f for f in files if f.suffix == '.mcap']
-            extra = sorted(set(path.glob('*.mcap')) - set(files), key=_split_index)
-            return meta, files + extra
+    meta = read_metadata_yaml(path)
+    if meta is not None:
+        files = [path / Path(p).name for p in meta.get('relative_file_paths', [])]
+        files = [f for f in files if f.suffix == '.mcap']
+        extra = sorted(set(path.glob('*.mcap')) - set(files), key=_split_index)
+        return meta, files + extra
     return None, sorted(path.glob('*.mcap'), key=_split_index)
 
 
@@ -447,19 +296,15 @@ class BagReader:
         channels = {}
         for f in self.files:
             scan = McapScan(f)
-            for kind, value in scan:
-                if kind == 'messages':
-                    for m in value:
-                        ch = scan.channels.get(m[0])
-                        if ch is not None:
-                            counts[ch.topic] = counts.get(ch.topic, 0) + 1
+            for record in scan:
+                ch = scan.channels.get(getattr(record, 'channel_id', None))
+                if ch is not None:
+                    counts[ch.topic] = counts.get(ch.topic, 0) + 1
             for ch in scan.channels.values():
                 schema = scan.schemas.get(ch.schema_id)
                 channels.setdefault(ch.topic, (ch, schema))
             self._note(scan)
         for topic, (ch, schema) in channels.items():
-            if topic in topics and self.metadata is not None:
-                continue
             topics[topic] = TopicInfo(
                 topic, schema.name if schema else '', counts.get(topic, 0),
                 ros_types.parse_qos(ch.metadata.get('offered_qos_profiles', '')),
@@ -525,8 +370,7 @@ class BagReader:
         """Return {type name: (schema encoding, definition text)} from the files' schemas."""
         out = {}
         for f in self.files:
-            scan = McapScan(f)
-            for kind, value in scan:
-                if kind == 'schema':
-                    out.setdefault(value.name, (value.encoding, value.data.decode()))
+            for r in McapScan(f):
+                if isinstance(r, Schema):
+                    out.setdefault(r.name, (r.encoding, r.data.decode()))
         return out

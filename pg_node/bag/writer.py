@@ -2,20 +2,22 @@
 Write rclpy messages into a rosbag2 bag (MCAP storage, as ROS 2 Jazzy records it).
 
 A bag is a directory ``<run>/`` holding ``metadata.yaml`` (rosbag2 metadata version 9) and
-the files ``<run>_0.mcap``, ``<run>_1.mcap``, ... Each file is an MCAP file with profile
-``ros2``: one ``ros2msg`` schema per type holding the full message definition text, one
+the files ``<run>_0.mcap``, ``<run>_1.mcap``, ... The MCAP records are written by the
+``mcap`` library's ``Writer``; pg_node gives it what rosbag2_storage_mcap would: profile
+``ros2``, one ``ros2msg`` schema per type holding the full message definition text, one
 ``cdr`` channel per topic with the ``offered_qos_profiles`` and ``topic_type_hash``
-metadata that rosbag2_storage_mcap writes, chunked messages serialised by
-``rclpy.serialization.serialize_message``, and at the end of each file the ``rosbag2``
-metadata record (the bag's metadata as YAML under ``serialized_metadata``).
+metadata, messages serialised by ``rclpy.serialization.serialize_message``, and at the end
+of each file the ``rosbag2`` metadata record (the bag's metadata as YAML under
+``serialized_metadata``).
 
-Crash safety: messages are gathered in a chunk of bounded size (and age) in memory; a full
-chunk is compressed, written and flushed to the operating system at once, so a process
-killed with SIGKILL leaves every completed chunk on disk. ``metadata.yaml`` is replaced
-atomically (temporary file, then ``os.replace``) when a file is opened or closed and at
-most every ``metadata_interval_s`` after a chunk, so it is always a valid file describing
-data that is on disk. :func:`reindex` (like ``ros2 bag reindex``) turns what a killed
-writer left into a complete bag. On Ctrl-C or SIGTERM the caller calls :meth:`close` from
+Crash safety: messages wait in memory until they make a chunk of ``chunk_size`` bytes (or
+the oldest is ``chunk_max_age_s`` old); then the Writer gets them all at once, writes them
+as one chunk and the file is flushed to the operating system, so a process killed with
+SIGKILL leaves every completed chunk on disk. ``metadata.yaml`` is replaced atomically
+(temporary file, then ``os.replace``) when a file is opened or closed and at most every
+``metadata_interval_s`` after a chunk, so it is always a valid file describing data that
+is on disk. :func:`reindex` (like ``ros2 bag reindex``) turns what a killed writer left
+into a complete bag. On Ctrl-C or SIGTERM the caller calls :meth:`BagWriter.close` from
 its shutdown path; close is idempotent and defers those signals while it writes.
 
 The writer creates no ROS node: it is a plain object a node (or a test) owns.
@@ -24,50 +26,57 @@ import contextlib
 import os
 from pathlib import Path
 import signal
-import struct
 import threading
 import time
-import zlib
 
+from mcap.records import Channel, Message, Metadata, Schema
+import mcap.writer
+from mcap.writer import CompressionType, LIBRARY_IDENTIFIER, Writer
 from pg_node.bag import ros_types
-from pg_node.bag.reader import (MAGIC, McapScan, OP_CHANNEL, OP_CHUNK, OP_DATA_END, OP_FOOTER,
-                                OP_HEADER, OP_MESSAGE, OP_METADATA, OP_SCHEMA)
+from pg_node.bag.reader import _split_index, McapScan, read_metadata_yaml
 import yaml
 
 METADATA_VERSION = 9
 ROS_DISTRO = 'jazzy'
 PROFILE = 'ros2'
-LIBRARY = 'pg_node bag_writer'
+LIBRARY = f'pg_node bag_writer ({LIBRARY_IDENTIFIER})'
 DEFAULT_CHUNK_SIZE = 768 * 1024  # mcap C++ writer's default, which rosbag2 uses
-
-OP_MESSAGE_INDEX = 0x07
-OP_CHUNK_INDEX = 0x08
-OP_STATISTICS = 0x0B
-OP_METADATA_INDEX = 0x0D
-OP_SUMMARY_OFFSET = 0x0E
-
-_MESSAGE = struct.Struct('<BQHIQQ')
-_RECORD_HEAD = struct.Struct('<BQ')
+_COMPRESSION = {'': CompressionType.NONE, 'none': CompressionType.NONE,
+                None: CompressionType.NONE, 'zstd': CompressionType.ZSTD,
+                'lz4': CompressionType.LZ4}
+_MESSAGE_OVERHEAD = 31  # a message record's bytes besides its data (opcode, length, fields)
 
 
-def _s(text) -> bytes:
-    data = text.encode('utf-8') if isinstance(text, str) else bytes(text)
-    return struct.pack('<I', len(data)) + data
+class _Zstandard:
+    """
+    The ``zstandard`` module as mcap's Writer sees it: ``compress`` at zstd level 1.
+
+    mcap 1.6's Writer takes no compression level and compresses each chunk with
+    ``zstandard.compress(data)``, that is level 3; the mcap C++ writer that rosbag2 uses
+    compresses at level 1 (its ``CompressionLevel::Default``). For JointState chunks level
+    1 is 2.8 times faster for sizes within 0.2%, so the Writer is handed this module.
+    """
+
+    def __init__(self, module):
+        self._module = module
+
+    def __getattr__(self, name):
+        return getattr(self._module, name)
+
+    def compress(self, data, level=1):
+        """Compress ``data`` into one zstd frame, at ``level``."""
+        return self._module.compress(data, level)
 
 
-def _str_map(mapping) -> bytes:
-    body = b''.join(_s(k) + _s(v) for k, v in mapping.items())
-    return struct.pack('<I', len(body)) + body
-
-
-def _record(opcode, body) -> bytes:
-    return _RECORD_HEAD.pack(opcode, len(body)) + body
+if getattr(mcap.writer, 'zstandard', None) is not None and not isinstance(
+        mcap.writer.zstandard, _Zstandard):
+    mcap.writer.zstandard = _Zstandard(mcap.writer.zstandard)
 
 
 @contextlib.contextmanager
 def _signals_deferred():
     """
-    Hold SIGINT/SIGTERM while a file is being finished, so it is never left half-written.
+    Hold SIGINT/SIGTERM while a chunk or a file is being finished, never left half-written.
 
     Their Python handlers are swapped for one that only notes the signal; on leaving, the
     original handlers come back and each noted signal is raised again, so the caller's
@@ -97,209 +106,100 @@ def _signals_deferred():
             signal.raise_signal(signum)
 
 
-def _compressor(compression):
-    if compression in ('', 'none', None):
-        return '', None
-    if compression == 'zstd':
-        import zstandard
-        return 'zstd', zstandard.ZstdCompressor(level=1).compress
-    if compression == 'lz4':
-        import lz4.frame
-        return 'lz4', lz4.frame.compress
-    raise ValueError(f'unknown chunk compression {compression!r} (none, zstd, lz4)')
-
-
-class McapFileWriter:
+class McapFile:
     """
-    A chunked MCAP file writer that flushes each chunk whole.
+    One MCAP file, written by ``mcap.writer.Writer`` one whole chunk at a time.
 
-    Low level: schemas, channels and raw messages by id. :class:`BagWriter` builds on it,
-    and :func:`reindex` uses it to rewrite a damaged file.
+    :meth:`add_message` only queues a message; :meth:`write_chunk` hands the queue to the
+    Writer as one chunk (the Writer never cuts a chunk by itself) and flushes the file, so
+    the messages counted in :attr:`message_count` are exactly those on disk.
     """
 
-    def __init__(self, path, chunk_size=DEFAULT_CHUNK_SIZE, compression='zstd',
-                 fsync=False, on_chunk=None):
+    def __init__(self, path, chunk_size=DEFAULT_CHUNK_SIZE, compression='zstd', fsync=False):
         """Create ``path`` and write the MCAP magic and the ``ros2`` header record."""
+        if compression not in _COMPRESSION:
+            raise ValueError(f'unknown chunk compression {compression!r} (none, zstd, lz4)')
         self.path = Path(path)
         self.chunk_size = int(chunk_size)
-        self.compression, self._compress = _compressor(compression)
         self.fsync = fsync
-        self.on_chunk = on_chunk
         self._f = open(self.path, 'xb')
-        self._pos = 0
-        self._write(MAGIC + _record(OP_HEADER, _s(PROFILE) + _s(LIBRARY)))
-        self.schemas = {}        # id -> record body
-        self.channels = {}       # id -> record body
+        self._mcap = Writer(self._f, chunk_size=2**62, compression=_COMPRESSION[compression])
+        self._mcap.start(PROFILE, LIBRARY)
+        self._f.flush()
         self._schema_ids = {}    # (name, encoding, data) -> id
-        self._chunk = bytearray()
-        self._chunk_end = 0      # end of the last whole record in self._chunk
-        self._index = []         # (channel id, log time, offset) in self._chunk
-        self._chunk_indexes = []
-        self._metadata_indexes = []
+        self.pending = []        # Writer.add_message arguments of the open chunk
+        self.pending_bytes = 0
         self.message_count = 0   # messages in completed chunks (on disk)
         self.channel_counts = {}
         self.start_time = None
         self.end_time = None
-        self.chunk_count = 0
         self.closed = False
-
-    def _write(self, data):
-        self._f.write(data)
-        self._pos += len(data)
 
     @property
     def size(self) -> int:
         """Bytes written so far plus the open chunk (a size estimate for splitting)."""
-        return self._pos + len(self._chunk)
-
-    @property
-    def buffered(self) -> int:
-        """Return how many messages are in the open chunk, not yet on disk."""
-        return len(self._index)
+        return self._f.tell() + self.pending_bytes
 
     def add_schema(self, name, encoding, data) -> int:
         """Register a schema (once per distinct definition) and return its id."""
         data = data.encode('utf-8') if isinstance(data, str) else bytes(data)
         key = (name, encoding, data)
-        if key in self._schema_ids:
-            return self._schema_ids[key]
-        sid = len(self.schemas) + 1
-        body = struct.pack('<H', sid) + _s(name) + _s(encoding) + _s(data)
-        self.schemas[sid] = body
-        self._schema_ids[key] = sid
-        self._chunk += _record(OP_SCHEMA, body)
-        self._chunk_end = len(self._chunk)
-        return sid
+        if key not in self._schema_ids:
+            with _signals_deferred():
+                self._schema_ids[key] = self._mcap.register_schema(name, encoding, data)
+        return self._schema_ids[key]
 
     def add_channel(self, topic, message_encoding, schema_id, metadata) -> int:
-        """Register a channel and return its id; its record goes into the open chunk."""
-        cid = len(self.channels) + 1
-        body = (struct.pack('<HH', cid, schema_id) + _s(topic) + _s(message_encoding)
-                + _str_map(metadata))
-        self.channels[cid] = body
+        """Register a channel and return its id; its record goes into the next chunk."""
+        with _signals_deferred():
+            cid = self._mcap.register_channel(topic, message_encoding, schema_id, metadata)
         self.channel_counts.setdefault(cid, 0)
-        self._chunk += _record(OP_CHANNEL, body)
-        self._chunk_end = len(self._chunk)
         return cid
 
     def add_message(self, channel_id, log_time, data, publish_time=None, sequence=0):
-        """Append one serialised message to the open chunk; write the chunk when full."""
-        offset = len(self._chunk)
-        self._chunk += _MESSAGE.pack(OP_MESSAGE, 22 + len(data), channel_id,
-                                     sequence & 0xFFFFFFFF, log_time,
-                                     log_time if publish_time is None else publish_time)
-        self._chunk += data
-        # The index entry and the end mark come last: a signal between these lines
-        # leaves a record past _chunk_end, which flush_chunk drops, never a bad index.
-        self._index.append((channel_id, log_time, offset))
-        self._chunk_end = len(self._chunk)
-        if len(self._chunk) >= self.chunk_size:
-            self.flush_chunk()
+        """Queue one serialised message for the open chunk (see :meth:`write_chunk`)."""
+        self.pending.append((channel_id, log_time, data,
+                             log_time if publish_time is None else publish_time,
+                             sequence & 0xFFFFFFFF))
+        self.pending_bytes += _MESSAGE_OVERHEAD + len(data)
 
-    def flush_chunk(self):
-        """Compress, write and flush the open chunk and its message indexes."""
-        if self._chunk_end == 0:
-            return
+    def write_chunk(self) -> bool:
+        """Write the queued messages as one chunk and flush it; False if none were queued."""
+        if not self.pending:
+            return False
         with _signals_deferred():
-            self._flush_chunk()
-
-    def _flush_chunk(self):
-        end = self._chunk_end
-        index = [e for e in self._index if e[2] < end]
-        data = bytes(self._chunk[:end])
-        times = [e[1] for e in index]
-        start_t, end_t = (min(times), max(times)) if times else (0, 0)
-        compressed = self._compress(data) if self._compress else data
-        body = (struct.pack('<QQQI', start_t, end_t, len(data), zlib.crc32(data))
-                + _s(self.compression) + struct.pack('<Q', len(compressed)))
-        chunk_start = self._pos
-        self._write(_RECORD_HEAD.pack(OP_CHUNK, len(body) + len(compressed)) + body)
-        self._write(compressed)
-        chunk_length = self._pos - chunk_start
-        per_channel = {}
-        for cid, t, off in index:
-            per_channel.setdefault(cid, []).append((t, off))
-        offsets = []
-        index_start = self._pos
-        for cid in sorted(per_channel):
-            entries = sorted(per_channel[cid])
-            offsets.append((cid, self._pos))
-            packed = b''.join(struct.pack('<QQ', t, off) for t, off in entries)
-            self._write(_record(OP_MESSAGE_INDEX, struct.pack('<HI', cid, len(packed)) + packed))
-        self._f.flush()
-        if self.fsync:
-            os.fsync(self._f.fileno())
-        offsets_map = b''.join(struct.pack('<HQ', cid, off) for cid, off in offsets)
-        self._chunk_indexes.append(_record(OP_CHUNK_INDEX, struct.pack(
-            '<QQQQ', start_t, end_t, chunk_start, chunk_length) + struct.pack(
-            '<I', len(offsets_map)) + offsets_map + struct.pack(
-            '<Q', self._pos - index_start) + _s(self.compression) + struct.pack(
-            '<QQ', len(compressed), len(data))))
-        self.chunk_count += 1
-        for cid, count in ((c, len(v)) for c, v in per_channel.items()):
-            self.channel_counts[cid] = self.channel_counts.get(cid, 0) + count
-        self.message_count += len(index)
-        if times:
-            self.start_time = start_t if self.start_time is None else min(self.start_time,
-                                                                          start_t)
-            self.end_time = end_t if self.end_time is None else max(self.end_time, end_t)
-        self._chunk = bytearray()
-        self._chunk_end = 0
-        self._index = []
-        if self.on_chunk is not None:
-            self.on_chunk(self)
+            pending = self.pending
+            add, counts = self._mcap.add_message, self.channel_counts
+            for cid, log_time, data, publish_time, sequence in pending:
+                add(cid, log_time, data, publish_time, sequence)
+                counts[cid] += 1
+            self._mcap.flush()   # the chunk, its message indexes, then the OS
+            if self.fsync:
+                os.fsync(self._f.fileno())
+            times = [m[1] for m in pending]
+            low, high = min(times), max(times)
+            self.start_time = low if self.start_time is None else min(self.start_time, low)
+            self.end_time = high if self.end_time is None else max(self.end_time, high)
+            self.message_count += len(pending)
+            self.pending = []
+            self.pending_bytes = 0
+        return True
 
     def add_metadata(self, name, data):
-        """Write a metadata record (outside chunks, indexed in the summary)."""
-        self.flush_chunk()
-        offset = self._pos
-        rec = _record(OP_METADATA, _s(name) + _str_map(data))
-        self._write(rec)
-        self._metadata_indexes.append(_record(
-            OP_METADATA_INDEX, struct.pack('<QQ', offset, len(rec)) + _s(name)))
+        """Write a metadata record (after the open chunk; indexed in the summary)."""
+        with _signals_deferred():
+            self.write_chunk()
+            self._mcap.add_metadata(name, data)
 
-    def close(self, metadata=None):
+    def close(self, metadata=()):
         """Write the last chunk, the metadata records, the summary and the footer."""
         if self.closed:
             return
         with _signals_deferred():
-            if self._chunk_end:
-                self._flush_chunk()
-            for name, data in (metadata or []):
-                offset = self._pos
-                rec = _record(OP_METADATA, _s(name) + _str_map(data))
-                self._write(rec)
-                self._metadata_indexes.append(_record(
-                    OP_METADATA_INDEX, struct.pack('<QQ', offset, len(rec)) + _s(name)))
-            self._write(_record(OP_DATA_END, struct.pack('<I', 0)))
-            summary_start = self._pos
-            groups = []
-
-            def group(opcode, records):
-                start = summary_start + sum(len(r) for _, rs in groups for r in rs)
-                groups.append(((opcode, start), records))
-
-            group(OP_SCHEMA, [_record(OP_SCHEMA, b) for b in self.schemas.values()])
-            group(OP_CHANNEL, [_record(OP_CHANNEL, b) for b in self.channels.values()])
-            counts = b''.join(struct.pack('<HQ', c, n) for c, n in self.channel_counts.items())
-            group(OP_STATISTICS, [_record(OP_STATISTICS, struct.pack(
-                '<QHIIIIQQ', self.message_count, len(self.schemas), len(self.channels), 0,
-                len(self._metadata_indexes), self.chunk_count, self.start_time or 0,
-                self.end_time or 0) + struct.pack('<I', len(counts)) + counts)])
-            group(OP_CHUNK_INDEX, self._chunk_indexes)
-            group(OP_METADATA_INDEX, self._metadata_indexes)
-            summary = b''.join(r for _, rs in groups for r in rs)
-            offset_start = summary_start + len(summary)
-            summary += b''.join(
-                _record(OP_SUMMARY_OFFSET, struct.pack('<BQQ', op, start, sum(map(len, rs))))
-                for (op, start), rs in groups if rs)
-            crc = zlib.crc32(summary)
-            crc = zlib.crc32(struct.pack('<BQQQ', OP_FOOTER, 20, summary_start, offset_start),
-                             crc)
-            self._write(summary)
-            self._write(_record(OP_FOOTER, struct.pack('<QQI', summary_start, offset_start,
-                                                       crc)))
-            self._write(MAGIC)
+            self.write_chunk()
+            for name, data in metadata:
+                self._mcap.add_metadata(name, data)
+            self._mcap.finish()
             self._f.flush()
             os.fsync(self._f.fileno())
             self._f.close()
@@ -488,21 +388,26 @@ class BagWriter:
                 raise TypeError(f'topic {topic} has type {expected.type}, got {type(msg)!r}')
             data = _serialize(msg)
         t_ns = int(t_ns)
+        if not 0 <= t_ns < 2**64 or not 0 <= (publish_time_ns or 0) < 2**64:
+            # checked now: the message is encoded only when its chunk is written
+            raise ValueError(f'log/publish time out of uint64 range: {t_ns}, {publish_time_ns}')
         if self._file is None:
             self._open_file()
         if (self.split_max_duration_ns and self._file_first_t is not None
                 and t_ns - self._file_first_t >= self.split_max_duration_ns):
             self.split()
         info = self._topics[topic]
-        self._file.add_message(self._file_topics[topic], t_ns, data, publish_time_ns, info.seq)
+        f = self._file
+        f.add_message(self._file_topics[topic], t_ns, data, publish_time_ns, info.seq)
         info.seq += 1
         info.count += 1
         self._file_counts[topic] += 1
         if self._file_first_t is None:
             self._file_first_t = t_ns
-        if (self.chunk_max_age_s is not None and self._file.buffered
+        if f.pending_bytes >= f.chunk_size or (
+                self.chunk_max_age_s is not None
                 and time.monotonic() - self._chunk_opened >= self.chunk_max_age_s):
-            self._file.flush_chunk()
+            self._write_chunk()
         if topic == self.episode_topic:
             self._file_episodes += 1
             if self.split_max_episodes and self._file_episodes >= self.split_max_episodes:
@@ -522,7 +427,7 @@ class BagWriter:
         """
         with self._lock:
             if not self.closed and self._file is not None:
-                self._file.flush_chunk()
+                self._write_chunk()
                 self._write_metadata(force=metadata)
 
     # -- files ---------------------------------------------------------------------------
@@ -540,14 +445,14 @@ class BagWriter:
     @property
     def message_count(self) -> int:
         """Messages written so far, flushed or not."""
-        return self.flushed_message_count + (self._file.buffered if self._file else 0)
+        return self.flushed_message_count + (len(self._file.pending) if self._file else 0)
 
     def _file_path(self, index):
         return self.directory / f'{self.name}_{index}.mcap'
 
     def _open_file(self):
-        self._file = McapFileWriter(self._file_path(self.file_index), self.chunk_size,
-                                    self.compression, self.fsync, self._chunk_done)
+        self._file = McapFile(self._file_path(self.file_index), self.chunk_size,
+                              self.compression, self.fsync)
         self._file_topics = {}
         self._file_counts = {}
         self._file_first_t = None
@@ -557,26 +462,24 @@ class BagWriter:
             self._add_channel(topic)
         self._write_metadata(force=True)
 
-    def _chunk_done(self, mcap_file):
-        self._chunk_opened = time.monotonic()
-        self._write_metadata()
-        if self.on_chunk is not None:
-            self.on_chunk(self)
+    def _write_chunk(self):
+        if self._file.write_chunk():
+            self._chunk_opened = time.monotonic()
+            self._write_metadata()
+            if self.on_chunk is not None:
+                self.on_chunk(self)
 
-    def _current_file_entry(self, flushed_only):
+    def _current_file_entry(self):
+        """Return the open file's entry: what of it is on disk (in completed chunks)."""
         f = self._file
-        by_channel = dict(f.channel_counts)
-        counts = {t: by_channel.get(cid, 0) for t, cid in self._file_topics.items()}
-        if not flushed_only:
-            counts = dict(self._file_counts)
+        counts = {t: f.channel_counts[cid] for t, cid in self._file_topics.items()}
         start = f.start_time or 0
-        count = sum(counts.values())
-        return (self._file.path.name, start, (f.end_time or start) - start, count, counts)
+        return (f.path.name, start, (f.end_time or start) - start, sum(counts.values()), counts)
 
-    def _info(self, flushed_only=True):
+    def _info(self):
         files = list(self._done_files)
         if self._file is not None:
-            files.append(self._current_file_entry(flushed_only))
+            files.append(self._current_file_entry())
         totals = {}
         for f in files:
             for t, n in f[4].items():
@@ -594,8 +497,8 @@ class BagWriter:
     def _close_file(self):
         f = self._file
         with _signals_deferred():
-            f.flush_chunk()
-            entry = self._current_file_entry(flushed_only=True)
+            self._write_chunk()
+            entry = self._current_file_entry()
             self._done_files.append(entry)
             self._file = None
             info = self._info()
@@ -661,45 +564,35 @@ class ReindexReport:
         return f'ReindexReport(files={self.files!r})'
 
 
-def _split_key(path):
-    tail = path.stem.rsplit('_', 1)[-1]
-    return (int(tail) if tail.isdigit() else 0, path.name)
-
-
 def reindex(directory, compression='zstd', keep_damaged=False) -> ReindexReport:
     """
     Recover a bag whose writer was killed, like ``ros2 bag reindex``.
 
-    Each ``.mcap`` file is scanned record by record. A complete file is left alone; a
-    truncated or damaged one is rewritten (temporary file, then ``os.replace``) into a
-    complete MCAP file holding everything before the damage. Then ``metadata.yaml`` is
-    rewritten from what the files really contain: counts, times, and each topic's QoS and
-    type hash from its MCAP channel (from the old metadata.yaml where a channel has none).
-    ``keep_damaged`` keeps each original damaged file as ``<name>.damaged``.
+    Each ``.mcap`` file is read record by record (:class:`McapScan`). A complete file is
+    left alone; a truncated or damaged one is rewritten by the ``mcap`` Writer (temporary
+    file, then ``os.replace``) into a complete MCAP file holding everything before the
+    damage. Then ``metadata.yaml`` is rewritten from what the files really contain: counts,
+    times, and each topic's QoS and type hash from its MCAP channel (from the old
+    metadata.yaml where a channel has none). ``keep_damaged`` keeps each original damaged
+    file as ``<name>.damaged``.
     """
     directory = Path(directory)
+    info = read_metadata_yaml(directory) or {}
+    custom = info.get('custom_data')
     old = {}
-    custom = None
-    meta_path = directory / 'metadata.yaml'
-    if meta_path.is_file():
-        try:
-            info = yaml.safe_load(meta_path.read_text())['rosbag2_bagfile_information']
-            custom = info.get('custom_data')
-            for entry in info.get('topics_with_message_count') or []:
-                old[entry['topic_metadata']['name']] = entry['topic_metadata']
-        except (yaml.YAMLError, KeyError, TypeError):
-            pass
+    with contextlib.suppress(KeyError, TypeError):
+        for entry in info.get('topics_with_message_count') or []:
+            old[entry['topic_metadata']['name']] = entry['topic_metadata']
     report = ReindexReport()
     topics = {}   # name -> topic_metadata
     totals = {}
     files = []
     damaged = []
-    for path in sorted(directory.glob('*.mcap'), key=_split_key):
+    for path in sorted(directory.glob('*.mcap'), key=_split_index):
         scan = McapScan(path)
         counts, times = _copy_records(scan, None, topics)
-        damage = None
-        if scan.damage is not None or not scan.complete:
-            damage = scan.damage or f'{path}: no footer'
+        damage = scan.damage
+        if damage is not None:
             damaged.append(path)
         n = sum(counts.values())
         for t, c in counts.items():
@@ -723,7 +616,7 @@ def reindex(directory, compression='zstd', keep_damaged=False) -> ReindexReport:
         tmp = path.with_name(f'.{path.name}.reindex')
         if tmp.exists():
             tmp.unlink()
-        writer = McapFileWriter(tmp, compression=compression)
+        writer = McapFile(tmp, compression=compression)
         _copy_records(McapScan(path), writer, {})
         writer.close(metadata=[('rosbag2', {'serialized_metadata': _dump(info)})])
         if keep_damaged:
@@ -737,31 +630,33 @@ def _copy_records(scan, writer, topics):
     """Read every whole record of ``scan``; copy them into ``writer`` if it is not None."""
     counts, times = {}, []
     schema_map, channel_map = {}, {}
-    for kind, value in scan:
-        if kind == 'schema' and writer is not None:
-            schema_map[value.id] = writer.add_schema(value.name, value.encoding, value.data)
-        elif kind == 'channel':
-            schema = scan.schemas.get(value.schema_id)
-            topics.setdefault(value.topic, {
-                'name': value.topic, 'type': schema.name if schema else '',
-                'serialization_format': value.message_encoding,
-                'offered_qos_profiles': ros_types.parse_qos(
-                    value.metadata.get('offered_qos_profiles', '')),
-                'type_description_hash': value.metadata.get('topic_type_hash', '')})
-            counts.setdefault(value.topic, 0)
+    for record in scan:
+        if isinstance(record, Message):
+            channel = scan.channels.get(record.channel_id)
+            if channel is None:
+                continue
+            counts[channel.topic] += 1
+            times.append(record.log_time)
             if writer is not None:
-                channel_map[value.id] = writer.add_channel(
-                    value.topic, value.message_encoding, schema_map.get(value.schema_id, 0),
-                    value.metadata)
-        elif kind == 'messages':
-            for cid, seq, log, pub, data in value:
-                channel = scan.channels.get(cid)
-                if channel is None:
-                    continue
-                counts[channel.topic] += 1
-                times.append(log)
-                if writer is not None:
-                    writer.add_message(channel_map[cid], log, data, pub, seq)
-        elif kind == 'metadata' and writer is not None and value[0] != 'rosbag2':
-            writer.add_metadata(*value)
+                writer.add_message(channel_map[channel.id], record.log_time, record.data,
+                                   record.publish_time, record.sequence)
+                if writer.pending_bytes >= writer.chunk_size:
+                    writer.write_chunk()
+        elif isinstance(record, Schema) and writer is not None:
+            schema_map[record.id] = writer.add_schema(record.name, record.encoding, record.data)
+        elif isinstance(record, Channel):
+            schema = scan.schemas.get(record.schema_id)
+            topics.setdefault(record.topic, {
+                'name': record.topic, 'type': schema.name if schema else '',
+                'serialization_format': record.message_encoding,
+                'offered_qos_profiles': ros_types.parse_qos(
+                    record.metadata.get('offered_qos_profiles', '')),
+                'type_description_hash': record.metadata.get('topic_type_hash', '')})
+            counts.setdefault(record.topic, 0)
+            if writer is not None:
+                channel_map[record.id] = writer.add_channel(
+                    record.topic, record.message_encoding, schema_map.get(record.schema_id, 0),
+                    record.metadata)
+        elif isinstance(record, Metadata) and writer is not None and record.name != 'rosbag2':
+            writer.add_metadata(record.name, record.metadata)
     return counts, times
