@@ -13,6 +13,7 @@ import sys
 import threading
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from domains import ros_domain
 from pg_node.tools.monitor import MonitorState, sparkline
 import pytest
 import rclpy
@@ -21,7 +22,7 @@ from rich.console import Console
 from std_msgs.msg import Float64
 
 REPO = Path(__file__).resolve().parent.parent
-DOMAIN_ID = 110 + os.getpid() % 100
+DOMAIN_ID = ros_domain(base=110, spread=100)
 
 
 def text_of(renderable) -> str:
@@ -169,3 +170,13 @@ def test_docstring_examples():
     import pg_node.tools.monitor
     failures, tried = doctest.testmod(pg_node.tools.monitor)
     assert tried >= 2 and failures == 0
+
+
+@pytest.mark.parametrize('option', ['--duration', '--stale', '--refresh'])
+def test_monitor_refuses_a_negative_time(option, capsys):
+    from pg_node.tools.monitor import main
+    bounded = [] if option == '--duration' else ['--duration', '0.5']  # (before the fix)
+    with pytest.raises(SystemExit) as exc:
+        main([option, '-1', '--once'] + bounded)
+    assert exc.value.code == 2
+    assert f'argument {option}: must be > 0, got -1' in capsys.readouterr().err

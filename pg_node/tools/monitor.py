@@ -175,17 +175,25 @@ class MonitorNode:
                 self.subscribed.add(name)
 
 
+def _positive(text: str) -> float:
+    value = float(text)
+    if not 0 < value < float('inf'):
+        raise argparse.ArgumentTypeError(f'must be > 0, got {text}')
+    return value
+
+
 def main(argv=None) -> int:
     """Show the live view (or print it once); return the exit status."""
     parser = argparse.ArgumentParser(prog='python -m pg_node monitor',
                                      description='Live terminal view of a running training.')
-    parser.add_argument('--duration', type=float,
+    parser.add_argument('--duration', type=_positive,
                         help='quit after this many seconds (with --once: listen this long)')
     parser.add_argument('--once', action='store_true',
                         help='listen, print the view once and exit (no live screen)')
-    parser.add_argument('--stale', type=float, default=5.0,
+    parser.add_argument('--stale', type=_positive, default=5.0,
                         help='seconds after which a diagnostic status is STALE')
-    parser.add_argument('--refresh', type=float, default=4.0, help='screen updates per second')
+    parser.add_argument('--refresh', type=_positive, default=4.0,
+                        help='screen updates per second')
     args = parser.parse_args(argv)
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
