@@ -169,3 +169,10 @@ def test_arm_lab_runs_every_row(arm_lab):
     flagged = {r['estimator'] for r in res.rows if r['action_dependent']}
     assert flagged == {'td_residual', 'td_residual[approx V]', 'gae', 'gae[approx V]'}
     assert res.bias_threshold > 4
+
+
+def test_cli_refuses_a_batch_of_one():
+    res = subprocess.run([sys.executable, '-m', 'pg_node', 'variance', '--batch-size', '1'],
+                         capture_output=True, text=True)
+    assert res.returncode == 2 and '--batch-size must be >= 2' in res.stderr
+    assert 'Traceback' not in res.stderr

@@ -41,8 +41,13 @@ def main(argv=None) -> int:
     batches = args.batches if args.batches is not None else (200 if arm else 2000)
     batch_size = args.batch_size if args.batch_size is not None else (32 if arm else 64)
     horizon = args.horizon if args.horizon is not None else (50 if arm else 10)
-    if batches < 2 or batch_size < 1 or horizon < 1:
-        parser.error('--batches must be >= 2, --batch-size and --horizon >= 1')
+    if batches < 2:
+        parser.error(f'--batches must be >= 2 (a variance needs two), got {batches}')
+    if batch_size < 2:
+        parser.error(f'--batch-size must be >= 2 (the baselines of a trajectory are '
+                     f'estimated from the others of its batch), got {batch_size}')
+    if horizon < 1:
+        parser.error(f'--horizon must be >= 1, got {horizon}')
     if not 0.0 <= args.gae_lambda <= 1.0:
         parser.error(f'--gae-lambda must be in [0, 1], got {args.gae_lambda}')
     if arm:
