@@ -5,7 +5,7 @@
 PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
-LOCK_HASH := $(shell sha1sum requirements.lock | cut -c1-12)
+LOCK_HASH := $(shell cat requirements.lock setup.py | sha1sum | cut -c1-12)
 STAMP := $(VENV)/.installed-$(LOCK_HASH)
 
 # ament_index look-ups (message packages, pg_node's share dir) search the venv prefix.
@@ -25,7 +25,7 @@ venv: $(STAMP)
 # Debian packages: libosmesa6 lets MuJoCo render offscreen (python -m pg_node render).
 SYSTEM_PACKAGES := libosmesa6
 
-$(STAMP): requirements.lock
+$(STAMP): requirements.lock setup.py
 	@for pkg in $(SYSTEM_PACKAGES); do dpkg -s $$pkg >/dev/null 2>&1 || missing="$$missing $$pkg"; done; \
 	if [ -n "$$missing" ]; then \
 	  echo "Installing Debian packages:$$missing"; \
@@ -36,6 +36,8 @@ $(STAMP): requirements.lock
 	@$(PY) -m pip install --quiet --disable-pip-version-check --upgrade pip==26.3
 	@echo "Installing pinned dependencies into $(VENV) (first run: a few minutes, about 6 GB)"
 	@$(PY) -m pip install --quiet --disable-pip-version-check -r requirements.lock
+	@echo "Installing pg_node itself into $(VENV) (editable: $(VENV)/bin/sim_node runs this checkout)"
+	@$(PY) -m pip install --quiet --disable-pip-version-check --no-deps --no-build-isolation -e . >/dev/null
 	@rm -f $(VENV)/.installed-*
 	@touch $@
 

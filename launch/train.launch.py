@@ -1,52 +1,91 @@
 """
 Launch the pg_node training graph on a full ROS 2 install: ``ros2 launch pg_node train.launch.py``.
 
-The same bring-up as ``python -m pg_node train`` without its supervision, evaluation and
-summary: the four nodes with the package's ``config/pg_node.yaml`` (or ``params_file:=...``).
-Arguments: ``params_file``, ``run_dir``, ``namespace`` (of the simulator/actor pair) and
-``use_learner:=false`` to start only a simulator/actor pair that joins a critic and learner
-running elsewhere on the same ``ROS_DOMAIN_ID`` (give it its own ``namespace`` and
-``actor_id``, and set ``num_actors`` on the critic/learner side).
+The four nodes with the package's ``config/pg_node.yaml`` (or ``params_file:=...``). The launch
+ends by itself when the learner exits (it has learned ``total_steps``): every other node is
+then stopped, as Ctrl-C does. Arguments:
+
+- ``params_file``, ``run_dir``;
+- ``total_steps``, ``seed``, ``num_envs``, ``algo``: override the parameter file's values
+  (empty, the default: the file's value);
+- ``namespace`` (of the simulator/actor pair), ``actor_id`` and ``use_learner:=false`` to start
+  only a simulator/actor pair that joins a critic and learner running elsewhere on the same
+  ``ROS_DOMAIN_ID`` (set ``num_actors`` on the critic/learner side);
+- ``supervised:=true``: instead of the four nodes, run ``python -m pg_node train`` with the
+  same file and overrides: it restarts a node that dies, evaluates the final policy and
+  writes ``summary.json`` and the learning-curve plot; the launch ends with it.
 """
 import os
+import sys
 
 from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument
-from launch.conditions import IfCondition
-from launch.substitutions import LaunchConfiguration
+from launch.actions import (DeclareLaunchArgument, EmitEvent, ExecuteProcess, OpaqueFunction,
+                            RegisterEventHandler)
+from launch.event_handlers import OnProcessExit
+from launch.events import Shutdown
 from launch_ros.actions import Node
+import yaml
+
+#: launch arguments that override one parameter of every node that reads it
+OVERRIDES = ('total_steps', 'seed', 'num_envs', 'algo')
+
+
+def _value(context, name):
+    return context.launch_configurations.get(name, '')
+
+
+def _end_with(action, reason):
+    """Return the handler that shuts the launch down when ``action``'s process exits."""
+    return RegisterEventHandler(OnProcessExit(
+        target_action=action, on_exit=[EmitEvent(event=Shutdown(reason=reason))]))
+
+
+def _bring_up(context):
+    params = _value(context, 'params_file')
+    run_dir = _value(context, 'run_dir')
+    given = {k: yaml.safe_load(_value(context, k)) for k in OVERRIDES if _value(context, k)}
+    if _value(context, 'supervised').lower() == 'true':
+        train = ExecuteProcess(
+            cmd=[sys.executable, '-m', 'pg_node', 'train', '--config', params,
+                 '--run-dir', run_dir, '--no-progress',
+                 *[f'{k}={v}' for k, v in given.items()]],
+            output='screen', sigterm_timeout='30')
+        return [train, _end_with(train, 'supervised training finished')]
+    namespace = _value(context, 'namespace')
+    actor_id = int(_value(context, 'actor_id'))
+    shared = {k: v for k, v in given.items() if k in ('seed', 'num_envs')}
+    sim = Node(package='pg_node', executable='sim_node', name='sim_node', namespace=namespace,
+               parameters=[params, shared], output='screen')
+    actor = Node(package='pg_node', executable='actor_node', name='actor_node',
+                 namespace=namespace, parameters=[params, {**shared, 'actor_id': actor_id}],
+                 output='screen')
+    actions = [sim, actor]
+    if _value(context, 'use_learner').lower() == 'true':
+        critic = Node(package='pg_node', executable='critic_node', name='critic_node',
+                      parameters=[params, {**shared, 'run_dir': run_dir}], output='screen')
+        learner = Node(package='pg_node', executable='learner_node', name='learner_node',
+                       parameters=[params, {**given, 'run_dir': run_dir}], output='screen')
+        actions += [critic, learner, _end_with(learner, 'the learner has finished')]
+    return actions
 
 
 def generate_launch_description():
-    """Describe the four nodes and their arguments."""
+    """Describe the arguments and the bring-up."""
     default_params = os.path.join(get_package_share_directory('pg_node'), 'config',
                                   'pg_node.yaml')
-    params = LaunchConfiguration('params_file')
-    run_dir = LaunchConfiguration('run_dir')
-    namespace = LaunchConfiguration('namespace')
-    actor_id = LaunchConfiguration('actor_id')
-    use_learner = LaunchConfiguration('use_learner')
-    overrides = {'run_dir': run_dir}
-    return LaunchDescription([
-        DeclareLaunchArgument('params_file', default_value=default_params,
-                              description='ROS 2 parameter file of all pg_node nodes'),
-        DeclareLaunchArgument('run_dir', default_value='runs/latest',
-                              description='where checkpoints, the bag and progress go'),
-        DeclareLaunchArgument('namespace', default_value='',
-                              description='namespace of the simulator/actor pair'),
-        DeclareLaunchArgument('actor_id', default_value='0',
-                              description='id of this pair when several feed one learner'),
-        DeclareLaunchArgument('use_learner', default_value='true',
-                              description='also start the critic and the learner'),
-        Node(package='pg_node', executable='sim_node', name='sim_node', namespace=namespace,
-             parameters=[params], output='screen'),
-        Node(package='pg_node', executable='actor_node', name='actor_node',
-             namespace=namespace, parameters=[params, {'actor_id': actor_id}],
-             output='screen'),
-        Node(package='pg_node', executable='critic_node', name='critic_node',
-             parameters=[params, overrides], output='screen', condition=IfCondition(use_learner)),
-        Node(package='pg_node', executable='learner_node', name='learner_node',
-             parameters=[params, overrides], output='screen',
-             condition=IfCondition(use_learner)),
-    ])
+    args = [
+        ('params_file', default_params, 'ROS 2 parameter file of all pg_node nodes'),
+        ('run_dir', 'runs/latest', 'where checkpoints, the bag and progress go'),
+        ('total_steps', '', 'environment steps to learn (empty: from params_file)'),
+        ('seed', '', 'seed of simulator, policy and sampling (empty: from params_file)'),
+        ('num_envs', '', 'arms per simulator (empty: from params_file)'),
+        ('algo', '', 'a2c or ppo (empty: from params_file)'),
+        ('namespace', '', 'namespace of the simulator/actor pair'),
+        ('actor_id', '0', 'id of this pair when several feed one learner'),
+        ('use_learner', 'true', 'also start the critic and the learner'),
+        ('supervised', 'false', 'run python -m pg_node train (restarts, evaluation, summary)'),
+    ]
+    return LaunchDescription(
+        [DeclareLaunchArgument(name, default_value=default, description=text)
+         for name, default, text in args] + [OpaqueFunction(function=_bring_up)])

@@ -1,4 +1,5 @@
 """The ament_python layout, checked by building the package with colcon into a temp dir."""
+import os
 from pathlib import Path
 import shutil
 import subprocess
@@ -77,8 +78,100 @@ def test_package_xml_is_format_3_and_declares_dependencies():
     assert {'ament_flake8', 'ament_pep257'} <= {e.text for e in root.iter('test_depend')}
 
 
-def test_launch_file_names_every_training_executable():
-    text = (REPO / 'launch' / 'train.launch.py').read_text()
-    compile(text, 'train.launch.py', 'exec')
-    for exe in ('sim_node', 'actor_node', 'critic_node', 'learner_node'):
-        assert f"executable='{exe}'" in text
+class _Recorded:
+    """A stand-in for a launch action or event: it keeps what it was built with."""
+
+    def __init__(self, *args, **kwargs):
+        self.args, self.kwargs = args, kwargs
+
+
+def _fake_launch_modules():
+    import types
+    mods = {name: types.ModuleType(name) for name in (
+        'launch', 'launch.actions', 'launch.event_handlers', 'launch.events', 'launch_ros',
+        'launch_ros.actions')}
+    for module, names in (('launch', ['LaunchDescription']),
+                          ('launch.actions', ['DeclareLaunchArgument', 'EmitEvent',
+                                              'ExecuteProcess', 'OpaqueFunction',
+                                              'RegisterEventHandler']),
+                          ('launch.event_handlers', ['OnProcessExit']),
+                          ('launch.events', ['Shutdown']),
+                          ('launch_ros.actions', ['Node'])):
+        for name in names:
+            setattr(mods[module], name, type(name, (_Recorded,), {}))
+    return mods
+
+
+def _bring_up(monkeypatch, **given):
+    """Run the launch file's bring-up as ``ros2 launch`` would with ``given`` arguments."""
+    import ament_index_python.packages
+    import runpy
+    import types
+    for name, module in _fake_launch_modules().items():
+        monkeypatch.setitem(sys.modules, name, module)
+    monkeypatch.setattr(ament_index_python.packages, 'get_package_share_directory',
+                        lambda pkg: str(REPO))
+    ns = runpy.run_path(str(REPO / 'launch' / 'train.launch.py'))
+    desc = ns['generate_launch_description']()
+    entities = desc.args[0]
+    declared = {e.args[0]: e.kwargs['default_value'] for e in entities
+                if type(e).__name__ == 'DeclareLaunchArgument'}
+    assert not set(given) - set(declared), 'an argument the launch file does not declare'
+    context = types.SimpleNamespace(launch_configurations={**declared, **given})
+    bring_up = next(e for e in entities if type(e).__name__ == 'OpaqueFunction')
+    return bring_up.kwargs['function'](context)
+
+
+def _ends_launch_with(handler, action):
+    on_exit = handler.args[0]
+    assert type(on_exit).__name__ == 'OnProcessExit' and on_exit.kwargs['target_action'] is action
+    (emit,) = on_exit.kwargs['on_exit']
+    return type(emit.kwargs['event']).__name__ == 'Shutdown'
+
+
+def test_launch_ends_when_the_learner_exits_and_takes_overrides(monkeypatch):
+    from pg_node.common.params import params_for
+    actions = _bring_up(monkeypatch)
+    nodes = {a.kwargs['executable']: a for a in actions if type(a).__name__ == 'Node'}
+    assert set(nodes) == {'sim_node', 'actor_node', 'critic_node', 'learner_node'}
+    handlers = [a for a in actions if type(a).__name__ == 'RegisterEventHandler']
+    assert len(handlers) == 1 and _ends_launch_with(handlers[0], nodes['learner_node'])
+    assert nodes['learner_node'].kwargs['parameters'][1] == {'run_dir': 'runs/latest'}
+    # overrides reach the nodes that read them, typed as the table wants them
+    actions = _bring_up(monkeypatch, total_steps='5000', seed='3', num_envs='16', algo='ppo')
+    nodes = {a.kwargs['executable']: a for a in actions if type(a).__name__ == 'Node'}
+    learner = nodes['learner_node'].kwargs['parameters'][1]
+    assert learner == {'total_steps': 5000, 'seed': 3, 'num_envs': 16, 'algo': 'ppo',
+                       'run_dir': 'runs/latest'}
+    for key, value in learner.items():
+        assert params_for('learner_node')[key].check(key, value) == value
+    assert nodes['sim_node'].kwargs['parameters'][1] == {'seed': 3, 'num_envs': 16}
+    # a simulator/actor pair alone: no learner to wait for
+    actions = _bring_up(monkeypatch, use_learner='false', namespace='/arm1', actor_id='1')
+    assert [a.kwargs['executable'] for a in actions] == ['sim_node', 'actor_node']
+    assert actions[1].kwargs['parameters'][1] == {'actor_id': 1}
+
+
+def test_launch_runs_the_supervised_bring_up_on_request(monkeypatch):
+    actions = _bring_up(monkeypatch, supervised='true', total_steps='5000', run_dir='/tmp/r')
+    train, handler = actions
+    cmd = train.kwargs['cmd']
+    assert cmd[1:4] == ['-m', 'pg_node', 'train'] and 'total_steps=5000' in cmd
+    assert cmd[cmd.index('--run-dir') + 1] == '/tmp/r'
+    assert _ends_launch_with(handler, train)
+
+
+EXECUTABLES = ('sim_node', 'actor_node', 'critic_node', 'learner_node', 'replay_node')
+
+
+@pytest.mark.skipif(sys.prefix == sys.base_prefix, reason='runs in the venv that make creates')
+def test_make_installs_the_executables_into_the_venv(tmp_path):
+    """``.venv/bin/sim_node`` runs without PYTHONPATH, from any directory (editable install)."""
+    bin_dir = Path(sys.prefix) / 'bin'
+    for exe in EXECUTABLES:
+        assert (bin_dir / exe).is_file(), f'{exe} is not installed in {bin_dir}'
+    env = {k: v for k, v in os.environ.items() if k not in ('PYTHONPATH', 'AMENT_PREFIX_PATH')}
+    res = subprocess.run([str(bin_dir / 'sim_node'), '--ros-args', '-p', 'num_envs:=0'],
+                         cwd=tmp_path, env=env, capture_output=True, text=True, timeout=60)
+    assert res.returncode == 2, res.stderr
+    assert "parameter 'sim_node.num_envs': 0 is not allowed" in res.stderr
