@@ -2,12 +2,12 @@
 import gymnasium as gym
 from gymnasium.utils.env_checker import check_env
 import numpy as np
-import pg_node.sim.gym_env  # noqa: F401  (registers the ids)
-from pg_node.sim.gym_env import ARM5_ID, REACHER2_ID
+from pg_node.sim.envs import ARM5_ID, REACHER2_ID
 import pytest
 
 
 def test_ids_are_registered_on_import():
+    """In this process, by the tests' import of pg_node; the next test checks a fresh one."""
     assert REACHER2_ID == 'pg_node/Reacher2-v0' and ARM5_ID == 'pg_node/Arm5-v0'
     for env_id in (REACHER2_ID, ARM5_ID):
         assert env_id in gym.registry
@@ -78,3 +78,42 @@ def test_sb3_make_vec_env_default_render_mode_is_accepted():
     from pg_node.sim.gym_env import ArmEnv
     with pytest.raises(ValueError, match="render_mode 'human' is not supported"):
         ArmEnv(render_mode='human')
+
+
+IMPORT_MAKE_RENDER = """
+import sys
+import numpy as np
+import pg_node
+import gymnasium as gym
+env = gym.make('pg_node/Reacher2-v0', render_mode='rgb_array', width=240, height=240)
+env.reset(seed=0)
+heavy = sorted(m for m in ('rclpy', 'torch') if m in sys.modules)
+frame = env.render()
+env.close()
+np.save(sys.argv[1], frame)
+print(','.join(heavy) or 'none')
+"""
+
+
+def test_import_pg_node_registers_and_rgb_array_renders_headless(tmp_path):
+    """``import pg_node`` then ``gym.make``: no rclpy or torch loaded; render needs no setup."""
+    import os
+    import subprocess
+    import sys
+    env = {k: v for k, v in os.environ.items()
+           if k not in ('MUJOCO_GL', 'DISPLAY', 'WAYLAND_DISPLAY', 'PYOPENGL_PLATFORM')}
+    out = tmp_path / 'frame.npy'
+    res = subprocess.run([sys.executable, '-c', IMPORT_MAKE_RENDER, str(out)], env=env,
+                         capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr[-3000:]
+    assert res.stdout.split()[-1] == 'none'
+    frame = np.load(out)
+    assert frame.shape == (240, 240, 3) and frame.dtype == np.uint8
+    # the camera frames the arm: its links (blue, unlike the grey floor and the pink walls)
+    # show, start at the centre (the base is where the camera looks) and stay clear of the
+    # picture's edges (the whole reach is in view)
+    r, g, b = (frame[..., k].astype(int) for k in range(3))
+    links = (b > r + 40) & (g > r)
+    assert links.sum() > 100, links.sum()
+    assert links[100:140, 100:140].any()
+    assert links[12:-12, 12:-12].sum() == links.sum()

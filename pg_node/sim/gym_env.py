@@ -13,12 +13,14 @@ following the conventions of :mod:`pg_node.sim.arm_task` can be used with
 The environment is one :class:`~pg_node.sim.arm_task.ArmTask` with ``num_envs=1`` and no
 truncation of its own. It draws from ``self.np_random``, exactly as ``Reacher-v5`` does, so
 ``reset(seed=s)`` of ``pg_node/Reacher2-v0`` gives the same episodes as ``Reacher-v5``'s.
-No rendering is offered; the ROS side (``sim_node``'s markers) is where the arm is shown.
+``render_mode='rgb_array'`` draws the arm with MuJoCo's offscreen renderer, through a camera
+that frames it (:func:`pg_node.sim.view.framing_camera`); on a machine without a display it
+uses OSMesa by itself (:func:`pg_node.sim.view.use_headless_gl`).
 
-Example::
+Example (``import pg_node`` registers the ids; it imports neither rclpy nor torch)::
 
     import gymnasium as gym
-    import pg_node.sim.gym_env  # noqa: F401  (registers the ids)
+    import pg_node  # noqa: F401
     from stable_baselines3 import PPO
     PPO('MlpPolicy', gym.make('pg_node/Reacher2-v0')).learn(100_000)
 """
@@ -30,10 +32,8 @@ import numpy as np
 
 from pg_node.common.paths import resolve_model
 from pg_node.sim.arm_task import ArmTask
-
-REACHER2_ID = 'pg_node/Reacher2-v0'
-ARM5_ID = 'pg_node/Arm5-v0'
-MAX_EPISODE_STEPS = 50
+from pg_node.sim.envs import register_envs
+from pg_node.sim.view import framing_camera, use_headless_gl
 
 
 class ArmEnv(gymnasium.Env):
@@ -57,6 +57,7 @@ class ArmEnv(gymnasium.Env):
         self.render_mode = render_mode
         self._render_size = (int(height), int(width))
         self._renderer = None
+        self._camera = None
         self.task = ArmTask(resolve_model(model), num_envs=1, frame_skip=frame_skip,
                             max_episode_steps=None, reward_dist_weight=reward_dist_weight,
                             reward_control_weight=reward_control_weight, num_threads=1)
@@ -90,8 +91,14 @@ class ArmEnv(gymnasium.Env):
             return None
         if self._renderer is None:
             import mujoco
-            self._renderer = mujoco.Renderer(self.task.model, *self._render_size)
-        self._renderer.update_scene(self.task.datas[0])
+            use_headless_gl()
+            model = self.task.model
+            height, width = self._render_size
+            model.vis.global_.offwidth = max(model.vis.global_.offwidth, width)
+            model.vis.global_.offheight = max(model.vis.global_.offheight, height)
+            self._renderer = mujoco.Renderer(model, height, width)
+            self._camera = framing_camera(model, self.task.spec.target_dim)
+        self._renderer.update_scene(self.task.datas[0], self._camera)
         return self._renderer.render()
 
     def close(self):
@@ -100,14 +107,6 @@ class ArmEnv(gymnasium.Env):
             self._renderer.close()
             self._renderer = None
         self.task.close()
-
-
-def register_envs():
-    """Register pg_node's environment ids with Gymnasium (once)."""
-    for env_id, model in ((REACHER2_ID, 'reacher2'), (ARM5_ID, 'arm5_3d')):
-        if env_id not in gymnasium.registry:
-            gymnasium.register(id=env_id, entry_point='pg_node.sim.gym_env:ArmEnv',
-                               max_episode_steps=MAX_EPISODE_STEPS, kwargs={'model': model})
 
 
 register_envs()
