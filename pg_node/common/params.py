@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import math
 from typing import Any, Callable, Dict, Optional, Sequence
 
-from pg_node.common.paths import resolve_model
+from pg_node.common.paths import check_model
 import yaml
 
 SHARED = '/**'
@@ -111,7 +111,7 @@ POSITIVE = {'low': 0.0, 'low_inclusive': False}
 #: Values every node reads (the ``/**`` section).
 SHARED_PARAMS: Dict[str, Param] = {
     'model': Param('reacher2', 'shipped arm model (reacher2, arm5_3d) or a path to an MJCF file',
-                   validate=lambda v: resolve_model(v)),
+                   validate=check_model),
     'num_envs': Param(64, 'arms simulated side by side, all in one message per step', low=1),
     'seed': Param(0, 'seed of the simulator, the policy initialisation and the sampling', low=0),
     'hidden_sizes': Param([64, 64], 'hidden layer widths of the policy and value networks'),

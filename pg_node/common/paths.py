@@ -44,3 +44,22 @@ def resolve_model(name_or_path: str) -> Path:
     raise FileNotFoundError(
         f'model {name_or_path!r} is neither an existing .xml file nor a shipped model '
         f'(shipped: {", ".join(known) or "none"})')
+
+
+def check_model(name_or_path: str) -> Path:
+    """
+    Resolve a model as :func:`resolve_model` does and compile it with MuJoCo; return its path.
+
+    Raises ValueError in one line (MuJoCo's message, its lines joined) when the file is not
+    valid MJCF, so that a configuration check refuses it before any node starts. MuJoCo is
+    imported here, not with this module.
+    """
+    path = resolve_model(name_or_path)
+    import mujoco
+    try:
+        mujoco.MjModel.from_xml_path(str(path))
+    except ValueError as exc:
+        reason = '; '.join(line.strip() for line in str(exc).splitlines() if line.strip())
+        reason = reason.replace(':; ', ': ')
+        raise ValueError(f'{path} is not a valid MuJoCo model: {reason}') from None
+    return path
