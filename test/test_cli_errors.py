@@ -9,6 +9,7 @@ from pathlib import Path
 import subprocess
 import sys
 
+from domains import ros_domain
 from pg_node.common.params import load_config
 from pg_node.common.paths import default_config
 from pg_node.rl.checkpoint import save_checkpoint
@@ -17,7 +18,7 @@ import pytest
 
 REPO = Path(__file__).resolve().parent.parent
 SAMPLE = REPO / 'bags' / 'sample'
-DOMAIN_ID = int(os.environ.get('ROS_DOMAIN_ID', 0)) or 120 + os.getpid() % 90
+DOMAIN_ID = ros_domain(base=120, spread=90)
 
 
 def run(*args, timeout=120, module=None):
@@ -69,3 +70,35 @@ def test_eval_refuses_a_model_of_other_sizes(run_dir):
 
 def test_eval_refuses_zero_episodes(run_dir):
     refused(run('eval', run_dir, '--episodes', 0), 2, '--episodes')
+
+
+# -- nodes and train ------------------------------------------------------------------------
+@pytest.mark.parametrize('text, words', [
+    ('a: [b\n', ['bad.yaml', 'Error at line 1']),               # not YAML
+    ('gamma: 0.9\n', ['bad.yaml', 'before ros__parameters']),   # YAML, not a parameter file
+])
+def test_node_with_a_malformed_params_file(tmp_path, text, words):
+    (tmp_path / 'bad.yaml').write_text(text)
+    done = run('--ros-args', '--params-file', tmp_path / 'bad.yaml',
+               module='pg_node.ros.sim_node', timeout=60)
+    refused(done, 2, 'configuration error: ', "Couldn't parse params file", *words)
+    assert len(done.stderr.strip().splitlines()) == 1, done.stderr
+
+
+@pytest.mark.parametrize('text, words', [
+    ('<mujoco><worldbody><bogus/></worldbody></mujoco>', ['unrecognized element', 'bogus']),
+    ('not xml at all', ['XML parse error']),
+])
+def test_train_refuses_a_model_that_is_not_mjcf_before_starting(tmp_path, text, words):
+    (tmp_path / 'bad.xml').write_text(text)
+    done = run('train', f'model={tmp_path / "bad.xml"}', '--run-dir', tmp_path / 'run',
+               timeout=60)
+    refused(done, 2, "parameter 'model'", 'is not a valid MuJoCo model', *words)
+    assert len(done.stderr.strip().splitlines()) == 1, done.stderr
+    assert not (tmp_path / 'run').exists()  # nothing was started
+
+
+def test_check_model_compiles_the_shipped_models():
+    from pg_node.common.paths import check_model, models_dir
+    for model in models_dir().glob('*.xml'):
+        assert check_model(model.stem) == model

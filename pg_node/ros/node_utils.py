@@ -70,9 +70,35 @@ def run(make_node: Callable[[], Node], args=None,
     Init rclpy, spin the node until Ctrl-C / shutdown, clean up; return an exit code.
 
     The node style of ``ros2/demos``' talker; a bad configuration is reported in one line
-    (exit code 2) instead of a traceback.
+    (exit code 2) instead of a traceback, also a ``--params-file`` that is no valid YAML
+    parameter file or ROS arguments that rcl cannot parse (rcl's own log lines of that are
+    held back; when init succeeds, whatever it wrote to stderr is passed on).
     """
-    rclpy.init(args=args)
+    import os
+    import tempfile
+    with tempfile.TemporaryFile() as held:
+        sys.stderr.flush()
+        saved = os.dup(2)
+        os.dup2(held.fileno(), 2)
+        try:
+            rclpy.init(args=args)
+            error = None
+        except _rclpy.RCLError as exc:
+            error = exc
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+        if error is not None:
+            # "failed to initialize rcl: <reason>[\n], at /src/file.c:line, ...": the reason
+            reason = str(error).replace('failed to initialize rcl: ', '', 1)
+            reason = reason.split(', at /')[0].split('\n')[0].strip()
+            print(f'configuration error: {reason}', file=sys.stderr)
+            return 2
+        held.seek(0)
+        text = held.read()
+        if text:
+            sys.stderr.buffer.write(text)
+            sys.stderr.flush()
     node = None
     code = 0
     try:
