@@ -4,7 +4,8 @@ import importlib
 
 import pytest
 
-MODULES = ['pg_node.rl.rollout', 'pg_node.rl.returns', 'pg_node.rl.baselines', 'pg_node.rl.gae']
+MODULES = ['pg_node.rl.rollout', 'pg_node.rl.returns', 'pg_node.rl.baselines', 'pg_node.rl.gae',
+           'pg_node.ros.command']
 
 
 @pytest.mark.parametrize('name', MODULES)

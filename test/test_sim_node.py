@@ -9,6 +9,7 @@ from domains import ros_domain
 from geometry_msgs.msg import PointStamped
 import numpy as np
 from pg_node.common.paths import resolve_model
+from pg_node.ros import command
 from pg_node.ros import transition
 from pg_node.sim.arm_task import ArmTask
 from pg_node.tools import processes
@@ -93,9 +94,17 @@ class Client:
         self.spin_until(lambda: self.transitions and self.commands.get_subscription_count()
                         and all(more))
 
-    def send(self, values):
-        """Publish one command."""
-        self.commands.publish(Float64MultiArray(data=[float(v) for v in values]))
+    def send(self, values, answers='current'):
+        """
+        Publish one command: by default as the actor does, answering the last transition.
+
+        ``answers=None`` sends a plain ros2_control-style command (no tag), a number tags it
+        as the answer to that transition.
+        """
+        msg = Float64MultiArray(data=[float(v) for v in values])
+        if answers == 'current':
+            answers = self.transitions[-1].seq if self.transitions else None
+        self.commands.publish(msg if answers is None else command.tag(msg, answers))
 
     def step(self, values, timeout=15.0):
         """Send a command and return the next transition (lock-step)."""
@@ -226,6 +235,28 @@ def test_lock_step_through_the_node_equals_the_task_in_process(tmp_path, client)
 
 
 @pytest.mark.e2e
+def test_lock_step_steps_only_on_the_answer_to_its_transition(tmp_path, client):
+    """A second publisher of valid commands cannot step a lock-step simulator out of turn."""
+    proc = start_node(tmp_path, 'lock_step_timeout:=5.0')
+    try:
+        client.wait_ready()
+        tr = client.step([0.1, 0.1])
+        client.send([0.2] * 2, answers=None)            # ros2_control-style, no tag
+        client.send([0.2] * 2, answers=tr.seq - 1)      # a late duplicate
+        client.send([0.2] * 2, answers=tr.seq + 3)      # another actor's numbering
+        client.spin_until(lambda: client.diagnostics and int(
+            client.counters()['commands_ignored']) == 3)
+        assert client.transitions[-1].seq == tr.seq     # none of them stepped it
+        assert client.counters()['steps'] == '1'
+        after = client.step([0.1, 0.1])       # the answer still does
+        assert after.seq == tr.seq + 1
+    finally:
+        rc, log = stop_node(proc)
+    assert rc == 0, log
+    assert 'ignored a command for transition None' in log
+
+
+@pytest.mark.e2e
 @pytest.mark.slow
 def test_services_pause_step_reset_and_lock_step_timeout(tmp_path, client):
     proc = start_node(tmp_path, 'lock_step_timeout:=0.3', 'model:=arm5_3d')
@@ -265,7 +296,7 @@ def test_real_time_mode_runs_on_its_own_and_drops_to_zero_torque(tmp_path, clien
     try:
         client.spin_until(lambda: len(client.clocks) > 10
                           and client.commands.get_subscription_count())
-        client.send([1.0, 1.0])
+        client.send([1.0, 1.0], answers=None)      # a plain command drives it in real time
         client.spin_until(lambda: client.joint_states[-1].effort[0] == 200.0)
         # the command is held for a while, then the arm gets zero torque
         client.spin_until(lambda: client.joint_states[-1].effort[0] == 0.0, timeout=5.0)

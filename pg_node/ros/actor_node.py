@@ -26,6 +26,7 @@ from pg_node.common.paths import resolve_model
 from pg_node.rl.learner import make_policy
 from pg_node.rl.rollout_buffer import RolloutBuffer
 from pg_node.rl.weights import load_flat_state
+from pg_node.ros import command
 from pg_node.ros import messages
 from pg_node.ros import table_msg
 from pg_node.ros import transition
@@ -149,9 +150,7 @@ class ActorNode(Node):
         act, logp = self.policy.act_numpy(tr.obs, generator=self.gen)
         cmd = np.clip(act, self.spec.ctrl_low, self.spec.ctrl_high)
         self.buf.add_action(tr.obs, act, logp, tr.episode_step, tr.episode_id, tr.seq)
-        out = Float64MultiArray()
-        out.data = cmd.reshape(-1).tolist()
-        self.pub_cmd.publish(out)
+        self.pub_cmd.publish(command.to_msg(cmd, tr.seq))
         self.counters['commands'] += 1
         self.steps.add(self.cfg['num_envs'])
 

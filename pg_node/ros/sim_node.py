@@ -24,16 +24,19 @@ Topics published:
   (frame ``arm<i>`` is ``frame_id`` shifted so);
 * ``/diagnostics`` (``diagnostic_msgs/DiagnosticArray``) at ``diagnostics_rate`` Hz: mode,
   paused, steps, simulated time, steps per second, commands received / dropped (wrong size,
-  non-finite, absurd) / clipped, lock-step timeouts.
+  non-finite, absurd) / clipped / ignored, lock-step timeouts.
 
 Subscribed: ``/arm_controller/commands`` (``std_msgs/Float64MultiArray``, as ros2_control's
 forward_command_controller): ``num_envs * n_actuators`` values, arm-major (arm 0's
-actuators in model order, then arm 1's...); the layout is not read. A message of another
+actuators in model order, then arm 1's...). A message of another
 size, with a non-finite value or with an absurd one (beyond ``ABSURD_COMMAND``, e.g. 1e300)
 is dropped, counted and warned about (at most once a second); other values outside the
 actuators' control range are clipped to it, counted (``commands_clipped``) and warned about.
 In lock-step every accepted command is a control step, so dropping an absurd command (rather
-than clipping it) also keeps the actor's command/outcome pairing intact.
+than clipping it) also keeps the actor's command/outcome pairing intact; and only the command
+that answers the current transition is accepted (its layout's tag, :mod:`pg_node.ros.command`):
+another publisher's, an untagged one or a late duplicate is ignored and counted
+(``commands_ignored``). In real-time mode any valid command is held, tag or not.
 
 No node subscribes ``joint_states``: it is an output for tools (RViz, Foxglove, the bag);
 the simulator takes input only on ``arm_controller/commands`` and its services.
@@ -71,6 +74,7 @@ from geometry_msgs.msg import Point, PointStamped
 import numpy as np
 from pg_node.common.params import params_for
 from pg_node.common.paths import resolve_model
+from pg_node.ros import command
 from pg_node.ros import table_msg
 from pg_node.ros import transition
 from pg_node.ros.node_utils import run
@@ -120,7 +124,7 @@ class SimNode(Node):
         self.offsets = self.grid_offsets(p['marker_spacing'])
         self.counters = {'steps': 0, 'commands_received': 0, 'commands_dropped_size': 0,
                          'commands_dropped_nonfinite': 0, 'commands_dropped_absurd': 0,
-                         'commands_clipped': 0,
+                         'commands_clipped': 0, 'commands_ignored': 0,
                          'lock_step_timeouts': 0, 'transitions_resent': 0}
         self.paused = bool(p['start_paused'])
         self.held = np.zeros((n, self.task.act_dim))
@@ -218,6 +222,17 @@ class SimNode(Node):
                 f'{ABSURD_COMMAND:g}): a bug upstream, not a torque to clip',
                 throttle_duration_sec=1.0)
             return
+        if self.mode == 'lock_step':
+            answers = command.transition_of(msg)
+            if answers != self.seq:
+                # lock-step takes one step per answer to its current transition: a command
+                # of another publisher, or a late duplicate, must not step it out of turn
+                self.counters['commands_ignored'] += 1
+                self.get_logger().warning(
+                    f'ignored a command for transition {answers} (lock-step, at transition '
+                    f'{self.seq}): only the answer to the current transition steps it',
+                    throttle_duration_sec=1.0)
+                return
         cmd = cmd.reshape(self.task.num_envs, self.task.act_dim)
         clipped = np.clip(cmd, self.task.spec.ctrl_low, self.task.spec.ctrl_high)
         if not np.array_equal(clipped, cmd):

@@ -158,11 +158,13 @@ def lock_step_latency(n: int, steps: int, warmup: int = 200, timeout: float = 60
     """
     Drive :mod:`pg_node.tools.latency_probe` for ``warmup + steps`` lock-step steps; return stats.
 
-    The client answers every new transition with a pre-built command at once, so what is
+    The client answers every new transition at once with a fixed command tagged as its answer
+    (as the actor does, :mod:`pg_node.ros.command`), so what is
     measured is the graph's round trip, not a policy. Returns median/p99/max/mean in ms, the
     number of round trips and the client-side steps/s. ``ros_args`` are added to the
     probe's ``--ros-args`` (e.g. ``-p marker_rate:=0.0``).
     """
+    from pg_node.ros import command
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -179,7 +181,7 @@ def lock_step_latency(n: int, steps: int, warmup: int = 200, timeout: float = 60
         rclpy.init(context=context, domain_id=domain)
         node = rclpy.create_node('bench_latency_client', context=context)
         pub = node.create_publisher(Float64MultiArray, '/arm_controller/commands', 10)
-        command = Float64MultiArray(data=[0.1] * (2 * n))
+        act = np.full((n, 2), 0.1)
         state = {'count': 0, 'last_seq': None}
 
         def on_transition(msg):
@@ -188,7 +190,7 @@ def lock_step_latency(n: int, steps: int, warmup: int = 200, timeout: float = 60
                 return  # a re-send after a timeout: already answered
             state['last_seq'] = seq
             state['count'] += 1
-            pub.publish(command)
+            pub.publish(command.to_msg(act, int(seq)))   # the answer to this transition
 
         qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)

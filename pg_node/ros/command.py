@@ -1,0 +1,50 @@
+"""
+The torque command, as ros2_control's forward command controller takes it, plus a tag.
+
+``arm_controller/commands`` is a ``std_msgs/Float64MultiArray`` of ``num_envs x n_actuators``
+values, arm-major. pg_node's actor adds a third dimension of size 1 whose label names the
+transition it answers (``transition 1234``): the data and its shape are unchanged for any
+other reader, and a lock-step simulator steps only on the command that answers its current
+transition, so a second publisher on the topic cannot desynchronise training. A plain
+command (no tag) drives a simulator in real-time mode, as a robot's controller would.
+"""
+from typing import Optional
+
+import numpy as np
+from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+
+TAG = 'transition'
+
+
+def to_msg(act: np.ndarray, seq: Optional[int] = None) -> Float64MultiArray:
+    """
+    Return the command for ``act`` (``(num_envs, n_actuators)``), tagged with ``seq``.
+
+    >>> msg = to_msg(np.zeros((2, 3)), seq=7)
+    >>> [(d.label, d.size, d.stride) for d in msg.layout.dim]
+    [('arm', 2, 6), ('actuator', 3, 3), ('transition 7', 1, 1)]
+    >>> transition_of(msg), transition_of(to_msg(np.zeros((2, 3))))
+    (7, None)
+    """
+    n, a = act.shape
+    msg = Float64MultiArray()
+    dims = [MultiArrayDimension(label='arm', size=n, stride=n * a),
+            MultiArrayDimension(label='actuator', size=a, stride=a)]
+    msg.layout.dim = dims
+    msg.data = act.reshape(-1).tolist()
+    return msg if seq is None else tag(msg, seq)
+
+
+def tag(msg: Float64MultiArray, seq: int) -> Float64MultiArray:
+    """Mark ``msg`` as the answer to transition ``seq`` (a last dimension of size 1)."""
+    msg.layout.dim.append(MultiArrayDimension(label=f'{TAG} {int(seq)}', size=1, stride=1))
+    return msg
+
+
+def transition_of(msg: Float64MultiArray) -> Optional[int]:
+    """Return the transition number a command answers, None for a plain command."""
+    for dim in msg.layout.dim:
+        name, _, number = dim.label.partition(' ')
+        if name == TAG and number.lstrip('-').isdigit():
+            return int(number)
+    return None
