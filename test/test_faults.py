@@ -24,6 +24,7 @@ from pg_node.common.params import defaults
 from pg_node.rl.learner import EpisodeStats, Learner, make_policy
 from pg_node.rl.rollout_buffer import RolloutArrays
 from pg_node.rl.weights import flatten_state
+from pg_node.ros import command
 from pg_node.ros import messages
 from pg_node.ros import table_msg
 from pg_node.ros import transition
@@ -315,10 +316,11 @@ def test_sim_node_survives_bad_commands(nodes):
         c.each(pub, [raw([1, 2, 3]), raw([nan, 0, 0, 0]), raw([0, inf, 0, 0]),
                      raw([0, 0, 0, -inf]), raw([1e300, 0, 0, 0])], name, keys)
         window = c.burst(pub, raw([-1e300] * 4), name, keys)
-        pub.publish(raw([0.1, -0.1, 0.2, 0.0]))              # good: exactly one step
+        # good (the answer to the current transition): exactly one step
+        pub.publish(command.tag(raw([0.1, -0.1, 0.2, 0.0]), seq))
         c.spin_until(lambda: trs[-1].seq > seq)
         assert trs[-1].seq == seq + 1                       # no bad command stepped the sim
-        pub.publish(raw([5.0, 0.0, 0.0, 0.0]))               # out of range: clipped, a step
+        pub.publish(command.tag(raw([5.0, 0.0, 0.0, 0.0]), seq + 1))  # clipped, a step
         c.spin_until(lambda: trs[-1].seq > seq + 1)
         assert trs[-1].seq == seq + 2
         c.spin_until(lambda: c.counter(name, 'commands_clipped') == 1)
