@@ -7,7 +7,7 @@ Only real distributions (``.dist-info``) are listed; the ROS wheels also carry
 import importlib.metadata
 import sys
 
-SKIP = {'pip', 'setuptools', 'wheel'}
+SKIP = {'pip', 'setuptools', 'wheel', 'pg_node'}   # pg_node: the editable install of this checkout
 
 
 def main(path='requirements.lock'):

@@ -91,6 +91,25 @@ def test_graph_equals_inprocess_reference(run):
     assert summary['eval_returns'] == ref['eval_returns']
 
 
+def test_metrics_are_in_tensorboard_under_sb3_names(run):
+    """``tensorboard --logdir <run>`` shows the curves, named as SB3 names them."""
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+    run_dir, summary = run
+    events = EventAccumulator(str(run_dir / 'tensorboard'))
+    events.Reload()
+    tags = set(events.Tags()['scalars'])
+    assert {'rollout/ep_rew_mean', 'train/value_loss', 'train/policy_loss',
+            'train/entropy_loss', 'train/explained_variance', 'train/learning_rate',
+            'pg_node/grad_norm'} <= tags
+    rows = progress(run_dir)
+    loss = events.Scalars('train/value_loss')
+    assert len(loss) == len(rows)                    # one point per update
+    assert [e.step for e in loss] == [int(float(r['env_steps'])) for r in rows]
+    assert loss[-1].value == pytest.approx(float(rows[-1]['value_loss']), rel=1e-6)
+    entropy = events.Scalars('train/entropy_loss')[-1].value
+    assert entropy == pytest.approx(-float(rows[-1]['entropy']), rel=1e-6)
+
+
 def test_bag_is_read_by_rosbags_with_expected_counts(run):
     run_dir, summary = run
     cfg = load_config(default_config())
@@ -232,7 +251,20 @@ def test_resume_and_survive_a_learner_sigkill(run):
            '--total-steps', str(more)]
     proc = subprocess.Popen(cmd, env=env(), cwd=REPO, stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    # the learner publishes each episode summary live, as the bag gets it (monitor shows them)
+    from diagnostic_msgs.msg import DiagnosticStatus
+    from pg_node.bag.recorder import EPISODE_QOS, EPISODE_TOPIC, parse_episode
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=DOMAIN_ID)
+    live = []
     try:
+        node = rclpy.create_node('episode_listener', context=ctx)
+        node.create_subscription(DiagnosticStatus, EPISODE_TOPIC,
+                                 lambda m: live.append(parse_episode(m)), EPISODE_QOS)
+        ex = SingleThreadedExecutor(context=ctx)
+        ex.add_node(node)
         # wait until the resumed learner has written into its new bag, then SIGKILL it
         deadline = time.monotonic() + 240
         while True:
@@ -240,7 +272,10 @@ def test_resume_and_survive_a_learner_sigkill(run):
             rows = progress(run_dir)
             if rows and float(rows[-1]['env_steps']) > STEPS + 60_000:
                 break
-            time.sleep(0.2)
+            ex.spin_once(timeout_sec=0.2)
+        ex.shutdown()
+        node.destroy_node()
+        rclpy.shutdown(context=ctx)
         out = subprocess.run(['pgrep', '-f', f'pg_node.ros.learner_node.*{run_dir}'],
                              capture_output=True, text=True).stdout.split()
         assert len(out) == 1, out
@@ -257,6 +292,13 @@ def test_resume_and_survive_a_learner_sigkill(run):
     # the resumed run continued from the saved version, not from scratch
     assert versions[len(versions) - 1] > first and first + 1 in versions
     assert versions[versions.index(first) + 1] == first + 1
+    # the resumed learner's clock goes on from the first run's (it used to restart at 0)
+    wall = [float(r['wall_seconds']) for r in progress(run_dir)]
+    at_resume = versions.index(first)
+    assert min(wall[at_resume + 1:]) >= wall[at_resume] > 0
+    # summaries of the resumed learner's episodes came live: 60k steps are 1,200 episodes
+    assert len(live) > 100 and all(e['length'] == 50 for e in live if not e['cut_short'])
+    assert {e['arm'] for e in live} == set(range(64))
     # bag: the first run's, the killed learner's (recoverable), the restarted learner's
     killed, restarted = run_dir / 'bag_1', run_dir / 'bag_2'
     reindex(killed)

@@ -11,7 +11,9 @@ Topics (the contract the replay, plot and render tools and the README rely on):
 * ``/clock`` (``rosgraph_msgs/Clock``), every step: simulated time ``seq * dt``;
 * ``/joint_states`` (``sensor_msgs/JointState``), every step, for the recorded arms (arm
   columns ``0 .. record_arms - 1`` of actor ``record_actor``): names ``arm<i>/<joint>`` as
-  sim_node names them, position ``atan2(sin q, cos q)`` from the observation, velocity from
+  sim_node names them, position the joint's actual angle as sim_node publishes it (not
+  wrapped: a continuous joint's angle goes on past pi), recovered from the observation's
+  ``cos q, sin q`` by unwrapping along each episode from its first step, velocity from
   the observation, effort ``clip(act, ctrl range) * gear`` (the torque the action applied
   during the step), stamped with simulated time;
 * ``/target`` (``geometry_msgs/PointStamped``, reliable, transient-local, depth
@@ -51,7 +53,7 @@ read the bag.
 import math
 import re
 import threading
-from typing import Dict, Optional
+from typing import Callable, Dict, Optional
 
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
@@ -71,7 +73,8 @@ METRICS_PREFIX = '/pg_node/metrics/'
 EPISODE_KEYS = ('actor', 'arm', 'episode_id', 'return', 'length', 'terminated', 'truncated',
                 'cut_short', 'policy_version', 'recorded_steps')
 _DEFAULT = QoSProfile(depth=10)
-_EPISODE_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+#: QoS of ``/pg_node/episode``, in the bag and live (learner_node publishes each summary)
+EPISODE_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
 _NAME_BAD = re.compile(r'[^A-Za-z0-9_]')
 
 
@@ -143,12 +146,15 @@ class EpisodeRecorder:
     :param split_max_bytes: start a new file at this size (0: never).
     :param dt: simulated seconds per control step; by default the model's timestep times
         ``frame_skip``.
+    :param on_summary: called with each episode summary (a ``DiagnosticStatus``) after it is
+        written, e.g. a publisher's ``publish``, so that live tools see what the bag gets.
     """
 
     def __init__(self, directory, model_path, record_arms: int = 4,
                  split_max_episodes: int = 200, split_max_bytes: int = 64 << 20,
                  dt: Optional[float] = None, frame_skip: int = 2, record_actor: int = 0,
-                 compression: str = 'zstd'):
+                 compression: str = 'zstd',
+                 on_summary: Optional[Callable[[DiagnosticStatus], None]] = None):
         """Read the model and create the bag with its topics declared."""
         self.model_path = str(resolve_model(str(model_path)))
         model = mujoco.MjModel.from_xml_path(self.model_path)
@@ -161,12 +167,14 @@ class EpisodeRecorder:
         self.dt = float(dt) if dt is not None else float(model.opt.timestep * frame_skip)
         self.record_arms = int(record_arms)
         self.record_actor = int(record_actor)
+        self.on_summary = on_summary
         self.episodes_written = 0
         self.batches_written = 0
         self._open: Dict[tuple, _Open] = {}
         self._closed_recently = {}  # (actor, arm) -> set of ended episode ids (bounded)
         self._last_t: Optional[int] = None
         self._target_for: Dict[int, int] = {}  # recorded arm -> episode of its last goal
+        self._angles: Dict[int, np.ndarray] = {}  # recorded arm -> its last unwrapped angles
         self._lock = threading.RLock()
         self.writer = BagWriter(
             directory, split_max_bytes=split_max_bytes, split_max_episodes=split_max_episodes,
@@ -183,7 +191,7 @@ class EpisodeRecorder:
             durability=DurabilityPolicy.TRANSIENT_LOCAL))
         w.add_topic('/arm_controller/commands', Float64MultiArray, _DEFAULT)
         w.add_topic('/pg_node/reward', Float64MultiArray, _DEFAULT)
-        w.add_topic(EPISODE_TOPIC, DiagnosticStatus, _EPISODE_QOS)
+        w.add_topic(EPISODE_TOPIC, DiagnosticStatus, EPISODE_QOS)
 
     # -- time ------------------------------------------------------------------------------
     def _clamp(self, t_ns) -> int:
@@ -241,6 +249,23 @@ class EpisodeRecorder:
             if ended:
                 self.writer.flush(metadata=False)
 
+    def _unwrapped(self, wrapped, arms, ep_step) -> np.ndarray:
+        """
+        Return the joints' actual angles from their wrapped ones, one row per recorded arm.
+
+        An episode starts from angles within (-pi, pi] (every shipped model's initial
+        state); from there each step adds the wrapped change, which is the true change as
+        long as a joint turns less than pi in one control step. An arm first seen in the
+        middle of an episode (a restarted learner) starts from its wrapped angle.
+        """
+        out = wrapped.copy()
+        for r, arm in enumerate(arms):
+            last = self._angles.get(int(arm))
+            if last is not None and ep_step[r] > 0:
+                out[r] = last + np.angle(np.exp(1j * (wrapped[r] - last)))
+            self._angles[int(arm)] = out[r]
+        return out
+
     def _write_step(self, t_log, obs, act, rew, ep_id, ep_step, arms, seq):
         n, k = self.n_joints, self.target_dim
         stamp = sim_stamp(seq * self.dt)
@@ -250,7 +275,8 @@ class EpisodeRecorder:
         js = JointState()
         js.header.stamp = stamp
         js.name = [f'arm{int(i)}/{j}' for i in arms for j in self.spec.joint_names]
-        js.position = np.arctan2(obs[:, n:2 * n], obs[:, :n]).ravel().tolist()
+        js.position = self._unwrapped(np.arctan2(obs[:, n:2 * n], obs[:, :n]), arms,
+                                      ep_step).ravel().tolist()
         js.velocity = obs[:, 2 * n + k:3 * n + k].ravel().tolist()
         js.effort = (act_c * self.gear).ravel().tolist()
         w.write('/joint_states', js, t_log)
@@ -340,6 +366,8 @@ class EpisodeRecorder:
         del recent[:-8]
         self.writer.write(EPISODE_TOPIC, status, t_ns)
         self.episodes_written += 1
+        if self.on_summary is not None:
+            self.on_summary(status)
 
     def mark_cut_short(self, actor: int, arm: int, episode_id: int, t_wall_ns: int,
                        policy_version: int = -1) -> bool:

@@ -6,7 +6,8 @@ Subscribes ``/pg_node/batch`` (from ``critic_node``); publishes ``/pg_node/polic
 ``std_msgs/Float64`` topic per training metric under ``/pg_node/metrics/`` (``episode_return``,
 ``episode_length``, ``policy_loss``, ``value_loss``, ``entropy``, ``explained_variance``,
 ``approx_kl``, ``grad_norm``, ``steps_per_second``, ``policy_version``, ``env_steps``,
-``policy_lag``, ``rejected_batches``, ``skipped_updates``) and ``/diagnostics``.
+``policy_lag``, ``rejected_batches``, ``skipped_updates``), each episode summary on
+``/pg_node/episode`` as the bag gets it, and ``/diagnostics``.
 
 Each accepted batch is one update and one new policy version. A batch received again (the
 same version and number: the critic re-sends when the actor's rollout comes again) is not
@@ -20,7 +21,9 @@ arms had open are written to the bag as cut short (``sim_restarts_seen`` counts 
 
 Everything the run makes goes under ``run_dir``: ``checkpoints/`` (atomic, the newest valid
 one resumed on restart), ``bag/`` (the episodes learned from, see
-:mod:`pg_node.bag.recorder`) and ``progress.csv`` (one row per update). When
+:mod:`pg_node.bag.recorder`), ``progress.csv`` (one row per update, its ``wall_seconds``
+going on across a resume) and ``tensorboard/`` (the same metrics as event files, see
+:mod:`pg_node.rl.logger`). When
 ``total_steps`` environment steps are learned the learner writes a final checkpoint,
 closes the bag and, with ``exit_when_done``, exits with code 0.
 """
@@ -29,11 +32,13 @@ import math
 from pathlib import Path
 import time
 
+from diagnostic_msgs.msg import DiagnosticStatus
 import numpy as np
-from pg_node.bag.recorder import EpisodeRecorder
+from pg_node.bag.recorder import EPISODE_QOS, EPISODE_TOPIC, EpisodeRecorder
 from pg_node.common.params import params_for
 from pg_node.common.paths import resolve_model
 from pg_node.rl.learner import EpisodeStats, Learner
+from pg_node.rl.logger import TensorBoardLog
 from pg_node.ros import messages
 from pg_node.ros import table_msg
 from pg_node.ros.node_utils import Diagnostics, LATCHED, RateCounter, RELIABLE, run
@@ -77,7 +82,8 @@ class LearnerNode(Node):
                          'repeated_batches': 0, 'skipped_updates': 0, 'sim_restarts_seen': 0}
         self.last_batch = None
         self.last_seq = {}                     # actor -> last transition number learned
-        self.t0 = time.monotonic()
+        # progress.csv's clock goes on across a resume: the checkpoint keeps its reading
+        self.t0 = time.monotonic() - (state or {}).get('wall_seconds', 0.0)
         self.last_metrics = {}
         self.done = False
         bag_dir = self.run_dir / 'bag'
@@ -87,9 +93,12 @@ class LearnerNode(Node):
             while (self.run_dir / f'bag_{k}').exists():
                 k += 1
             bag_dir = self.run_dir / f'bag_{k}'
+        self.pub_episode = self.create_publisher(DiagnosticStatus, EPISODE_TOPIC, EPISODE_QOS)
         self.recorder = EpisodeRecorder(bag_dir, model_path, record_arms=self.cfg['record_arms'],
-                                        split_max_episodes=self.cfg['bag_split_episodes'])
+                                        split_max_episodes=self.cfg['bag_split_episodes'],
+                                        on_summary=self.pub_episode.publish)
         self.recorder_t = time.time_ns()
+        self.tensorboard = TensorBoardLog(self.run_dir / 'tensorboard')
         progress = self.run_dir / 'progress.csv'
         new = not progress.exists()
         self.progress_file = open(progress, 'a', newline='')
@@ -169,7 +178,9 @@ class LearnerNode(Node):
         for name, value in metrics.items():
             self.pub_metrics[name].publish(Float64(data=float(value)))
         self.recorder.record_metrics(metrics, now_ns)
-        self.progress.writerow({'wall_seconds': round(time.monotonic() - self.t0, 3),
+        self.tensorboard.write({**metrics, 'learning_rate': self.learner.update.learning_rate},
+                               self.learner.env_steps)
+        self.progress.writerow({'wall_seconds': round(self.wall_seconds(), 3),
                                 **{k: ('' if isinstance(v, float) and math.isnan(v) else v)
                                    for k, v in metrics.items()}})
         self.last_metrics.update(metrics)
@@ -200,10 +211,15 @@ class LearnerNode(Node):
                     f'{prev}): {n} open episodes marked cut short')
             self.last_seq[int(a)] = last
 
+    def wall_seconds(self) -> float:
+        """Return the training time of this run so far, resumed sessions included."""
+        return time.monotonic() - self.t0
+
     def save(self):
         """Write an atomic checkpoint of the current version."""
-        self.learner.save(self.run_dir / 'checkpoints')
+        self.learner.save(self.run_dir / 'checkpoints', {'wall_seconds': self.wall_seconds()})
         self.progress_file.flush()
+        self.tensorboard.flush()
 
     def finish(self):
         """Write the final checkpoint, close the bag, and stop if asked to."""
@@ -221,6 +237,7 @@ class LearnerNode(Node):
             self.save()
         self.recorder.close()
         self.progress_file.close()
+        self.tensorboard.close()
 
     def on_tick(self):
         """Publish steps per second and diagnostics."""
