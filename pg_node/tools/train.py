@@ -241,20 +241,138 @@ def evaluate_run(run_dir: Path, episodes: int) -> dict:
     return res
 
 
-def supervise(sup: Supervisor, run_dir: Path, bar, total: int) -> str:
+def resume_point(run_dir: Path) -> Optional[dict]:
+    """
+    Return what the learner will resume from: the newest valid checkpoint in ``checkpoints/``.
+
+    ``{'version', 'env_steps', 'wall_seconds', 'checkpoint'}``, or None for a fresh run.
+    Read before the nodes start, so that the console can say it resumed.
+    """
+    directory = run_dir / 'checkpoints'
+    if not directory.is_dir() or not any(directory.glob('ckpt_*.pt')):
+        return None
+    from pg_node.rl.checkpoint import checkpoint_path, load_latest
+    state, _ = load_latest(directory)
+    if state is None:
+        return None
+    return {'version': int(state['version']), 'env_steps': int(state.get('env_steps', 0)),
+            'wall_seconds': float(state.get('wall_seconds', 0.0)),
+            'checkpoint': str(checkpoint_path(directory, int(state['version'])))}
+
+
+def _ret(value: float) -> str:
+    return 'n/a (no episode finished yet)' if value != value else f'{value:.2f}'
+
+
+class ProgressView:
+    """
+    The progress display of ``train``: one bar on a terminal, plain lines otherwise.
+
+    Until the learner's first ``progress.csv`` row of this session it says
+    ``starting nodes...``. Then it shows the environment steps, one speed (steps learned
+    per second between this session's first update and its newest, by the learner's clock
+    in ``progress.csv``: the figure the summary reports too, free of the bring-up), the
+    mean return of the recent *training* episodes
+    (stochastic policy) and the policy version. Without a terminal (tqdm disables itself)
+    it prints a line when learning starts and then every ``every`` seconds.
+    """
+
+    def __init__(self, progress: Path, total: int, start: Optional[dict], bar: bool = True,
+                 every: float = 30.0):
+        self.progress = progress
+        self.total = total
+        self.start_steps = start['env_steps'] if start else 0
+        # rows written before this session are not its progress
+        self.offset = progress.stat().st_size if progress.exists() else 0
+        self.t0 = time.monotonic()
+        self.every = every
+        self.bringup_seconds = None
+        self.first = None
+        self.last = None
+        self._next_line = 0.0
+        self.bar = None
+        if bar:
+            from tqdm import tqdm
+            # disable=None: no bar when stderr is not a terminal (CI logs stay readable);
+            # no tqdm rate: it would count the bring-up and resumed steps as speed
+            self.bar = tqdm(total=total, initial=min(self.start_steps, total), unit='step',
+                            unit_scale=True, dynamic_ncols=True, disable=None, mininterval=1.0,
+                            bar_format='{desc} {percentage:3.0f}%|{bar}| {n_fmt}/{total_fmt} '
+                                       '[{elapsed}] {postfix}')
+            if self.bar.disable:
+                self.bar = None
+        self.text = bar and self.bar is None
+        if self.bar is not None:
+            self.bar.set_description_str('starting nodes...')
+        elif self.text:
+            print('starting nodes...', flush=True)
+
+    def steps_per_second(self, row) -> float:
+        """Return the speed from this session's first update to ``row`` (NaN: one update)."""
+        seconds = row['wall_seconds'] - self.first['wall_seconds']
+        steps = row['env_steps'] - self.first['env_steps']
+        return steps / seconds if seconds > 0 else float('nan')
+
+    def describe(self, row) -> str:
+        """Return the labelled fields of one progress row."""
+        return (f'{self.steps_per_second(row):,.0f} steps/s (since the first update), '
+                f"training episodes' mean return {_ret(row['episode_return'])}, "
+                f"policy version {int(row['policy_version'])}")
+
+    def _session_row(self):
+        if self.last is not None:
+            return last_progress(self.progress)
+        try:
+            with open(self.progress, 'rb') as f:
+                header = f.readline()
+                f.seek(max(self.offset, f.tell()))
+                tail = f.read()
+        except OSError:
+            return None
+        rows = _progress_rows([header.decode(errors='replace')]
+                              + tail.decode(errors='replace').splitlines(keepends=True))
+        if rows:
+            self.first = rows[0]
+        return rows[-1] if rows else None
+
+    def poll(self):
+        """Read the newest row of this session and show it."""
+        row = self._session_row()
+        if row is None:
+            return
+        now = time.monotonic()
+        first = self.last is None
+        self.last = row
+        if first:
+            self.bringup_seconds = now - self.t0
+            if self.bar is not None:
+                self.bar.set_description_str('training')
+            elif self.text:
+                print(f'nodes up after {self.bringup_seconds:.1f} s; learning', flush=True)
+        if self.bar is not None:
+            self.bar.n = min(int(row['env_steps']), self.total)
+            self.bar.set_postfix_str(self.describe(row), refresh=False)
+            self.bar.refresh()
+        elif self.text and now >= self._next_line:
+            self._next_line = now + self.every
+            print(f"step {int(row['env_steps'])}/{self.total}: {self.describe(row)}",
+                  flush=True)
+
+    def close(self):
+        """Close the bar."""
+        if self.bar is not None:
+            self.bar.close()
+
+
+def supervise(sup: Supervisor, view: ProgressView) -> str:
     """Start the nodes and watch them until done or failed; return the final state."""
     state = 'running'
     sup.start_all()
     while state == 'running':
         time.sleep(0.5)
         state = sup.check()
-        last = last_progress(run_dir / 'progress.csv') if bar is not None else None
-        if last is not None:
-            bar.n = min(int(last['env_steps']), total)
-            bar.set_postfix(ret=f"{last['episode_return']:.2f}",
-                            sps=f"{last['steps_per_second']:.0f}",
-                            version=int(last['policy_version']), refresh=False)
-            bar.refresh()
+        view.poll()
+    view.poll()
     return state
 
 
@@ -272,21 +390,22 @@ def main(argv=None) -> int:
     write_params(cfg, params)
     total = cfg['learner_node']['total_steps']
     n_act = cfg[SHARED]['num_actors']
-    print(f'pg_node: training {n_act} x {cfg[SHARED]["num_envs"]} x {cfg[SHARED]["model"]} '
-          f'({cfg[SHARED]["sync_mode"]}) for {total} steps; run dir {run_dir}')
+    algo = f"{cfg['learner_node']['algo']} (phi = {cfg['critic_node']['estimator']})"
+    print(f'pg_node: training {algo}, {n_act} x {cfg[SHARED]["num_envs"]} x '
+          f'{cfg[SHARED]["model"]} ({cfg[SHARED]["sync_mode"]}), for {total} steps; '
+          f'run dir {run_dir}', flush=True)
+    start = resume_point(run_dir)
+    if start is not None:
+        print(f"resumed from policy version {start['version']} ({start['env_steps']} steps "
+              f"learned, {start['checkpoint']})", flush=True)
     sup = Supervisor(run_dir, node_commands(params, cfg), args.max_restarts, total)
-    bar = None
-    if not args.no_progress:
-        from tqdm import tqdm
-        # disable=None: no bar when stderr is not a terminal (CI logs stay readable)
-        bar = tqdm(total=total, unit='step', unit_scale=True, dynamic_ncols=True,
-                   disable=None, mininterval=1.0)
-    t0 = time.monotonic()
+    view = ProgressView(run_dir / 'progress.csv', total, start, bar=not args.no_progress)
+    t0 = view.t0
     state = 'running'
     interrupted = False
     try:
         with terminate_as_interrupt():  # SIGTERM / SIGHUP stop the nodes as Ctrl-C does
-            state = supervise(sup, run_dir, bar, total)
+            state = supervise(sup, view)
     except KeyboardInterrupt as exc:
         interrupted = True
         print(f'\ninterrupted{f" by {exc}" if str(exc) else ""}: stopping the nodes',
@@ -294,32 +413,49 @@ def main(argv=None) -> int:
     finally:
         with shutting_down():  # a second Ctrl-C must not leave nodes behind
             sup.stop_all()
-        if bar is not None:
-            bar.close()
-    wall = time.monotonic() - t0
+        view.close()
     if state == 'failed':
         print(f'training failed: {sup.failed}; logs in {run_dir / "logs"}', file=sys.stderr)
     rows = read_progress(run_dir / 'progress.csv')
+    last = view.last  # the newest row of this session (None: it learned nothing)
     summary = {'interrupted': interrupted, 'failed': state == 'failed',
                'total_steps': int(rows[-1]['env_steps']) if rows else 0,
-               'wall_seconds': rows[-1]['wall_seconds'] if rows else wall,
-               'bringup_seconds': wall, 'restarts': sup.restarts}
-    summary['steps_per_second'] = summary['total_steps'] / max(summary['wall_seconds'], 1e-9)
-    print(f'evaluating the deterministic policy over {args.eval_episodes} episodes ...')
+               'resumed_from_version': start['version'] if start else None,
+               # the learner's clock, which goes on across resumes
+               'wall_seconds': rows[-1]['wall_seconds'] if rows else 0.0,
+               'session_steps': int(last['env_steps']) - view.start_steps if last else 0,
+               # from this session's first update to its last, by the learner's clock
+               'session_training_seconds': (last['wall_seconds'] - view.first['wall_seconds']
+                                            if last else 0.0),
+               # from the start of this command to its first progress row
+               'bringup_seconds': view.bringup_seconds,
+               'restarts': sup.restarts}
+    summary['steps_per_second'] = view.steps_per_second(last) if last else float('nan')
+    print(f'evaluating the deterministic policy over {args.eval_episodes} episodes ...',
+          flush=True)
     summary.update(evaluate_run(run_dir, args.eval_episodes))
     summary['curve'] = [{'env_steps': r['env_steps'], 'wall_seconds': r['wall_seconds'],
                          'episode_return': r['episode_return']} for r in rows]
     summary['config'] = dict(cfg)
+    summary['wall_seconds_total'] = time.monotonic() - t0  # this command, evaluation included
     (run_dir / 'summary.json').write_text(json.dumps(summary, indent=2, default=str))
     png = run_dir / 'learning_curve.png'
     if rows:
         # the same figure as python -m pg_node plot <run dir>: returns, speed, losses, entropy
         from pg_node.tools.plot import plot_run, RunData
         plot_run(RunData(run_dir), png)
-    print(f"eval return {summary.get('eval_return', float('nan')):.2f} +/- "
-          f"{summary.get('eval_return_std', float('nan')):.2f} after {summary['total_steps']} "
-          f"steps in {summary['wall_seconds']:.0f} s ({summary['steps_per_second']:.0f} "
-          f'steps/s)')
+    print(f"deterministic evaluation: return {summary.get('eval_return', float('nan')):.2f} "
+          f"+/- {summary.get('eval_return_std', float('nan')):.2f} over "
+          f"{summary.get('eval_episodes', 0)} episodes, policy version "
+          f"{summary.get('policy_version', 'none')}")
+    if last is not None:
+        print(f"training episodes' mean return (last update): {_ret(last['episode_return'])}")
+    bringup = ('no progress row' if view.bringup_seconds is None
+               else f'{view.bringup_seconds:.1f} s')
+    print(f"{summary['session_steps']} steps learned in this session "
+          f"({summary['total_steps']} in all): {summary['steps_per_second']:,.0f} steps/s "
+          f"from its first update to its last ({summary['session_training_seconds']:.1f} s); "
+          f"bring-up {bringup}, {summary['wall_seconds_total']:.0f} s in total")
     print(f'run dir:    {run_dir}\nbag:        {run_dir / "bag"}\n'
           f'checkpoint: {summary.get("checkpoint", "none")}\nsummary:    '
           f'{run_dir / "summary.json"}\ncurve:      {png}')

@@ -1,0 +1,99 @@
+"""
+``python -m pg_node train`` as a user sees it: the console text, ``summary.json``, a resume.
+
+One short real run (4096 steps, the four nodes as processes) and a resume of it to 6144
+steps; stderr is not a terminal here, so the progress is printed as plain lines.
+"""
+import json
+import os
+from pathlib import Path
+import re
+import subprocess
+import sys
+
+from domains import ros_domain
+import pytest
+
+REPO = Path(__file__).resolve().parent.parent
+DOMAIN_ID = ros_domain(base=40, spread=60)
+
+pytestmark = pytest.mark.e2e
+
+
+def train(run_dir, total, timeout=300):
+    env = dict(os.environ, PYTHONPATH=str(REPO), ROS_DOMAIN_ID=str(DOMAIN_ID),
+               AMENT_PREFIX_PATH=os.environ.get('AMENT_PREFIX_PATH', sys.prefix))
+    env.pop('MUJOCO_GL', None)
+    done = subprocess.run([sys.executable, '-m', 'pg_node', 'train', '--total-steps',
+                           str(total), '--run-dir', str(run_dir), '--eval-episodes', '4'],
+                          env=env, cwd=REPO, capture_output=True, text=True, timeout=timeout)
+    assert done.returncode == 0, done.stdout + done.stderr
+    return done.stdout, json.loads((run_dir / 'summary.json').read_text())
+
+
+@pytest.fixture(scope='module')
+def runs(tmp_path_factory):
+    """Return ``(run dir, first output, first summary, resumed output, resumed summary)``."""
+    run_dir = tmp_path_factory.mktemp('train') / 'run'
+    out1, sum1 = train(run_dir, 4096)
+    out2, sum2 = train(run_dir, 6144)
+    return run_dir, out1, sum1, out2, sum2
+
+
+def test_start_line_names_the_algorithm(runs):
+    _, out, _, _, _ = runs
+    first = out.splitlines()[0]
+    assert first.startswith('pg_node: training a2c (phi = gae), 1 x 64 x reacher2 (sync)'), first
+    assert 'for 4096 steps' in first
+
+
+def test_progress_says_starting_then_labels_every_figure(runs):
+    _, out, summary, _, _ = runs
+    lines = out.splitlines()
+    assert lines[1] == 'starting nodes...'
+    assert re.fullmatch(r'nodes up after \d+\.\d s; learning', lines[2]), lines[2]
+    progress = [ln for ln in lines if ln.startswith('step ')]
+    assert progress, out
+    assert re.fullmatch(r'step \d+/4096: ([\d,]+|nan) steps/s \(since the first update\), '
+                        r"training episodes' mean return (-?\d+\.\d\d|n/a \(no episode "
+                        r'finished yet\)), policy version \d+', progress[0]), progress[0]
+    # one speed in the whole output: the same figure in the last line as in summary.json
+    assert len(re.findall(r'steps/s', out)) == len(progress) + 1
+    sps = f"{summary['steps_per_second']:,.0f} steps/s from its first update to its last"
+    assert sps in out
+    evaluation = [ln for ln in lines if ln.startswith('deterministic evaluation: return ')]
+    assert evaluation == [f"deterministic evaluation: return {summary['eval_return']:.2f} +/- "
+                          f"{summary['eval_return_std']:.2f} over 4 episodes, policy "
+                          f"version {summary['policy_version']}"]
+    assert "training episodes' mean return (last update): " in out
+
+
+def test_summary_separates_bringup_training_and_wall_time(runs):
+    _, _, summary, _, _ = runs
+    assert summary['session_steps'] == summary['total_steps'] == 4096
+    assert summary['resumed_from_version'] is None
+    assert 0 < summary['bringup_seconds'] < summary['wall_seconds_total']
+    training = summary['session_training_seconds']
+    assert 0 < training <= summary['wall_seconds'] < summary['wall_seconds_total']
+    curve = summary['curve']
+    first_update = curve[0]['env_steps']
+    assert summary['steps_per_second'] == pytest.approx(
+        (4096 - first_update) / training, rel=1e-6)
+
+
+def test_resume_says_so_and_counts_this_session_only(runs):
+    run_dir, _, sum1, out, summary = runs
+    lines = out.splitlines()
+    version = sum1['policy_version']
+    assert lines[1].startswith(f'resumed from policy version {version} (4096 steps learned, '), \
+        out
+    assert summary['resumed_from_version'] == version
+    assert summary['total_steps'] == 6144 and summary['session_steps'] == 2048
+    # this session's speed: its own rows of progress.csv, not the whole run's clock
+    rows = [r for r in summary['curve'] if r['env_steps'] > 4096]
+    speed = (rows[-1]['env_steps'] - rows[0]['env_steps']) / (
+        rows[-1]['wall_seconds'] - rows[0]['wall_seconds'])
+    assert summary['steps_per_second'] == pytest.approx(speed, rel=1e-6)
+    assert summary['session_training_seconds'] == pytest.approx(
+        rows[-1]['wall_seconds'] - rows[0]['wall_seconds'], abs=1e-6)
+    assert '2048 steps learned in this session (6144 in all): ' in out
