@@ -158,3 +158,41 @@ def test_render_refuses_mp4_without_its_codec_and_a_zero_width(tmp_path):
     done = run_render(tmp_path, SAMPLE, '--width', 0, '-o', tmp_path / 'x.gif')
     assert done.returncode == 2 and 'argument --width: must be >= 1' in done.stderr
     assert 'Traceback' not in done.stderr
+
+
+def legend_of(ax):
+    return [t.get_text() for t in ax.get_legend().get_texts()]
+
+
+def test_plot_overlays_runs_with_their_names_and_reacher2_references(tmp_path):
+    import matplotlib.pyplot as plt
+    from pg_node.tools.plot import draw_runs
+    for name, ret in (('seed0', -6.5), ('seed1', -7.25)):
+        shutil.copytree(SAMPLE, tmp_path / name / 'bag')
+        (tmp_path / name / 'summary.json').write_text(json.dumps({'eval_return': ret}))
+    runs = [RunData(tmp_path / 'seed0'), RunData(tmp_path / 'seed1')]
+    assert [r.name for r in runs] == ['seed0', 'seed1'] and runs[0].is_reacher2()
+    fig = draw_runs(runs)
+    legend = legend_of(fig.axes[0])
+    assert legend == ['seed0', 'seed0 evaluation -6.50', 'seed1', 'seed1 evaluation -7.25',
+                      'random torques -42.8', 'zero torques -11.7']
+    assert fig._suptitle.get_text() == 'seed0, seed1'
+    plt.close(fig)
+    # one run: its name is the title; another model: no reacher2 references
+    one = RunData(tmp_path / 'seed0')
+    one.model = 'arm5_3d'
+    fig = draw_runs([one])
+    assert fig._suptitle.get_text() == 'seed0'
+    assert not any('torques' in t for t in legend_of(fig.axes[0]))
+    plt.close(fig)
+    out = tmp_path / 'both.png'
+    assert plot_main([str(tmp_path / 'seed0'), str(tmp_path / 'seed1'), '-o', str(out)]) == 0
+    not_blank(np.asarray(Image.open(out).convert('RGB')))
+
+
+def test_plot_without_output_writes_into_the_run_dir(tmp_path, monkeypatch):
+    shutil.copytree(SAMPLE, tmp_path / 'run' / 'bag')
+    monkeypatch.chdir(tmp_path)
+    assert plot_main([str(tmp_path / 'run')]) == 0
+    assert (tmp_path / 'run' / 'learning_curve.png').is_file()
+    assert not (tmp_path / 'learning_curve.png').exists()

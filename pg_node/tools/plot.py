@@ -1,5 +1,5 @@
 """
-``python -m pg_node plot <bag or run dir> -o FILE.png``: the learning curves of a run.
+``python -m pg_node plot RUN [RUN ...] [-o FILE.png]``: the learning curves of runs.
 
 Reads the topics :mod:`pg_node.bag.recorder` writes. Panels: the return against
 environment steps and against wall time, steps per second, and the policy loss, value loss
@@ -13,6 +13,13 @@ average). A run directory holds ``bag/`` (and ``bag_1/``, ... after learner rest
 as one) and may hold ``summary.json``, whose ``eval_return`` is drawn as a horizontal line.
 Wall time is the bag's log time, in minutes from its first message. Drawn with
 matplotlib's Agg backend (no display needed).
+
+Several runs (seeds, settings) are drawn over each other, one colour each, with a legend of
+the run names; one run's name is the title. For the shipped ``reacher2`` model the return
+panels also show what random torques (uniform in the control range) and zero torques score,
+measured by this project (2000 episodes each, evaluation seeds): the floor a policy must
+leave and the "stand still" level it must beat. Without ``-o`` one run directory's figure
+is written into it, as ``learning_curve.png``.
 """
 import argparse
 import json
@@ -23,6 +30,8 @@ from typing import Dict, Optional
 import numpy as np
 
 PANELS = ('policy_loss', 'value_loss', 'entropy')
+#: (return, label) of reference policies on the shipped reacher2 model, measured here
+REACHER2_REFERENCES = ((-42.8, 'random torques'), (-11.7, 'zero torques'))
 
 
 class RunData:
@@ -33,7 +42,9 @@ class RunData:
         from pg_node.bag.reader import BagReader
         from pg_node.bag.recorder import EPISODE_TOPIC, METRICS_PREFIX, parse_episode
         path = Path(path)
+        self.path = path
         self.summary: Optional[Dict] = None
+        self.model: Optional[str] = None
         bags = [path]
         if (path / 'bag').exists():
             if (path / 'summary.json').is_file():
@@ -67,11 +78,42 @@ class RunData:
                     series[name][0].append(m.log_time_ns)
                     series[name][1].append(float(m.msg.data))
             self.problems += reader.problems
+            if self.model is None:
+                self.model = _recorded_model(reader)
+        if self.summary and self.summary.get('config'):
+            self.model = self.summary['config'].get('/**', {}).get('model', self.model)
         self.episodes.sort(key=lambda e: e['log_time_ns'])
         self.metrics = {}
         for k, (t, v) in series.items():
             order = np.argsort(np.array(t, dtype=np.int64), kind='stable')
             self.metrics[k] = (np.array(t, dtype=np.int64)[order], np.array(v)[order])
+
+    @property
+    def name(self) -> str:
+        """Return the run's name: its directory (that of the bag for a bag or file)."""
+        path = self.path.resolve()
+        if path.is_file():
+            path = path.parent
+        if path.name.startswith('bag') and (path.parent / 'progress.csv').exists():
+            path = path.parent
+        return path.name
+
+    def is_reacher2(self) -> bool:
+        """
+        Return whether the run used the shipped reacher2 model.
+
+        By name, or by a path to ``reacher2.xml`` that holds the shipped file or no longer
+        exists (a bag recorded in another checkout names that checkout's file).
+        """
+        if not self.model:
+            return False
+        if self.model == 'reacher2':
+            return True
+        from pg_node.common.paths import models_dir
+        path, shipped = Path(self.model), models_dir() / 'reacher2.xml'
+        if path.name != 'reacher2.xml':
+            return False
+        return not path.is_file() or path.read_bytes() == shipped.read_bytes()
 
     def minutes(self, t_ns):
         """Return log times as minutes from the first message."""
@@ -107,6 +149,12 @@ class RunData:
                 np.array([e['return'] for e in eps]), 'episode return (summaries)')
 
 
+def _recorded_model(reader) -> Optional[str]:
+    meta = reader.metadata or {}
+    custom = (meta.get('rosbag2_bagfile_information', meta) or {}).get('custom_data') or {}
+    return custom.get('pg_node.model')
+
+
 def _moving_average(y, n):
     if len(y) < n or n < 2:
         return y
@@ -120,61 +168,23 @@ def _no_data(ax, what):
             transform=ax.transAxes, color='0.4')
 
 
+def _eval_return(data: RunData):
+    if data.summary and 'eval_return' in data.summary:
+        return float(data.summary['eval_return'])
+    if 'eval_return' in data.metrics:
+        return float(data.metrics['eval_return'][1][-1])
+    return None
+
+
 def plot_run(data: RunData, output, width=1500, height=800, dpi=100, title=None):
     """Draw the panels of ``data`` into the PNG ``output`` (``width`` x ``height`` px)."""
-    import matplotlib
-    matplotlib.use('Agg')
+    return plot_runs([data], output, width, height, dpi, title)
+
+
+def plot_runs(runs, output, width=1500, height=800, dpi=100, title=None):
+    """Draw :func:`draw_runs`' figure into the PNG ``output`` (``width`` x ``height`` px)."""
     import matplotlib.pyplot as plt
-    fig, axes = plt.subplots(2, 3, figsize=(width / dpi, height / dpi), dpi=dpi)
-    ret = data.returns()
-    eval_return = None
-    if data.summary and 'eval_return' in data.summary:
-        eval_return = float(data.summary['eval_return'])
-    elif 'eval_return' in data.metrics:
-        eval_return = float(data.metrics['eval_return'][1][-1])
-    for ax, xi, xlabel in ((axes[0, 0], 0, 'environment steps'),
-                           (axes[0, 1], 1, 'wall time (min)')):
-        ax.set_xlabel(xlabel)
-        ax.set_ylabel('return')
-        if ret is None:
-            _no_data(ax, 'return')
-            continue
-        x, y = ret[xi], ret[2]
-        if ret[3].startswith('episode return'):
-            ax.plot(x, y, '.', ms=3, alpha=0.4, label=ret[3])
-            ax.plot(x, _moving_average(y, max(1, len(y) // 20)), label='moving average')
-        else:
-            ax.plot(x, y, label=ret[3])
-        if eval_return is not None:
-            ax.axhline(eval_return, color='C3', ls='--',
-                       label=f'evaluation {eval_return:.2f}')
-        ax.grid(alpha=0.3)
-        ax.legend(loc='lower right', fontsize=8)
-    ax = axes[0, 2]
-    ax.set_title('steps per second', fontsize=10)
-    if 'steps_per_second' in data.metrics:
-        t, v = data.metrics['steps_per_second']
-        ax.plot(data.minutes(t), v)
-        ax.set_xlabel('wall time (min)')
-        ax.grid(alpha=0.3)
-    else:
-        _no_data(ax, 'steps_per_second')
-    for ax, name in zip(axes[1], PANELS):
-        ax.set_title(name, fontsize=10)
-        curve = data.against_steps(name)
-        if curve is not None:
-            ax.plot(curve[0], curve[1], lw=0.8)
-            ax.set_xlabel('environment steps')
-        elif name in data.metrics:
-            t, v = data.metrics[name]
-            ax.plot(data.minutes(t), v, lw=0.8)
-            ax.set_xlabel('wall time (min)')
-        else:
-            _no_data(ax, name)
-            continue
-        ax.grid(alpha=0.3)
-    fig.suptitle(title or str(data.bag))
-    fig.tight_layout()
+    fig = draw_runs(runs, width, height, dpi, title)
     output = Path(output)
     output.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(output, dpi=dpi)
@@ -182,29 +192,134 @@ def plot_run(data: RunData, output, width=1500, height=800, dpi=100, title=None)
     return output
 
 
+def draw_runs(runs, width=1500, height=800, dpi=100, title=None):
+    """
+    Return a figure of the panels of one or more runs, drawn over each other.
+
+    One run keeps the look of a single learning curve (title: its name); several get one
+    colour each and a legend of their names. Reacher2's reference returns are drawn when
+    every run used that model.
+    """
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    fig, axes = plt.subplots(2, 3, figsize=(width / dpi, height / dpi), dpi=dpi)
+    many = len(runs) > 1
+    names = [r.name for r in runs]
+    if len(set(names)) < len(names):
+        names = [str(r.path) for r in runs]
+    colours = [f'C{i % 10}' for i in range(len(runs))]
+    references = REACHER2_REFERENCES if all(r.is_reacher2() for r in runs) else ()
+    for ax, xi, xlabel in ((axes[0, 0], 0, 'environment steps'),
+                           (axes[0, 1], 1, 'wall time (min)')):
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel('return')
+        drawn = False
+        for data, name, colour in zip(runs, names, colours):
+            ret = data.returns()
+            if ret is None:
+                continue
+            drawn = True
+            x, y = ret[xi], ret[2]
+            label = name if many else ret[3]
+            if ret[3].startswith('episode return'):
+                ax.plot(x, y, '.', ms=3, alpha=0.4, color=colour,
+                        label=None if many else label)
+                ax.plot(x, _moving_average(y, max(1, len(y) // 20)), color=colour,
+                        label=label if many else 'moving average')
+            else:
+                ax.plot(x, y, color=colour, label=label)
+            eval_return = _eval_return(data)
+            if eval_return is not None:
+                ax.axhline(eval_return, color=colour if many else 'C3', ls='--', lw=1,
+                           label=f'{name + " " if many else ""}evaluation {eval_return:.2f}')
+        if not drawn:
+            _no_data(ax, 'return')
+            continue
+        for (value, text), style in zip(references, (':', '-.')):
+            ax.axhline(value, color='0.4', ls=style, lw=1.2, label=f'{text} {value:g}')
+        ax.grid(alpha=0.3)
+        ax.legend(loc='best', fontsize=8)
+    ax = axes[0, 2]
+    ax.set_title('steps per second', fontsize=10)
+    drawn = False
+    for data, colour in zip(runs, colours):
+        if 'steps_per_second' in data.metrics:
+            t, v = data.metrics['steps_per_second']
+            ax.plot(data.minutes(t), v, color=colour)
+            drawn = True
+    if drawn:
+        ax.set_xlabel('wall time (min)')
+        ax.grid(alpha=0.3)
+    else:
+        _no_data(ax, 'steps_per_second')
+    for ax, name in zip(axes[1], PANELS):
+        ax.set_title(name, fontsize=10)
+        drawn = False
+        for data, colour in zip(runs, colours):
+            curve = data.against_steps(name)
+            if curve is not None:
+                ax.plot(curve[0], curve[1], lw=0.8, color=colour)
+                ax.set_xlabel('environment steps')
+            elif name in data.metrics:
+                t, v = data.metrics[name]
+                ax.plot(data.minutes(t), v, lw=0.8, color=colour)
+                ax.set_xlabel('wall time (min)')
+            else:
+                continue
+            drawn = True
+        if not drawn:
+            _no_data(ax, name)
+            continue
+        ax.grid(alpha=0.3)
+    fig.suptitle(title or (', '.join(names) if many else names[0]))
+    fig.tight_layout()
+    return fig
+
+
+def _positive_int(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f'must be >= 1, got {value}')
+    return value
+
+
 def main(argv=None) -> int:
-    """Plot a bag or run directory; return the exit status."""
-    parser = argparse.ArgumentParser(prog='python -m pg_node plot',
-                                     description='Learning-curve PNG of a bag or run directory.')
-    parser.add_argument('path', help='bag directory, .mcap file, or run directory with bag/')
-    parser.add_argument('-o', '--output', type=Path, default=Path('learning_curve.png'))
-    parser.add_argument('--width', type=int, default=1500, help='pixels')
-    parser.add_argument('--height', type=int, default=800, help='pixels')
-    parser.add_argument('--title')
+    """Plot bags or run directories; return the exit status."""
+    parser = argparse.ArgumentParser(
+        prog='python -m pg_node plot',
+        description='Learning-curve PNG of one or more bags or run directories (drawn over '
+                    'each other, with a legend of their names).')
+    parser.add_argument('paths', nargs='+', metavar='RUN',
+                        help='bag directory, .mcap file, or run directory with bag/')
+    parser.add_argument('-o', '--output', type=Path,
+                        help='PNG to write (default: learning_curve.png in the run directory '
+                             'when one run directory is given, else in the current one)')
+    parser.add_argument('--width', type=_positive_int, default=1500, help='pixels')
+    parser.add_argument('--height', type=_positive_int, default=800, help='pixels')
+    parser.add_argument('--title', help='default: the run name (one run), else the names')
     args = parser.parse_args(argv)
-    try:
-        data = RunData(args.path)
-    except FileNotFoundError as exc:
-        print(f'plot: {exc}', file=sys.stderr)
-        return 1
-    if data.returns() is None and not data.metrics:
-        print(f'plot: {args.path} holds no pg_node metrics or episode summaries',
-              file=sys.stderr)
-        return 1
-    plot_run(data, args.output, args.width, args.height, title=args.title)
-    for problem in data.problems:
-        print(f'plot: warning: {problem}', file=sys.stderr)
-    print(f'wrote {args.output}')
+    runs = []
+    for path in args.paths:
+        try:
+            data = RunData(path)
+        except (ValueError, OSError) as exc:
+            print(f'plot: {exc}', file=sys.stderr)
+            return 1
+        if data.returns() is None and not data.metrics:
+            print(f'plot: {path} holds no pg_node metrics or episode summaries',
+                  file=sys.stderr)
+            return 1
+        runs.append(data)
+    output = args.output
+    if output is None:
+        one_run_dir = len(runs) == 1 and (Path(args.paths[0]) / 'bag').is_dir()
+        output = (Path(args.paths[0]) if one_run_dir else Path('.')) / 'learning_curve.png'
+    plot_runs(runs, output, args.width, args.height, title=args.title)
+    for data in runs:
+        for problem in data.problems:
+            print(f'plot: warning: {problem}', file=sys.stderr)
+    print(f'wrote {output}')
     return 0
 
 
