@@ -322,3 +322,14 @@ def test_last_progress_reads_the_newest_finished_row_from_the_tail(tmp_path):
     path.write_text(path.read_text() + '800,-400.25\n')
     assert last_progress(path, 100) == {'wall_seconds': 400.5, 'env_steps': 204800.0,
                                         'episode_return': -400.25}
+
+
+def test_readme_parameter_table_is_the_parameter_table():
+    """The README's table is generated from the table the nodes declare (no drift)."""
+    from pathlib import Path
+    from pg_node.common.params import markdown_table
+    readme = (Path(__file__).resolve().parent.parent / 'README.md').read_text()
+    start = readme.index('<!-- parameter table:')
+    end = readme.index('<!-- end of parameter table -->')
+    shown = readme[start:end].split('\n', 1)[1].strip()
+    assert shown == markdown_table()

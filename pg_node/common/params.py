@@ -337,3 +337,19 @@ def node_key(name: str) -> str:
         if name.startswith(prefix):
             return name[len(prefix):]
     return name
+
+
+def markdown_table() -> str:
+    """
+    Return every node's parameters as a Markdown table (the README's, kept equal by a test).
+
+    Columns: node (``/**`` for the shared ones), name, default, allowed values, and whether
+    ``ros2 param set`` can change it while the node runs (live) or is refused (read-only).
+    """
+    rows = ['| node | parameter | default | allowed | at run time | meaning |',
+            '|---|---|---|---|---|---|']
+    for section, table in [(SHARED, SHARED_PARAMS), *SCHEMA.items()]:
+        for name, p in table.items():
+            rows.append(f'| `{section}` | `{name}` | `{p.default!r}` | {p.allowed()} | '
+                        f'{"live" if p.live else "read-only"} | {p.description} |')
+    return '\n'.join(rows)
