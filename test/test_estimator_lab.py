@@ -176,3 +176,17 @@ def test_cli_refuses_a_batch_of_one():
                          capture_output=True, text=True)
     assert res.returncode == 2 and '--batch-size must be >= 2' in res.stderr
     assert 'Traceback' not in res.stderr
+
+
+def test_cli_table_fits_80_columns_without_cutting_a_cell():
+    import os
+    env = dict(os.environ, COLUMNS='80')
+    out = subprocess.run([sys.executable, '-m', 'pg_node', 'variance', '--batches', '50',
+                          '--batch-size', '8'], capture_output=True, text=True, check=True,
+                         env=env).stdout
+    assert max(len(line) for line in out.splitlines()) <= 80, out
+    assert '…' not in out, out
+    shown = {line.strip().split('  ')[0]: line.strip() for line in out.splitlines()}
+    for name, _, _ in LAB_ROWS:
+        cells = shown[name][len(name):].replace('NO (biased)', 'NO').split()
+        assert len(cells) == 5 and cells[-1] in ('yes', 'NO'), shown[name]  # each cell whole
