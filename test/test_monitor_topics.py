@@ -119,9 +119,9 @@ class Publisher:
         rclpy.try_shutdown(context=self.context)
 
 
-def run(*args, timeout=60):
+def run(*args, timeout=60, columns=160):
     env = dict(os.environ, ROS_DOMAIN_ID=str(DOMAIN_ID), PYTHONPATH=str(REPO),
-               COLUMNS='160')
+               COLUMNS=str(columns))
     env.pop('MUJOCO_GL', None)
     return subprocess.run([sys.executable, '-m', 'pg_node', *args], env=env, cwd=REPO,
                           capture_output=True, text=True, timeout=timeout,
@@ -161,8 +161,35 @@ def test_topics_lists_types_endpoints_and_rates(publisher):
     diag = rows['/diagnostics']
     assert diag['types'] == ['diagnostic_msgs/msg/DiagnosticArray']
     assert 1.0 < diag['rate_hz'] < 3.5  # 2 Hz
-    plain = run('topics', '--discovery', '2', '--duration', '0.5')
+    plain = run('topics', '--discovery', '2', '--duration', '0.5', columns=80)
     assert plain.returncode == 0 and '/pg_node/metrics/policy_loss' in plain.stdout
+    lines = plain.stdout.splitlines()
+    assert max(len(line) for line in lines) <= 80, plain.stdout
+    assert 'diagnostic_msgs/msg/DiagnosticArray' in plain.stdout and '…' not in plain.stdout
+
+
+GRAPH_ROWS = [  # the longest names and types of a training graph
+    {'name': '/arm3/pg_node/transition', 'types': ['std_msgs/msg/Float64MultiArray'],
+     'publishers': 1, 'subscribers': 1, 'count': 123456, 'rate_hz': 1234.5},
+    {'name': '/pg_node/metrics/explained_variance', 'types': ['std_msgs/msg/Float64'],
+     'publishers': 1, 'subscribers': 10, 'count': 20, 'rate_hz': 9.8},
+    {'name': '/diagnostics', 'types': ['diagnostic_msgs/msg/DiagnosticArray'],
+     'publishers': 4, 'subscribers': 0, 'count': 8, 'rate_hz': 4.0},
+    {'name': '/replay_node/parameter_events_of_a_long_name', 'types': ['foo_msgs/msg/Bar'],
+     'publishers': 1, 'subscribers': 0, 'count': None, 'rate_hz': None},
+]
+
+
+@pytest.mark.parametrize('width', [80, 160])
+def test_topics_table_fits_the_terminal_without_cutting(width):
+    from pg_node.tools.topics import table
+    console = Console(width=width, record=True, file=open(os.devnull, 'w'))
+    console.print(table(GRAPH_ROWS, width))
+    text = console.export_text()
+    assert max(len(line) for line in text.splitlines()) <= width, text
+    for r in GRAPH_ROWS:
+        assert r['name'] in text and r['types'][0] in text
+    assert '1234.5' in text and '123456' in text and '(not installed)' in text
 
 
 def test_docstring_examples():

@@ -8,8 +8,9 @@ for ``--duration`` seconds more (topics found meanwhile are listened to from the
 best-effort, volatile subscription (which matches any
 publisher) taking the serialised bytes only, and prints one row per topic: type, number of
 publishers and of subscribers (its own listener not counted), messages received and rate in
-Hz (over the time between the first and the last message received). ``--json`` prints
-the same as JSON.
+Hz (over the time between the first and the last message received). The table fits the
+terminal (80 columns: each type goes under its topic) without cutting a name. ``--json``
+prints the same as JSON.
 """
 import argparse
 import json
@@ -81,18 +82,40 @@ def survey(discovery=1.0, duration=2.0, include_hidden=False, context=None):
             rclpy.try_shutdown(context=context)
 
 
-def table(rows):
-    """Return a rich Table of :func:`survey` rows."""
+def table(rows, width: int = 80):
+    """
+    Return a rich Table of :func:`survey` rows that fits ``width`` columns without cutting.
+
+    Topic and type share a column when one row each would not fit (the type on a second,
+    indented line), and the rate is given in Hz in its header only.
+    """
+    from rich import box
     from rich.table import Table
-    out = Table(title='ROS 2 topics', header_style='bold')
-    for col, justify in (('topic', 'left'), ('type', 'left'), ('pub', 'right'),
-                         ('sub', 'right'), ('msgs', 'right'), ('rate (Hz)', 'right')):
-        out.add_column(col, justify=justify)
+    cells = []
     for r in rows:
         rate = '-' if r['rate_hz'] is None else f'{r["rate_hz"]:.1f}'
-        count = 'type not installed' if r['count'] is None else str(r['count'])
-        out.add_row(r['name'], ', '.join(r['types']), str(r['publishers']),
-                    str(r['subscribers']), count, rate)
+        types = ', '.join(r['types']) + ('' if r['count'] is not None else ' (not installed)')
+        count = '-' if r['count'] is None else str(r['count'])
+        cells.append((r['name'], types, str(r['publishers']), str(r['subscribers']), count,
+                      rate))
+    numbers = ('pub', 'sub', 'msgs', 'Hz')
+    widths = [max([len(h)] + [len(c[i + 2]) for c in cells]) for i, h in enumerate(numbers)]
+    name_w = max([5] + [len(c[0]) for c in cells])
+    type_w = max([4] + [len(c[1]) for c in cells])
+    # SIMPLE box: no vertical lines, one space of padding each side of a cell
+    one_line = name_w + type_w + sum(widths) + 2 * (2 + len(numbers))
+    stacked = one_line > width
+    out = Table(title='ROS 2 topics', header_style='bold', box=box.SIMPLE, pad_edge=False)
+    if stacked:
+        out.add_column('topic\n  type', no_wrap=True)
+    else:
+        out.add_column('topic', no_wrap=True)
+        out.add_column('type', no_wrap=True)
+    for h in numbers:
+        out.add_column(h, justify='right', no_wrap=True)
+    for c in cells:
+        head = (f'{c[0]}\n  {c[1]}',) if stacked else c[:2]
+        out.add_row(*head, *c[2:])
     return out
 
 
@@ -115,7 +138,8 @@ def main(argv=None) -> int:
         print(json.dumps(rows, indent=1))
     else:
         from rich.console import Console
-        Console().print(table(rows))
+        console = Console()
+        console.print(table(rows, console.width))
     return 0
 
 
