@@ -126,6 +126,7 @@ class McapFile:
         self._mcap = Writer(self._f, chunk_size=2**62, compression=_COMPRESSION[compression])
         self._mcap.start(PROFILE, LIBRARY)
         self._f.flush()
+        self._written = self._f.tell()   # bytes on disk (tell() is a system call: not per message)
         self._schema_ids = {}    # (name, encoding, data) -> id
         self.pending = []        # Writer.add_message arguments of the open chunk
         self.pending_bytes = 0
@@ -138,7 +139,7 @@ class McapFile:
     @property
     def size(self) -> int:
         """Bytes written so far plus the open chunk (a size estimate for splitting)."""
-        return self._f.tell() + self.pending_bytes
+        return self._written + self.pending_bytes
 
     def add_schema(self, name, encoding, data) -> int:
         """Register a schema (once per distinct definition) and return its id."""
@@ -174,6 +175,7 @@ class McapFile:
                 add(cid, log_time, data, publish_time, sequence)
                 counts[cid] += 1
             self._mcap.flush()   # the chunk, its message indexes, then the OS
+            self._written = self._f.tell()
             if self.fsync:
                 os.fsync(self._f.fileno())
             times = [m[1] for m in pending]
@@ -206,9 +208,15 @@ class McapFile:
             self.closed = True
 
 
+_serialize_message = None
+
+
 def _serialize(msg):
-    from rclpy.serialization import serialize_message
-    return serialize_message(msg)
+    """Return rclpy's CDR bytes of ``msg`` (rclpy imported on first use, not per message)."""
+    global _serialize_message
+    if _serialize_message is None:
+        from rclpy.serialization import serialize_message as _serialize_message
+    return _serialize_message(msg)
 
 
 class _Topic:
