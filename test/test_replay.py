@@ -11,6 +11,7 @@ from pathlib import Path
 import sys
 import time
 
+from domains import ros_domain
 from pg_node.bag import ros_types
 from pg_node.bag.reader import BagReader
 from pg_node.bag.writer import BagWriter
@@ -27,7 +28,7 @@ from std_srvs.srv import SetBool, Trigger
 
 REPO = Path(__file__).resolve().parent.parent
 SAMPLE = REPO / 'bags' / 'sample'
-DOMAIN_ID = 20 + os.getpid() % 80
+DOMAIN_ID = ros_domain(base=20, spread=80)
 T0 = 1_700_000_000_000_000_000
 
 
@@ -181,7 +182,8 @@ def test_round_trip_as_fast_as_possible_equals_the_bag(tmp_path):
         code, log = stop(proc)
         listener.close()
     assert code == 0, log
-    assert 'played %d messages' % total in log
+    assert f'published {total} messages on {len(expected)} topics; {len(expected)} had ' \
+        f'subscribers, 0 none' in log
     assert set(listener.got) == set(expected)
     for topic, msgs in expected.items():
         assert len(listener.got[topic]) == len(msgs), topic
@@ -370,6 +372,47 @@ def test_loop_plays_again_until_sigint(tmp_path):
     from rclpy.serialization import deserialize_message
     data = [deserialize_message(d, String).data for d in listener.got['/chatter'][:12]]
     assert data == [str(i % 5) for i in range(12)]
+
+
+@pytest.mark.e2e
+def test_a_running_subscriber_gets_every_message_without_being_waited_for(tmp_path):
+    """
+    The replay waits for discovery to match subscribers that are already running.
+
+    No --wait-for-subscribers or --delay: as fast as possible, a replay that published at
+    once was often over before DDS had matched the subscriber (0 of 15,856 delivered).
+    """
+    expected, _ = bag_messages(SAMPLE)
+    total = sum(len(v) for v in expected.values())
+    listener = Listener(topic_table(SAMPLE))
+    proc = start_replay(tmp_path, SAMPLE, '--rate', '0', '--keep-all')
+    try:
+        listener.spin_until(lambda: sum(len(v) for v in listener.got.values()) >= total
+                            and proc.poll() is not None, 40)
+    finally:
+        code, log = stop(proc)
+        listener.close()
+    assert code == 0, log
+    assert {t: len(listener.got[t]) for t in expected} == {
+        t: len(v) for t, v in expected.items()}
+    assert f'/joint_states: {len(expected["/joint_states"])} published, 1 subscriber(s), ' \
+        f'delivered' in log
+    assert 'no subscriber' not in log
+
+
+@pytest.mark.e2e
+def test_without_subscribers_the_report_says_nothing_was_delivered(tmp_path):
+    write_slow_bag(tmp_path / 'slow', n=5, step_ns=1_000_000)
+    proc = start_replay(tmp_path, tmp_path / 'slow', '--rate', '0', '--wait-timeout', '0.5')
+    try:
+        proc.wait(30)
+    finally:
+        code, log = stop(proc)
+    assert code == 0, log
+    assert 'no topic has 1 matched subscriber(s) after 0.5 s' in log
+    assert '/chatter: 5 published, 0 subscriber(s), no subscriber' in log
+    assert 'published 5 messages on 1 topics; 0 had subscribers, 1 none' in log
+    assert 'messages reached nobody' in log
 
 
 def test_docstring_examples():

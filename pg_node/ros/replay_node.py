@@ -23,8 +23,18 @@ is (pg_node's bags hold simulated time there) and otherwise publishes ``/clock``
 recorded log times at ``clock_rate`` Hz of bag time; ``log_time`` always does the latter
 (and skips a recorded ``/clock``); ``off`` publishes no clock of its own.
 
+Subscribers: before the first message the node waits up to ``wait_timeout`` s (default 3)
+until every played topic has ``wait_for_subscribers`` matched subscribers (default 1; 0
+does not wait). A subscriber that is already running is not matched at once: DDS discovery
+takes a moment, and a fast replay that started without waiting could be over before it,
+delivering nothing. Topics still without a subscriber are named in a warning.
+
 At the end the node waits up to ``wait_acked_timeout`` s until reliable subscribers have
-acknowledged every message (a fast replay is otherwise over before they have read it).
+acknowledged every message (a fast replay is otherwise over before they have read it), and
+reports per topic what it published and what it knows of the delivery: no subscriber
+(reached nobody), acknowledged by every reliable subscriber (with keep-all history: every
+message; keep-last: a subscriber slower than the replay may have missed older ones), not
+acknowledged in time, or best effort (not confirmed).
 
 Topics: ``topics`` limits playback to those names; ``remap`` takes ``from:=to`` pairs.
 Topics whose type is not installed, or whose messages are not CDR, are skipped and listed
@@ -58,7 +68,7 @@ from rclpy.exceptions import ParameterUninitializedException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import HistoryPolicy
+from rclpy.qos import HistoryPolicy, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from std_srvs.srv import SetBool, Trigger
 
@@ -83,9 +93,9 @@ PARAMETERS = (
     ('start_paused', False, ParameterType.PARAMETER_BOOL, 'start paused (see ~/set_pause)'),
     ('keep_all', False, ParameterType.PARAMETER_BOOL,
      'publish with keep-all history, so that a fast replay drops nothing'),
-    ('wait_for_subscribers', 0, ParameterType.PARAMETER_INTEGER,
-     'before playing, wait until every topic has this many subscribers'),
-    ('wait_timeout', 10.0, ParameterType.PARAMETER_DOUBLE,
+    ('wait_for_subscribers', 1, ParameterType.PARAMETER_INTEGER,
+     'before playing, wait until every topic has this many matched subscribers (0: no wait)'),
+    ('wait_timeout', 3.0, ParameterType.PARAMETER_DOUBLE,
      'seconds to wait for subscribers at most'),
     ('delay', 0.0, ParameterType.PARAMETER_DOUBLE, 'seconds to sleep before playing'),
     ('wait_acked_timeout', 10.0, ParameterType.PARAMETER_DOUBLE,
@@ -204,6 +214,9 @@ class ReplayNode(Node):
         self.stopping = False
         self.done = threading.Event()
         self.played = 0
+        self.published = dict.fromkeys(self.publishers_, 0)
+        self.subscribers_at_first = {}
+        self.unacked = set()
         self.passes = 0
         self.last_log_time = None
         self.damage = []
@@ -294,6 +307,7 @@ class ReplayNode(Node):
             left = deadline - time.monotonic()
             if self.stopping or not pub.wait_for_all_acked(Duration(seconds=max(0.0, left))):
                 late.append(name)
+        self.unacked = set(late)
         if late and not self.stopping:
             self.get_logger().warning(f'not acknowledged by every subscriber in time: '
                                       f'{", ".join(late)}')
@@ -310,7 +324,11 @@ class ReplayNode(Node):
             time.sleep(0.02)
         missing = [n for n, pub in self.publishers_.items()
                    if pub.get_subscription_count() < need]
-        if missing:
+        if missing and len(missing) == len(self.publishers_):
+            self.get_logger().warning(
+                f'no topic has {need} matched subscriber(s) after {self.params["wait_timeout"]:g} '
+                f's; playing anyway (what nobody subscribes to reaches nobody)')
+        elif missing:
             self.get_logger().warning(f'playing although these topics have fewer than {need} '
                                       f'subscribers: {", ".join(missing)}')
 
@@ -365,8 +383,12 @@ class ReplayNode(Node):
                 clock.clock.sec, clock.clock.nanosec = t // 10**9, t % 10**9
                 self.clock_pub.publish(clock)
             data = m.data if isinstance(m.data, bytes) else bytes(m.data)
-            self.publishers_[m.topic].publish(data)
+            pub = self.publishers_[m.topic]
+            if m.topic not in self.subscribers_at_first:
+                self.subscribers_at_first[m.topic] = pub.get_subscription_count()
+            pub.publish(data)
             self.played += 1
+            self.published[m.topic] += 1
             self.last_log_time = m.log_time_ns
         self.damage = list(reader.problems)
         for d in self.damage:
@@ -375,6 +397,49 @@ class ReplayNode(Node):
             self.get_logger().error(f'bag damaged, playback stopped early: {d} ({where})')
         if reader.decode_errors:
             self.get_logger().warning(f'undecodable messages: {reader.decode_errors}')
+
+    def delivery(self):
+        """
+        Return ``{topic: (published, subscribers, status)}`` of what was played.
+
+        ``status``: ``no subscriber`` (none matched at the topic's first message nor at the
+        end: nothing reached anyone), ``delivered`` (reliable keep-all, acknowledged),
+        ``acknowledged`` (reliable keep-last: the newest messages were; a subscriber slower
+        than the replay may have missed older ones), ``not acknowledged`` (reliable, not in
+        time) or ``best effort`` (delivery not confirmed by DDS).
+        """
+        out = {}
+        for name, pub in self.publishers_.items():
+            n = self.published.get(name, 0)
+            subs = pub.get_subscription_count()
+            first = self.subscribers_at_first.get(name, subs)
+            qos = pub.qos_profile
+            if max(subs, first) == 0:
+                status = 'no subscriber'
+            elif qos.reliability != ReliabilityPolicy.RELIABLE:
+                status = 'best effort'
+            elif name in self.unacked:
+                status = 'not acknowledged'
+            elif qos.history == HistoryPolicy.KEEP_ALL and first > 0:
+                status = 'delivered'
+            else:
+                status = 'acknowledged'
+            out[name] = (n, subs, status)
+        return out
+
+    def report(self):
+        """Log what was published per topic and what is known of its delivery."""
+        log = self.get_logger()
+        rows = self.delivery()
+        nobody = sorted(t for t, (_, _, st) in rows.items() if st == 'no subscriber')
+        log.info(f'published {self.played} messages on {len(rows)} topics; '
+                 f'{len(rows) - len(nobody)} had subscribers, {len(nobody)} none')
+        for name, (n, subs, status) in sorted(rows.items()):
+            log.info(f'  {name}: {n} published, {subs} subscriber(s), {status}')
+        if nobody:
+            lost = sum(rows[t][0] for t in nobody)
+            log.warning(f'no subscriber on {len(nobody)} topic(s) (listed above): {lost} '
+                        f'messages reached nobody')
 
 
 def split_ros_args(argv):
@@ -430,8 +495,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--keep-all', action='store_true', default=None,
                         help='keep-all history: a fast replay drops nothing')
     parser.add_argument('--wait-for-subscribers', type=int, metavar='N',
-                        help='wait until every topic has N subscribers')
-    parser.add_argument('--wait-timeout', type=float, help='seconds (default 10)')
+                        help='before playing, wait until every topic has N matched '
+                             'subscribers (default 1; 0: do not wait)')
+    parser.add_argument('--wait-timeout', type=float, metavar='SECONDS',
+                        help='wait that long for subscribers at most (default 3)')
     parser.add_argument('--delay', type=float, help='seconds to sleep before playing')
     parser.add_argument('--wait-acked-timeout', type=float,
                         help='seconds to wait at the end for acknowledgements (default 10)')
@@ -496,7 +563,7 @@ def main(args=None) -> int:
         node.start()
         while rclpy.ok() and not node.done.is_set():
             executor.spin_once(timeout_sec=0.1)
-        node.get_logger().info(f'played {node.played} messages')
+        node.report()
         if node.damage:
             status = EXIT_DAMAGED
         elif node.error is not None or not node.played:
