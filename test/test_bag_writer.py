@@ -15,6 +15,7 @@ import subprocess
 import sys
 import textwrap
 import time
+import zlib
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PointStamped
@@ -177,9 +178,13 @@ def test_mcap_reader_and_ros2_decoder(recorded):
     for path in sorted(bag.glob('*.mcap')):
         with open(path, 'rb') as f:   # every record well-formed, every chunk CRC right
             records = list(StreamReader(f, validate_crcs=True).records)
-        assert type(records[-1]).__name__ == 'Footer'
+        footer = records[-1]
+        assert type(footer).__name__ == 'Footer'
+        # the footer's CRC covers the summary section and the footer up to the CRC
+        data = path.read_bytes()
+        assert footer.summary_crc == zlib.crc32(data[footer.summary_start:-12]) != 0
         with open(path, 'rb') as f:
-            reader = make_reader(f, decoder_factories=[DecoderFactory()])
+            reader = make_reader(f, validate_crcs=True, decoder_factories=[DecoderFactory()])
             assert reader.get_header().profile == 'ros2'
             summary = reader.get_summary()
             assert {s.encoding for s in summary.schemas.values()} == {'ros2msg'}
@@ -199,6 +204,14 @@ def test_mcap_reader_and_ros2_decoder(recorded):
                 got.append((channel.topic, message.log_time, canon(decoded)))
     expected = [(topic, t, canon(msg)) for topic, msg, t, _ in messages]
     assert sorted(got, key=lambda m: m[1]) == sorted(expected, key=lambda m: m[1])
+
+
+def test_records_are_the_mcap_librarys():
+    """No module of pg_node.bag packs, parses or checksums MCAP records itself (issue 11)."""
+    for path in (REPO / 'pg_node' / 'bag').glob('*.py'):
+        text = path.read_text()
+        for hand_made in ('import struct', 'import zlib', 'crc32', 'MCAP0', 'OP_'):
+            assert hand_made not in text, (path.name, hand_made)
 
 
 def test_schema_text_is_rosbag2s_full_definition():

@@ -29,6 +29,7 @@ import signal
 import threading
 import time
 
+from mcap.data_stream import RecordBuilder
 from mcap.records import Channel, Message, Metadata, Schema
 import mcap.writer
 from mcap.writer import CompressionType, LIBRARY_IDENTIFIER, Writer
@@ -44,7 +45,17 @@ DEFAULT_CHUNK_SIZE = 768 * 1024  # mcap C++ writer's default, which rosbag2 uses
 _COMPRESSION = {'': CompressionType.NONE, 'none': CompressionType.NONE,
                 None: CompressionType.NONE, 'zstd': CompressionType.ZSTD,
                 'lz4': CompressionType.LZ4}
-_MESSAGE_OVERHEAD = 31  # a message record's bytes besides its data (opcode, length, fields)
+
+
+def _record_size(record) -> int:
+    builder = RecordBuilder()
+    record.write(builder)
+    return builder.count
+
+
+# a message record's bytes besides its data, as the library encodes it
+_MESSAGE_OVERHEAD = _record_size(Message(channel_id=0, log_time=0, data=b'', publish_time=0,
+                                         sequence=0))
 
 
 class _Zstandard:
