@@ -6,19 +6,20 @@ the files ``<run>_0.mcap``, ``<run>_1.mcap``, ... The MCAP records are written b
 ``mcap`` library's ``Writer``; pg_node gives it what rosbag2_storage_mcap would: profile
 ``ros2``, one ``ros2msg`` schema per type holding the full message definition text, one
 ``cdr`` channel per topic with the ``offered_qos_profiles`` and ``topic_type_hash``
-metadata, messages serialised by ``rclpy.serialization.serialize_message``, and at the end
-of each file the ``rosbag2`` metadata record (the bag's metadata as YAML under
-``serialized_metadata``).
+metadata, messages serialised by ``rclpy.serialization.serialize_message``, chunks
+compressed with zstd at level 1 as the mcap C++ writer does, and at the end of each file
+the ``rosbag2`` metadata record (the bag's metadata as YAML under ``serialized_metadata``).
 
 Crash safety: messages wait in memory until they make a chunk of ``chunk_size`` bytes (or
-the oldest is ``chunk_max_age_s`` old); then the Writer gets them all at once, writes them
-as one chunk and the file is flushed to the operating system, so a process killed with
-SIGKILL leaves every completed chunk on disk. ``metadata.yaml`` is replaced atomically
-(temporary file, then ``os.replace``) when a file is opened or closed and at most every
-``metadata_interval_s`` after a chunk, so it is always a valid file describing data that
-is on disk. :func:`reindex` (like ``ros2 bag reindex``) turns what a killed writer left
-into a complete bag. On Ctrl-C or SIGTERM the caller calls :meth:`BagWriter.close` from
-its shutdown path; close is idempotent and defers those signals while it writes.
+the chunk is ``chunk_max_age_s`` old, checked at each write); then the Writer gets them all
+at once, writes them as one chunk and the file is flushed to the operating system, so a
+process killed with SIGKILL leaves every completed chunk on disk. ``metadata.yaml`` is
+replaced atomically (temporary file, then ``os.replace``) when a file is opened or closed
+and at most every ``metadata_interval_s`` after a chunk, so it is always a valid file
+describing data that is on disk. :func:`reindex` (like ``ros2 bag reindex``) turns what a
+killed writer left into a complete bag. On Ctrl-C or SIGTERM the caller calls
+:meth:`BagWriter.close` from its shutdown path; close is idempotent and defers those
+signals while it writes.
 
 The writer creates no ROS node: it is a plain object a node (or a test) owns.
 """
