@@ -161,8 +161,10 @@ CRITIC_PARAMS: Dict[str, Param] = {
 }
 
 LEARNER_PARAMS: Dict[str, Param] = {
-    'algo': Param('a2c', 'a2c: one gradient step per batch; ppo: clipped surrogate, epochs',
-                  choices=('a2c', 'ppo')),
+    'algo': Param('a2c', 'a2c: one gradient step per batch; ppo: clipped surrogate, epochs; '
+                         'npg: natural gradient step of KL max_kl; trpo: npg with a line '
+                         'search that keeps the KL within max_kl and improves the surrogate',
+                  choices=('a2c', 'ppo', 'npg', 'trpo')),
     'learning_rate': Param(1e-3, 'learning rate of the policy', **POSITIVE, live=True),
     'optimizer': Param('adam', 'optimiser of the policy', choices=('rmsprop', 'adam')),
     'ent_coef': Param(0.0, 'entropy bonus weight', low=0.0, live=True),
@@ -171,6 +173,10 @@ LEARNER_PARAMS: Dict[str, Param] = {
     'n_epochs': Param(10, 'ppo: passes over each batch', low=1, live=True),
     'batch_size': Param(64, 'ppo: minibatch size', low=1, live=True),
     'clip_range': Param(0.2, 'ppo: clip range of the probability ratio', **POSITIVE, live=True),
+    'max_kl': Param(0.01, 'npg/trpo: KL divergence of one policy step', **POSITIVE, live=True),
+    'cg_iters': Param(10, 'npg/trpo: conjugate gradient iterations for F^-1 g', low=1),
+    'cg_damping': Param(0.1, 'npg/trpo: damping added to the Fisher matrix in F v', low=0.0),
+    'line_search_steps': Param(10, 'trpo: halvings of the step tried before giving up', low=1),
     'total_steps': Param(2_000_000, 'environment steps (all arms) to train for', low=1, live=True),
     'checkpoint_every': Param(100, 'policy versions between checkpoints', low=1, live=True),
     'record_arms': Param(4, 'arms of actor 0 whose every step is written to the bag '

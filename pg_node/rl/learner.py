@@ -12,6 +12,7 @@ from typing import Dict, Optional
 import numpy as np
 from pg_node.rl.a2c import PolicyBatch, PolicyUpdate
 from pg_node.rl.checkpoint import load_latest, save_checkpoint
+from pg_node.rl.natural_gradient import ALGOS as NATURAL, NaturalGradientUpdate
 from pg_node.rl.policy import GaussianPolicy
 from pg_node.rl.weights import flatten_state
 import torch
@@ -32,17 +33,23 @@ class Learner:
     UPDATE_SETTINGS = {'learning_rate': 'learning_rate', 'ent_coef': 'ent_coef',
                        'max_grad_norm': 'max_grad_norm',
                        'normalize_advantage': 'normalize_advantage', 'clip_range': 'clip_range',
-                       'n_epochs': 'n_epochs', 'batch_size': 'batch_size'}
+                       'n_epochs': 'n_epochs', 'batch_size': 'batch_size', 'max_kl': 'max_kl'}
 
     def __init__(self, obs_dim: int, act_dim: int, cfg: Dict):
         self.cfg = cfg
         self.policy = make_policy(obs_dim, act_dim, cfg)
-        self.update = PolicyUpdate(
-            self.policy, learning_rate=cfg['learning_rate'], ent_coef=cfg['ent_coef'],
-            max_grad_norm=cfg['max_grad_norm'],
-            normalize_advantage=cfg['normalize_advantage'], algo=cfg['algo'],
-            optimizer=cfg['optimizer'], clip_range=cfg['clip_range'],
-            n_epochs=cfg['n_epochs'], batch_size=cfg['batch_size'], seed=cfg['seed'])
+        if cfg['algo'] in NATURAL:
+            self.update = NaturalGradientUpdate(
+                self.policy, algo=cfg['algo'], max_kl=cfg['max_kl'], cg_iters=cfg['cg_iters'],
+                cg_damping=cfg['cg_damping'], line_search_steps=cfg['line_search_steps'],
+                ent_coef=cfg['ent_coef'], normalize_advantage=cfg['normalize_advantage'])
+        else:
+            self.update = PolicyUpdate(
+                self.policy, learning_rate=cfg['learning_rate'], ent_coef=cfg['ent_coef'],
+                max_grad_norm=cfg['max_grad_norm'],
+                normalize_advantage=cfg['normalize_advantage'], algo=cfg['algo'],
+                optimizer=cfg['optimizer'], clip_range=cfg['clip_range'],
+                n_epochs=cfg['n_epochs'], batch_size=cfg['batch_size'], seed=cfg['seed'])
         self.version = 0
         self.env_steps = 0
         self.rejected = 0
@@ -73,7 +80,7 @@ class Learner:
     def configure(self, name: str, value) -> None:
         """Change one setting between updates (``ros2 param set``); the next update uses it."""
         self.cfg[name] = value
-        if name in self.UPDATE_SETTINGS:
+        if name in self.UPDATE_SETTINGS and hasattr(self.update, self.UPDATE_SETTINGS[name]):
             setattr(self.update, self.UPDATE_SETTINGS[name], value)
 
     def weights(self):
@@ -82,7 +89,9 @@ class Learner:
 
     def state(self) -> Dict:
         """Return what a checkpoint keeps of the learner."""
-        return {'policy': self.policy.state_dict(), 'opt': self.update.opt.state_dict(),
+        opt = getattr(self.update, 'opt', None)      # NPG and TRPO have no optimiser
+        return {'policy': self.policy.state_dict(),
+                'opt': opt.state_dict() if opt is not None else None,
                 'env_steps': self.env_steps, 'obs_dim': self.policy.obs_dim,
                 'act_dim': self.policy.act_dim, 'config': dict(self.cfg)}
 
@@ -95,10 +104,11 @@ class Learner:
         state, problems = load_latest(directory)
         if state is not None:
             self.policy.load_state_dict(state['policy'])
-            self.update.opt.load_state_dict(state['opt'])
-            # the optimiser's state holds the learning rate it was saved with: the run's
-            # configuration decides, as for every other setting
-            self.update.learning_rate = self.cfg['learning_rate']
+            if state.get('opt') is not None and hasattr(self.update, 'opt'):
+                self.update.opt.load_state_dict(state['opt'])
+                # the optimiser's state holds the learning rate it was saved with: the run's
+                # configuration decides, as for every other setting
+                self.update.learning_rate = self.cfg['learning_rate']
             self.version = int(state['version'])
             self.env_steps = int(state.get('env_steps', 0))
         return state, problems
