@@ -21,6 +21,10 @@ COMMANDS = {
     'plot': ('pg_node.tools.plot', 'learning-curve PNG from a bag or run directory'),
     'render': ('pg_node.tools.render', 'animation of a recorded episode'),
     'soak': ('pg_node.tools.soak', 'training with injected faults, and a report'),
+    'reindex': ('pg_node.tools.reindex', 'make bags whole after a killed writer (ros2 bag '
+                                         'reindex)'),
+    'export': ('pg_node.tools.export', 'a trained policy as ONNX with its card (runs without '
+                                       'torch)'),
 }
 
 

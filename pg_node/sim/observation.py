@@ -1,0 +1,71 @@
+"""
+The task's observation rebuilt from measured joint states, as a robot would give them.
+
+Training reads the observation out of the simulator (:meth:`pg_node.sim.arm_task.ArmTask.
+observe`); a policy running on a robot has only joint positions, velocities and the goal.
+:class:`ObservationBuilder` makes the same vector from those:
+``[cos q, sin q, target[:k], qdot, (fingertip - target)[:k]]``, the fingertip by forward
+kinematics (``mj_kinematics``) of the arm model at the measured angles ``q``.
+"""
+from typing import List
+
+import mujoco
+import numpy as np
+from pg_node.sim.arm_task import ArmSpec
+
+
+def observation_layout(spec: ArmSpec) -> List[dict]:
+    """Return the observation's fields in order: ``name``, ``size`` and what it holds."""
+    nj, k = len(spec.joint_names), spec.target_dim
+    joints = list(spec.joint_names)
+    axes = list('xyz'[:k])
+    return [
+        {'name': 'cos_q', 'size': nj, 'of': joints},
+        {'name': 'sin_q', 'size': nj, 'of': joints},
+        {'name': 'target', 'size': k, 'of': axes},
+        {'name': 'qdot', 'size': nj, 'of': joints},
+        {'name': 'fingertip_minus_target', 'size': k, 'of': axes},
+    ]
+
+
+class ObservationBuilder:
+    """Observations of ``N`` arms of one model from joint angles, velocities and goals."""
+
+    def __init__(self, model: mujoco.MjModel):
+        """Read the arm's conventions from ``model`` (ValueError if it does not follow them)."""
+        self.model = model
+        self.spec = ArmSpec.from_model(model)
+        self.data = mujoco.MjData(model)
+        self.n_joints = len(self.spec.joint_names)
+        self.obs_dim = 3 * self.n_joints + 2 * self.spec.target_dim
+        self._qpos = self.data.qpos
+        self._tip = self.data.site_xpos[self.spec.fingertip_site]
+
+    def fingertips(self, q: np.ndarray) -> np.ndarray:
+        """Return the fingertip positions ``(N, 3)`` of arms at joint angles ``q (N, nj)``."""
+        out = np.empty((len(q), 3))
+        adr = self.spec.qpos_adr
+        for i, angles in enumerate(q):
+            self._qpos[adr] = angles
+            mujoco.mj_kinematics(self.model, self.data)
+            out[i] = self._tip
+        return out
+
+    def __call__(self, q, qdot, target) -> np.ndarray:
+        """
+        Return the observations ``(N, obs_dim)``.
+
+        ``q``, ``qdot``: ``(N, n_joints)`` in the model's joint order; ``target``: ``(N, 3)``
+        goal positions in the arm's (world) frame, of which the first ``k`` count.
+        """
+        q = np.asarray(q, dtype=np.float64)
+        qdot = np.asarray(qdot, dtype=np.float64)
+        target = np.asarray(target, dtype=np.float64)
+        nj, k = self.n_joints, self.spec.target_dim
+        obs = np.empty((len(q), self.obs_dim))
+        obs[:, :nj] = np.cos(q)
+        obs[:, nj:2 * nj] = np.sin(q)
+        obs[:, 2 * nj:2 * nj + k] = target[:, :k]
+        obs[:, 2 * nj + k:3 * nj + k] = qdot
+        obs[:, 3 * nj + k:] = (self.fingertips(q) - target)[:, :k]
+        return obs
