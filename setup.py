@@ -31,6 +31,7 @@ setup(
             'critic_node = pg_node.ros.critic_node:main',
             'learner_node = pg_node.ros.learner_node:main',
             'replay_node = pg_node.ros.replay_node:main',
+            'policy_node = pg_node.ros.policy_node:main',
         ],
     },
 )

@@ -208,6 +208,24 @@ SIM_PARAMS: Dict[str, Param] = {
     'diagnostics_rate': Param(1.0, 'diagnostics rate in Hz of wall time', **POSITIVE, live=True),
 }
 
+#: policy_node: a trained policy run in real time (not part of the training graph, so not in
+#: :data:`SCHEMA`, whose nodes ``train`` configures and ``config/pg_node.yaml`` lists).
+POLICY_PARAMS: Dict[str, Param] = {
+    'policy': Param('', 'the policy to run: a run directory, its checkpoints/, a ckpt_*.pt '
+                        'file or an exported .onnx file (with its .json card beside it)'),
+    'control_rate': Param(0.0, 'commands per second of wall time (0: one per control step of '
+                               'the policy, 1 / control_step)', low=0.0, live=True),
+    'state_timeout': Param(0.2, 'seconds after which joint states count as stale: zero effort '
+                                'is sent once and commanding waits for fresh states',
+                           **POSITIVE, live=True),
+    'deterministic': Param(True, 'command the mean action; false: sample from the Gaussian',
+                           live=True),
+    'seed': Param(0, 'seed of the sampling when deterministic is false', low=0),
+    'num_arms': Param(0, 'arms to command (0: as many as joint_states holds, arm<i>/ '
+                         'prefixed names, or one arm with plain names)', low=0),
+    'diagnostics_rate': Param(1.0, 'diagnostics rate in Hz of wall time', **POSITIVE, live=True),
+}
+
 SCHEMA: Dict[str, Dict[str, Param]] = {
     'sim_node': SIM_PARAMS,
     'actor_node': ACTOR_PARAMS,
