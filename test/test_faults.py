@@ -19,7 +19,6 @@ from diagnostic_msgs.msg import DiagnosticArray
 from domains import ros_domains
 import numpy as np
 from pg_node.bag.recorder import EpisodeRecorder, parse_episode
-from pg_node.bag.writer import reindex
 from pg_node.common.params import defaults
 from pg_node.rl.learner import EpisodeStats, Learner, make_policy
 from pg_node.rl.rollout_buffer import RolloutArrays
@@ -502,10 +501,11 @@ def test_sigkill_of_each_node_mid_run(tmp_path):
 
     The supervisor restarts each. The restarted simulator starts again at transition 0 and
     episode id 0: the learner marks the episodes it cut short as such. The restarted critic
-    resumes V from its checkpoint, the learner its policy. Both bags (the killed learner's
-    after reindex) are read by rosbags and hold, for each arm, every episode id in order:
-    none skipped except at most one at the learner's crash (an episode whose end was in the
-    batch the learner died with), every completed one 50 steps long and truncated.
+    resumes V from its checkpoint, the learner its policy. Both bags (the killed learner's,
+    which train made whole before it exited) are read by rosbags and hold, for each arm,
+    every episode id in order: none skipped except at most one at the learner's crash (an
+    episode whose end was in the batch the learner died with), every completed one 50 steps
+    long and truncated.
     """
     run_dir = tmp_path / 'run'
     cmd = [sys.executable, '-m', 'pg_node', 'train', '--run-dir', str(run_dir),
@@ -552,8 +552,9 @@ def test_sigkill_of_each_node_mid_run(tmp_path):
     if drops:
         assert versions[drops[0]] == resumed + 1 and versions[drops[0] - 1] > resumed
         assert versions[-1] > max(versions[:drops[0]])
-    # bags: the killed learner's (reindexed, as ros2 bag reindex would) and the new one's
-    reindex(run_dir / 'bag')
+    # bags: the killed learner's (made whole by train, as ros2 bag reindex would) and the
+    # new one's
+    assert f"made {run_dir / 'bag'} whole" in text
     eps = episodes_of(run_dir / 'bag') + episodes_of(run_dir / 'bag_1')
     n_envs = 64
     cut = [e for e in eps if e['cut_short']]
@@ -664,6 +665,10 @@ def test_sigterm_sigint_and_sigkill_of_each_node_mid_run(tmp_path):
             for f in files:
                 full_mcap_check(f)
             Reader(bag).open()
+    # each restarted simulator drew new episodes: a seed of its own, logged
+    sim_log = (run_dir / 'logs' / 'sim_node.log').read_text()
+    seeds = re.findall(r'dt [0-9.]+ s, seed (\d+)', sim_log)
+    assert len(seeds) == 4 and len(set(seeds)) == 4 and seeds[0] == '0', seeds
     # the learner saved a checkpoint at each of its two clean stops and resumed from it
     resumed = re.findall(r'resumed policy version (\d+)',
                          (run_dir / 'logs' / 'learner_node.log').read_text())

@@ -167,7 +167,7 @@ class SimNode(Node):
         self.publish_state(self._reset_transition(obs))
         self.get_logger().info(
             f'{self.mode}: {n} x {p["model"]} ({self.task.act_dim} actuators, joints '
-            f'{", ".join(spec.joint_names)}), dt {self.task.dt:g} s')
+            f'{", ".join(spec.joint_names)}), dt {self.task.dt:g} s, seed {p["seed"]}')
 
     def grid_offsets(self, spacing: float) -> np.ndarray:
         """Return where each arm is drawn: a square grid ``spacing`` apart."""

@@ -322,7 +322,8 @@ class MemoryLog:
 def run_soak(args) -> dict:
     """Run the soak; return the report."""
     from pg_node.common.paths import default_config
-    from pg_node.tools.train import last_progress, node_commands, Supervisor, write_params
+    from pg_node.tools.train import (last_progress, node_commands, sim_seeds, Supervisor,
+                                     write_params)
     run_dir = Path(os.path.abspath(args.run_dir or os.path.join(
         'runs', 'soak-' + datetime.now().strftime('%Y%m%d-%H%M%S'))))
     cfg = load_config(args.config or default_config(),
@@ -339,7 +340,7 @@ def run_soak(args) -> dict:
                  'critic_node': cfg['actor_node']['rollout_resend_timeout'] + 3.0,
                  'learner_node': cfg['actor_node']['rollout_resend_timeout'] + 3.0}
     commands = node_commands(params, cfg)
-    sup = Supervisor(run_dir, commands, max_restarts=1000)
+    sup = Supervisor(run_dir, commands, max_restarts=1000, seeds=sim_seeds(cfg))
     injector = Injector(cfg)
     memory = MemoryLog(args.warmup)
     progress = run_dir / 'progress.csv'

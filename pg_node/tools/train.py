@@ -95,7 +95,7 @@ def node_commands(params: Path, cfg: dict) -> dict:
         pair = params.with_name(f'params_arm{i}.yaml')
         pair.write_text(yaml.safe_dump({
             f'/arm{i}/sim_node': {'ros__parameters': {
-                'seed': cfg[SHARED]['seed'] + i * cfg[SHARED]['num_envs']}},
+                'seed': sim_seeds(cfg)[f'sim_node_{i}']}},
             f'/arm{i}/actor_node': {'ros__parameters': {'actor_id': i}}}))
         extra = ['--params-file', str(pair), '-r', f'__ns:=/arm{i}']
         cmds[f'sim_node_{i}'] = base + ['pg_node.ros.sim_node'] + ros + extra
@@ -103,14 +103,46 @@ def node_commands(params: Path, cfg: dict) -> dict:
     return cmds
 
 
+#: a restarted simulator's seed moves on by this much per restart: it draws new episodes
+RESTART_SEED_STRIDE = 1_000_003
+
+
+def bag_dirs(run_dir: Path) -> list:
+    """Return a run's bags in the order its learners wrote them: ``bag``, ``bag_1``, ..."""
+    found = [p for p in Path(run_dir).glob('bag*') if p.is_dir()
+             and (p.name == 'bag' or p.name[4:].isdigit() and p.name[3] == '_')]
+    return sorted(found, key=lambda p: int(p.name[4:] or 0))
+
+
+def make_bags_whole(bags) -> list:
+    """Reindex each bag (what ``ros2 bag reindex`` does); return one line per bag."""
+    from pg_node.bag.writer import reindex
+    lines = []
+    for bag in bags:
+        report = reindex(bag)
+        damage = '; '.join(f'{name}: {d}' for name, d in report.repaired) or 'nothing damaged'
+        lines.append(f'made {bag} whole: {report.message_count} messages ({damage})')
+    return lines
+
+
+def sim_seeds(cfg: dict) -> dict:
+    """Return each simulator's seed by its name in :func:`node_commands`."""
+    n, seed, arms = cfg[SHARED]['num_actors'], cfg[SHARED]['seed'], cfg[SHARED]['num_envs']
+    if n == 1:
+        return {'sim_node': seed}
+    return {f'sim_node_{i}': seed + i * arms for i in range(n)}
+
+
 class Supervisor:
     """Starts, watches, restarts and stops the node processes."""
 
     def __init__(self, run_dir: Path, commands: dict, max_restarts: int,
-                 total_steps: Optional[int] = None):
+                 total_steps: Optional[int] = None, seeds: Optional[dict] = None):
         self.run_dir = run_dir
         self.commands = commands
         self.total_steps = total_steps
+        self.seeds = dict(seeds or {})
+        self.unfinished_bags = []   # bags of learners that died without closing them
         self.max_restarts = max_restarts
         self.procs = {}
         self.restarts = dict.fromkeys(commands, 0)
@@ -120,9 +152,18 @@ class Supervisor:
         self.env.setdefault('AMENT_PREFIX_PATH', sys.prefix)
 
     def start(self, name: str):
-        """Start one node (own session, so signals reach it alone)."""
+        """
+        Start one node (own session, so signals reach it alone).
+
+        A simulator started again gets a seed of its own (``seeds[name]`` plus
+        :data:`RESTART_SEED_STRIDE` per restart), so that it does not replay the episodes
+        it already produced; it logs the seed it uses.
+        """
+        cmd = list(self.commands[name])
+        if name in self.seeds and self.restarts[name] > 0:
+            cmd += ['-p', f'seed:={self.seeds[name] + RESTART_SEED_STRIDE * self.restarts[name]}']
         log = open(self.run_dir / 'logs' / f'{name}.log', 'a')
-        self.procs[name] = subprocess.Popen(self.commands[name], stdout=log,
+        self.procs[name] = subprocess.Popen(cmd, stdout=log,
                                             stderr=subprocess.STDOUT, env=self.env,
                                             start_new_session=True)
         log.close()
@@ -146,6 +187,11 @@ class Supervisor:
                 continue
             if name == 'learner_node' and code == 0 and self._learned_all():
                 return 'done'
+            if name == 'learner_node' and code != 0 and name not in self.next_start:
+                # killed (SIGKILL, OOM...): its bag, the newest, has no summary yet
+                bags = bag_dirs(self.run_dir)
+                if bags and bags[-1] not in self.unfinished_bags:
+                    self.unfinished_bags.append(bags[-1])
             if name in self.next_start:
                 if time.monotonic() >= self.next_start[name]:
                     del self.next_start[name]
@@ -398,7 +444,8 @@ def main(argv=None) -> int:
     if start is not None:
         print(f"resumed from policy version {start['version']} ({start['env_steps']} steps "
               f"learned, {start['checkpoint']})", flush=True)
-    sup = Supervisor(run_dir, node_commands(params, cfg), args.max_restarts, total)
+    sup = Supervisor(run_dir, node_commands(params, cfg), args.max_restarts, total,
+                     sim_seeds(cfg))
     view = ProgressView(run_dir / 'progress.csv', total, start, bar=not args.no_progress)
     t0 = view.t0
     state = 'running'
@@ -416,6 +463,8 @@ def main(argv=None) -> int:
         view.close()
     if state == 'failed':
         print(f'training failed: {sup.failed}; logs in {run_dir / "logs"}', file=sys.stderr)
+    for line in make_bags_whole(sup.unfinished_bags):
+        print(line)
     rows = read_progress(run_dir / 'progress.csv')
     last = view.last  # the newest row of this session (None: it learned nothing)
     summary = {'interrupted': interrupted, 'failed': state == 'failed',

@@ -1,0 +1,53 @@
+"""
+``python -m pg_node reindex BAG|RUN ...``: make bags whole, as ``ros2 bag reindex`` does.
+
+A learner killed with SIGKILL (or by the OOM killer) leaves its last MCAP file without its
+summary and footer; third-party readers (rosbags, ``ros2 bag info``) refuse such a bag.
+Reindexing rewrites each damaged file with everything before the damage, and
+``metadata.yaml`` from what the files hold. Complete files are left as they are. A run
+directory stands for all its bags (``bag``, ``bag_1``, ...). ``python -m pg_node train``
+does this by itself for the bag of a learner that died during the run.
+"""
+import argparse
+from pathlib import Path
+import sys
+
+
+def bags_of(path: Path) -> list:
+    """Return the bags ``path`` names: itself (a bag directory) or a run directory's bags."""
+    from pg_node.tools.train import bag_dirs
+    if (path / 'metadata.yaml').is_file() or any(path.glob('*.mcap')):
+        return [path]
+    return bag_dirs(path)
+
+
+def main(argv=None) -> int:
+    """Run ``python -m pg_node reindex``."""
+    parser = argparse.ArgumentParser(
+        prog='python -m pg_node reindex',
+        description='Make bags whole after their writer was killed (ros2 bag reindex).')
+    parser.add_argument('paths', nargs='+', type=Path, metavar='BAG|RUN',
+                        help='a bag directory, or a run directory (all its bags)')
+    parser.add_argument('--keep-damaged', action='store_true',
+                        help='keep each damaged file as <name>.damaged')
+    args = parser.parse_args(argv)
+    from pg_node.bag.writer import reindex
+    code = 0
+    for path in args.paths:
+        if not path.is_dir():
+            print(f'reindex: {path} is not a directory', file=sys.stderr)
+            code = 1
+            continue
+        bags = bags_of(path)
+        if not bags:
+            print(f'reindex: no bag in {path} (no .mcap file, no bag/ directory)',
+                  file=sys.stderr)
+            code = 1
+        for bag in bags:
+            report = reindex(bag, keep_damaged=args.keep_damaged)
+            if report.repaired:
+                for name, damage in report.repaired:
+                    print(f'{bag}: rewrote {name} up to its damage ({damage})')
+            print(f'{bag}: {len(report.files)} file(s), {report.message_count} messages, '
+                  f'{"repaired" if report.repaired else "already whole"}')
+    return code
