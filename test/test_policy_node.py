@@ -386,3 +386,29 @@ def test_joint_columns_examples_and_parameter_descriptors():
             ranges = list(d.integer_range) + list(d.floating_point_range)
             assert ranges and ranges[0].from_value == param.low, name
     assert POLICY_PARAMS['state_timeout'].live and not POLICY_PARAMS['policy'].live
+
+
+def test_play_prints_episodes_and_writes_a_gif(tmp_path, trained):
+    """Play starts sim_node and policy_node, reports episodes, draws arm 0, stops both."""
+    gif = tmp_path / 'play.gif'
+    env = processes.child_env(DOMAIN_ID)
+    res = subprocess.run([sys.executable, '-m', 'pg_node', 'play', str(trained['onnx']),
+                          '--episodes', '3', '--arms', '2', '--gif', str(gif),
+                          '--log-dir', str(tmp_path / 'logs')], env=env, capture_output=True,
+                         text=True, timeout=300)
+    assert res.returncode == 0, res.stderr[-3000:]
+    lines = [line for line in res.stdout.splitlines() if line.startswith('episode')]
+    assert len(lines) >= 3 and 'final fingertip distance' in lines[0], res.stdout
+    returns = [float(line.split('return')[1].split(',')[0]) for line in lines]
+    assert all(-60 < r < 0 for r in returns), res.stdout
+    from PIL import Image
+    with Image.open(gif) as image:
+        assert image.n_frames == 51 and image.size == (400, 400)
+    assert 'policy_node' in (tmp_path / 'logs' / 'policy_node.log').read_text()
+    for args, words in ((['/nonexistent'], 'no such file or directory'),
+                        ([str(trained['run']), '--gif', 'x.mp4'], 'written as .gif'),
+                        ([str(trained['run']), '--episodes', '0'], 'must be >= 1')):
+        res = subprocess.run([sys.executable, '-m', 'pg_node', 'play', *args], env=env,
+                             capture_output=True, text=True, timeout=120)
+        assert res.returncode in (1, 2) and words in res.stderr, res.stderr
+        assert 'Traceback' not in res.stderr

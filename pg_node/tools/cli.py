@@ -25,6 +25,7 @@ COMMANDS = {
                                          'reindex)'),
     'export': ('pg_node.tools.export', 'a trained policy as ONNX with its card (runs without '
                                        'torch)'),
+    'play': ('pg_node.tools.play', 'watch a trained policy act: real-time sim_node + policy_node'),
 }
 
 

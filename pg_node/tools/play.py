@@ -1,0 +1,277 @@
+"""
+``python -m pg_node play RUN``: watch a trained policy act, as it would on a robot.
+
+Starts ``sim_node`` in real-time mode and ``policy_node`` with the policy (a run directory,
+a checkpoint or an exported ``.onnx``) as processes, and prints each episode's return and the
+fingertip's final distance to the target, summed from the simulator's transitions. Episodes
+that began before the policy's first command are left out. ``--gif out.gif`` draws the first
+``--gif-episodes`` episodes of arm 0 with MuJoCo's offscreen renderer, in this process (which
+never trains: no torch optimiser runs beside the OpenGL context), from the observations the
+simulator published: the angles from ``cos q``/``sin q``, the goal from the target field.
+"""
+import argparse
+import math
+from pathlib import Path
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+
+def _positive_int(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f'must be >= 1, got {value}')
+    return value
+
+
+def _positive_float(text: str) -> float:
+    value = float(text)
+    if not value > 0 or not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f'must be a number > 0, got {text}')
+    return value
+
+
+def parse_args(argv):
+    """Return the parsed command line."""
+    parser = argparse.ArgumentParser(
+        prog='python -m pg_node play',
+        description='Run a trained policy on the simulated arm in real time and report it.')
+    parser.add_argument('policy', help='a run directory, its checkpoints/, a ckpt_*.pt file or '
+                                       'an exported .onnx file')
+    parser.add_argument('--episodes', type=_positive_int, default=5,
+                        help='episodes to play (all arms together; default: %(default)s)')
+    parser.add_argument('--arms', type=_positive_int, default=1,
+                        help='arms in the simulator (default: %(default)s)')
+    parser.add_argument('--seed', type=int, default=0, help='simulator seed (default: 0)')
+    parser.add_argument('--real-time-factor', type=_positive_float, default=1.0,
+                        help='simulated seconds per wall second (default: %(default)s)')
+    parser.add_argument('--gif', help='write an animation of arm 0 (.gif)')
+    parser.add_argument('--gif-episodes', type=_positive_int, default=1,
+                        help='episodes of arm 0 in the animation (default: %(default)s)')
+    parser.add_argument('--log-dir', help="where the nodes' logs go (default: a temporary "
+                                          'directory)')
+    return parser.parse_args(argv)
+
+
+class Episodes:
+    """Episode returns and final distances summed from a stream of transitions."""
+
+    def __init__(self, obs_layout):
+        """Take the observation's field layout (from the policy's card)."""
+        sizes = [f['size'] for f in obs_layout]
+        offsets = np.cumsum([0] + sizes)
+        fields = {f['name']: slice(offsets[k], offsets[k + 1])
+                  for k, f in enumerate(obs_layout)}
+        self.cos, self.sin = fields['cos_q'], fields['sin_q']
+        self.target, self.vec = fields['target'], fields['fingertip_minus_target']
+        self.counted_from = None        # transitions after this seq count
+        self.prev = None
+        self.running = {}               # episode id -> [return, arm, start seq, frames]
+        self.finished = []              # (episode id, arm, return, distance, frames)
+
+    def add(self, tr):
+        """Take one transition."""
+        prev = self.prev
+        if prev is not None and tr.seq != prev.seq + 1:
+            self.running.clear()
+        if prev is not None:
+            for i in range(tr.num_envs):
+                ep = int(prev.episode_id[i])
+                if ep not in self.running:
+                    continue
+                entry = self.running[ep]
+                entry[0] += float(tr.reward[i])
+                if tr.truncated[i] or tr.terminated[i]:
+                    del self.running[ep]
+                    entry[3].append((tr.final_obs[i], entry[0]))
+                    if self.counted_from is not None and entry[2] > self.counted_from:
+                        dist = float(np.linalg.norm(tr.final_obs[i, self.vec]))
+                        self.finished.append((ep, i, entry[0], dist, entry[3]))
+                else:
+                    entry[3].append((tr.obs[i], entry[0]))
+        for i in range(tr.num_envs):
+            if tr.episode_step[i] == 0:
+                self.running[int(tr.episode_id[i])] = [0.0, i, tr.seq, [(tr.obs[i], 0.0)]]
+        self.prev = tr
+
+    def angles(self, obs):
+        """Return the joint angles of an observation."""
+        return np.arctan2(obs[self.sin], obs[self.cos])
+
+
+def render_frames(card, frames, episodes, width=400, height=400):
+    """Return RGB frames of arm 0's episodes: ``[(obs, return so far), ...]`` per episode."""
+    from pg_node.sim.view import framing_camera, use_headless_gl
+    use_headless_gl()
+    import mujoco
+    from pg_node.sim.arm_task import ArmSpec
+    from PIL import Image, ImageDraw
+    model = mujoco.MjModel.from_xml_string(card['model_xml'])
+    model.vis.global_.offwidth = max(model.vis.global_.offwidth, width)
+    model.vis.global_.offheight = max(model.vis.global_.offheight, height)
+    spec = ArmSpec.from_model(model)
+    data = mujoco.MjData(model)
+    camera = framing_camera(model, spec.target_dim)
+    renderer = mujoco.Renderer(model, height=height, width=width)
+    out = []
+    try:
+        for number, (ep, steps, ret) in enumerate(episodes):
+            for k, (obs, so_far) in enumerate(steps):
+                mujoco.mj_resetData(model, data)
+                data.qpos[spec.qpos_adr] = frames.angles(obs)
+                goal = obs[frames.target]
+                if spec.target_mocap >= 0:
+                    data.mocap_pos[spec.target_mocap][:len(goal)] = goal
+                else:
+                    data.qpos[spec.target_qpos_adr] = goal
+                mujoco.mj_forward(model, data)
+                renderer.update_scene(data, camera)
+                scene = renderer.scene
+                if scene.ngeom < scene.maxgeom:
+                    # the goal, larger and translucent, as render draws it
+                    mujoco.mjv_initGeom(scene.geoms[scene.ngeom], mujoco.mjtGeom.mjGEOM_SPHERE,
+                                        np.array([0.02, 0.0, 0.0]),
+                                        data.xpos[spec.target_body].copy(), np.eye(3).ravel(),
+                                        np.array([0.9, 0.2, 0.2, 0.5], dtype=np.float32))
+                    scene.ngeom += 1
+                image = Image.fromarray(renderer.render())
+                draw = ImageDraw.Draw(image)
+                dist = float(np.linalg.norm(obs[frames.vec]))
+                draw.rectangle([0, height - 40, width, height], fill=(0, 0, 0))
+                draw.text((8, height - 36), f'episode {ep} (arm 0)  step {k}/{len(steps) - 1}'
+                          f'  t = {k * card["control_step"]:.2f} s', fill=(255, 255, 255))
+                draw.text((8, height - 20), f'return {so_far:.2f} of {ret:.2f}  distance '
+                          f'{dist:.3f} m', fill=(255, 255, 255))
+                out.append(np.asarray(image))
+    finally:
+        renderer.close()
+    return out
+
+
+def main(argv=None) -> int:
+    """Run ``python -m pg_node play``."""
+    args = parse_args(argv)
+    if args.gif and Path(args.gif).suffix.lower() != '.gif':
+        print(f'play: --gif {args.gif}: the animation is written as .gif', file=sys.stderr)
+        return 2
+    from pg_node.rl.trained_policy import (find_checkpoint, checkpoint_card, OnnxPolicy,
+                                           PolicySourceError)
+    source = Path(args.policy).expanduser()
+    try:
+        if source.suffix == '.onnx':
+            if not source.is_file():
+                raise PolicySourceError(f'no such file: {source}')
+            card = OnnxPolicy(source).card
+        else:
+            card = checkpoint_card(*find_checkpoint(source))
+    except PolicySourceError as exc:
+        print(f'play: {exc}', file=sys.stderr)
+        return 1
+    from diagnostic_msgs.msg import DiagnosticArray
+    import rclpy
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from std_msgs.msg import Float64MultiArray
+    from pg_node.ros import transition
+    from pg_node.tools import processes
+    log_dir = Path(args.log_dir or tempfile.mkdtemp(prefix='pg_node_play_'))
+    log_dir.mkdir(parents=True, exist_ok=True)
+    env = processes.child_env()
+    episodes = Episodes(card['observation']['layout'])
+    rclpy.init()
+    node = rclpy.create_node('pg_node_play')
+    commands, ready = [], []
+    node.create_subscription(Float64MultiArray, 'arm_controller/commands',
+                             lambda m: commands.append(1), 10)
+    node.create_subscription(
+        DiagnosticArray, '/diagnostics',
+        lambda m: ready.extend(s for s in m.status if s.name.startswith('policy_node')), 10)
+    node.create_subscription(
+        Float64MultiArray, 'pg_node/transition',
+        lambda m: episodes.add(transition.from_msg(m)),
+        QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
+                   durability=DurabilityPolicy.TRANSIENT_LOCAL))
+    procs = {}
+    code = shown = 0
+    print(f'play: {source} on {args.arms} x {card["model"]} in real time '
+          f'(x{args.real_time_factor:g}); logs in {log_dir}', flush=True)
+    try:
+        with processes.terminate_as_interrupt():
+            procs['policy_node'] = processes.start_logged(
+                [sys.executable, '-m', 'pg_node.ros.policy_node', '--ros-args', '-p',
+                 f'policy:={source}'], log_dir / 'policy_node.log', env)
+            # the simulator starts once the policy is loaded (torch's import alone can take
+            # seconds), so that the first episodes are not spent without commands
+            deadline = time.monotonic() + 120
+            while not ready and procs['policy_node'].poll() is None \
+                    and time.monotonic() < deadline:
+                rclpy.spin_once(node, timeout_sec=0.1)
+            procs['sim_node'] = processes.start_logged(
+                [sys.executable, '-m', 'pg_node.ros.sim_node', '--ros-args',
+                 '-p', 'mode:=real_time', '-p', f'num_envs:={args.arms}', '-p',
+                 f'seed:={args.seed}', '-p', f'model:={_model_param(card, log_dir)}',
+                 '-p', f'real_time_factor:={args.real_time_factor}'],
+                log_dir / 'sim_node.log', env)
+            deadline = time.monotonic() + 120 + 5 * args.episodes
+
+            def arm0_done():
+                return sum(1 for f in episodes.finished if f[1] == 0)
+
+            while (len(episodes.finished) < args.episodes
+                   or (args.gif and arm0_done() < args.gif_episodes)):
+                rclpy.spin_once(node, timeout_sec=0.05)
+                if episodes.counted_from is None and commands and episodes.prev is not None:
+                    episodes.counted_from = episodes.prev.seq
+                for ep, arm, ret, dist, _ in episodes.finished[shown:]:
+                    print(f'episode {ep:4d} (arm {arm}): return {ret:8.3f}, final fingertip '
+                          f'distance {dist:.4f} m', flush=True)
+                shown = len(episodes.finished)
+                dead = [name for name, p in procs.items() if p.poll() is not None]
+                if dead or time.monotonic() > deadline:
+                    why = (f'{dead[0]} exited with code {procs[dead[0]].returncode}' if dead
+                           else 'no episodes finished in time')
+                    print(f'play: {why}; see {log_dir}', file=sys.stderr)
+                    code = 1
+                    break
+    except KeyboardInterrupt:
+        print('play: interrupted', file=sys.stderr)
+    finally:
+        with processes.shutting_down():
+            for p in procs.values():
+                processes.stop_logged(p)
+        node.destroy_node()
+        rclpy.try_shutdown()
+    done = episodes.finished
+    for ep, arm, ret, dist, _ in done[shown:]:
+        print(f'episode {ep:4d} (arm {arm}): return {ret:8.3f}, final fingertip distance '
+              f'{dist:.4f} m')
+    if done:
+        rets = np.array([d[2] for d in done])
+        dists = np.array([d[3] for d in done])
+        print(f'{len(done)} episodes: return {rets.mean():.3f} +/- {rets.std():.3f}, final '
+              f'distance {dists.mean():.4f} m (median {np.median(dists):.4f} m)')
+    if args.gif and done:
+        arm0 = [(ep, frames, ret) for ep, arm, ret, _, frames in done if arm == 0]
+        if not arm0:
+            print('play: no finished episode of arm 0 to draw', file=sys.stderr)
+            return 1
+        from pg_node.tools.render import write_animation
+        images = render_frames(card, episodes, arm0[:args.gif_episodes])
+        write_animation(images, Path(args.gif), fps=1.0 / card['control_step'])
+        print(f'wrote {args.gif} ({len(images)} frames)')
+    return code
+
+
+def _model_param(card, log_dir: Path) -> str:
+    """Return the model for sim_node: the card's name if shipped, else its MJCF written out."""
+    from pg_node.common.paths import resolve_model
+    try:
+        path = resolve_model(card['model'])
+        if path.read_text() == card['model_xml']:
+            return card['model']
+    except OSError:
+        pass
+    out = log_dir / 'model.xml'
+    out.write_text(card['model_xml'])
+    return str(out)
