@@ -310,6 +310,10 @@ def _ret(value: float) -> str:
     return 'n/a (no episode finished yet)' if value != value else f'{value:.2f}'
 
 
+def _rate(value: float) -> str:
+    return 'n/a' if value != value else f'{value:,.0f}'  # NaN: one update so far
+
+
 class ProgressView:
     """
     The progress display of ``train``: one bar on a terminal, plain lines otherwise.
@@ -343,13 +347,13 @@ class ProgressView:
             # no tqdm rate: it would count the bring-up and resumed steps as speed
             self.bar = tqdm(total=total, initial=min(self.start_steps, total), unit='step',
                             unit_scale=True, dynamic_ncols=True, disable=None, mininterval=1.0,
-                            bar_format='{desc} {percentage:3.0f}%|{bar}| {n_fmt}/{total_fmt} '
-                                       '[{elapsed}] {postfix}')
+                            bar_format='{desc}{percentage:3.0f}%|{bar}| {n_fmt}/{total_fmt} '
+                                       '[{elapsed}{postfix}]')
             if self.bar.disable:
                 self.bar = None
         self.text = bar and self.bar is None
         if self.bar is not None:
-            self.bar.set_description_str('starting nodes...')
+            self.bar.set_description_str('starting nodes... ')
         elif self.text:
             print('starting nodes...', flush=True)
 
@@ -361,9 +365,21 @@ class ProgressView:
 
     def describe(self, row) -> str:
         """Return the labelled fields of one progress row."""
-        return (f'{self.steps_per_second(row):,.0f} steps/s (since the first update), '
+        return (f'{_rate(self.steps_per_second(row))} steps/s (since the first update), '
                 f"training episodes' mean return {_ret(row['episode_return'])}, "
                 f"policy version {int(row['policy_version'])}")
+
+    def describe_short(self, row) -> str:
+        """Return :meth:`describe` in words that leave the bar room."""
+        ret = row['episode_return']
+        return (f'{_rate(self.steps_per_second(row))} steps/s since 1st update, training '
+                f"return {'n/a' if ret != ret else f'{ret:.2f}'}, "
+                f"policy v{int(row['policy_version'])}")
+
+    def stopping(self):
+        """Say that the nodes are being stopped (the bar's clock goes on meanwhile)."""
+        if self.bar is not None:
+            self.bar.set_description_str('stopping nodes... ')
 
     def _session_row(self):
         if self.last is not None:
@@ -392,12 +408,12 @@ class ProgressView:
         if first:
             self.bringup_seconds = now - self.t0
             if self.bar is not None:
-                self.bar.set_description_str('training')
+                self.bar.set_description_str('')  # the bar itself shows it is learning
             elif self.text:
                 print(f'nodes up after {self.bringup_seconds:.1f} s; learning', flush=True)
         if self.bar is not None:
             self.bar.n = min(int(row['env_steps']), self.total)
-            self.bar.set_postfix_str(self.describe(row), refresh=False)
+            self.bar.set_postfix_str(self.describe_short(row), refresh=False)
             self.bar.refresh()
         elif self.text and now >= self._next_line:
             self._next_line = now + self.every
@@ -419,6 +435,7 @@ def supervise(sup: Supervisor, view: ProgressView) -> str:
         state = sup.check()
         view.poll()
     view.poll()
+    view.stopping()
     return state
 
 
@@ -502,7 +519,7 @@ def main(argv=None) -> int:
     bringup = ('no progress row' if view.bringup_seconds is None
                else f'{view.bringup_seconds:.1f} s')
     print(f"{summary['session_steps']} steps learned in this session "
-          f"({summary['total_steps']} in all): {summary['steps_per_second']:,.0f} steps/s "
+          f"({summary['total_steps']} in all): {_rate(summary['steps_per_second'])} steps/s "
           f"from its first update to its last ({summary['session_training_seconds']:.1f} s); "
           f"bring-up {bringup}, {summary['wall_seconds_total']:.0f} s in total")
     print(f'run dir:    {run_dir}\nbag:        {run_dir / "bag"}\n'
