@@ -253,7 +253,11 @@ class PolicyNode(Node):
             return
         target = self.target_array()
         if target is None or isinstance(target, str):
-            self.status = f'waiting: no target yet for {target or "the arm"}'
+            status = f'waiting: no target yet for {target or "the arm"}'
+            if status != self.status:
+                self.get_logger().info(f'not commanding: no target yet for '
+                                       f'{target or "the arm"} (on topic target)')
+            self.status = status
             return
         if self.stale:
             self.stale = False
