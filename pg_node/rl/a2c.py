@@ -67,7 +67,21 @@ class PolicyBatch:
                    torch.as_tensor(np.asarray(adv).reshape(-1), dtype=torch.float32))
 
 
-class PolicyUpdate:
+class _Optimized:
+    """An update that steps an optimiser ``self.opt``: its learning rate as a setting."""
+
+    @property
+    def learning_rate(self) -> float:
+        """Return the optimiser's learning rate; setting it sets every parameter group's."""
+        return self.opt.param_groups[0]['lr']
+
+    @learning_rate.setter
+    def learning_rate(self, value: float):
+        for group in self.opt.param_groups:
+            group['lr'] = value
+
+
+class PolicyUpdate(_Optimized):
     """Applies A2C (one gradient step on the whole batch) or PPO (epochs of minibatches)."""
 
     def __init__(self, policy: nn.Module, learning_rate: float = 7e-4, ent_coef: float = 0.0,
@@ -89,16 +103,6 @@ class PolicyUpdate:
         self.target_kl = target_kl
         self.gen = torch.Generator().manual_seed(seed)
         self.skipped = 0
-
-    @property
-    def learning_rate(self) -> float:
-        """Return the optimiser's learning rate; setting it sets every parameter group's."""
-        return self.opt.param_groups[0]['lr']
-
-    @learning_rate.setter
-    def learning_rate(self, value: float):
-        for group in self.opt.param_groups:
-            group['lr'] = value
 
     def _loss(self, b: PolicyBatch, idx):
         obs, act, old_logp, adv = b.obs[idx], b.act[idx], b.logp[idx], b.adv[idx]
@@ -148,7 +152,7 @@ class PolicyUpdate:
         return out
 
 
-class ValueUpdate:
+class ValueUpdate(_Optimized):
     """Fits V_w to its targets: ``n_epochs`` passes of ``vf_coef * MSE`` (1 pass for A2C)."""
 
     def __init__(self, value_fn: nn.Module, learning_rate: float = 7e-4, vf_coef: float = 0.5,
@@ -162,16 +166,6 @@ class ValueUpdate:
         self.batch_size = batch_size
         self.gen = torch.Generator().manual_seed(seed)
         self.skipped = 0
-
-    @property
-    def learning_rate(self) -> float:
-        """Return the optimiser's learning rate; setting it sets every parameter group's."""
-        return self.opt.param_groups[0]['lr']
-
-    @learning_rate.setter
-    def learning_rate(self, value: float):
-        for group in self.opt.param_groups:
-            group['lr'] = value
 
     def update(self, obs, ret) -> Dict[str, float]:
         """Regress V(obs) on ``ret``; return ``value_loss`` and ``explained_variance``."""
