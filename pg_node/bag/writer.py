@@ -107,7 +107,9 @@ def _signals_deferred():
     old = {}
     for signum in (signal.SIGINT, signal.SIGTERM):
         handler = signal.getsignal(signum)
-        if handler is not None:
+        # only a Python handler is swapped: SIG_DFL or SIG_IGN as Python sees them may stand
+        # for a C handler (rclpy's SIGTERM handler), which restoring them would remove
+        if callable(handler):
             old[signum] = signal.signal(signum, hold)
     try:
         yield
