@@ -71,7 +71,7 @@ def test_plot_run_dir_with_summary_and_custom_size(tmp_path):
         np.testing.assert_array_equal(split.metrics[name][0], t)
         np.testing.assert_array_equal(split.metrics[name][1], v)
     steps, minutes, returns, label = data.returns()
-    assert label.startswith('episode_return')
+    assert label == "training episodes' mean return"
     assert steps[-1] == 600064 and np.all(np.diff(steps) > 0)
     assert returns[-1] > returns[0] + 10  # the sample run learned
 
@@ -174,7 +174,8 @@ def test_plot_overlays_runs_with_their_names_and_reacher2_references(tmp_path):
     assert [r.name for r in runs] == ['seed0', 'seed1'] and runs[0].is_reacher2()
     fig = draw_runs(runs)
     legend = legend_of(fig.axes[0])
-    assert legend == ['seed0', 'seed0 evaluation -6.50', 'seed1', 'seed1 evaluation -7.25',
+    assert legend == ['seed0', 'seed0 deterministic evaluation -6.50',
+                      'seed1', 'seed1 deterministic evaluation -7.25',
                       'random torques -42.8', 'zero torques -11.7']
     assert fig._suptitle.get_text() == 'seed0, seed1'
     plt.close(fig)

@@ -140,7 +140,7 @@ class RunData:
         if curve is not None:
             t, _ = self.metrics['episode_return']
             k = np.searchsorted(self.metrics['env_steps'][0], t, side='right') - 1
-            return curve[0], self.minutes(t[k >= 0]), curve[1], 'episode_return (metric)'
+            return curve[0], self.minutes(t[k >= 0]), curve[1], "training episodes' mean return"
         eps = [e for e in self.episodes if not e.get('cut_short')]
         if not eps:
             return None
@@ -232,7 +232,8 @@ def draw_runs(runs, width=1500, height=800, dpi=100, title=None):
             eval_return = _eval_return(data)
             if eval_return is not None:
                 ax.axhline(eval_return, color=colour if many else 'C3', ls='--', lw=1,
-                           label=f'{name + " " if many else ""}evaluation {eval_return:.2f}')
+                           label=f'{name + " " if many else ""}deterministic evaluation '
+                                 f'{eval_return:.2f}')
         if not drawn:
             _no_data(ax, 'return')
             continue
