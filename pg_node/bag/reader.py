@@ -76,15 +76,20 @@ class _Bounded:
     """The file as StreamReader sees it: a read that would run past its end raises first."""
 
     def __init__(self, f):
-        self._f = f
+        self._read = f.read
         self.size = os.fstat(f.fileno()).st_size
-        self.tell = f.tell
+        self.pos = 0   # kept here: a buffered file's tell() is a system call
+
+    def tell(self):
+        return self.pos
 
     def read(self, n=-1):
-        left = self.size - self._f.tell()
+        left = self.size - self.pos
         if n > left:
             raise _PastTheEnd(n, left)
-        return self._f.read(n)
+        data = self._read(left if n < 0 else n)
+        self.pos += len(data)
+        return data
 
 
 class McapScan:
