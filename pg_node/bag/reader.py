@@ -146,7 +146,9 @@ class McapScan:
                     return
                 self.record_offset = at
                 for r in inner:
-                    if isinstance(r, Schema):
+                    if isinstance(r, Message):   # most records: tested first
+                        pass
+                    elif isinstance(r, Schema):
                         self.schemas[r.id] = r
                     elif isinstance(r, Channel):
                         self.channels[r.id] = r
@@ -154,8 +156,9 @@ class McapScan:
                         self.metadata.append((r.name, r.metadata))
                     elif isinstance(r, DataEnd):
                         summary = True
-                    if not summary and isinstance(r, (Schema, Channel, Message, Metadata,
-                                                      Chunk)):
+                    elif not isinstance(r, Chunk):
+                        continue
+                    if not summary:
                         yield r
                 at = stream.tell()
 
@@ -197,10 +200,10 @@ def _file_messages(scan, file_index):
     current = None
     resolved = {}
     for record in scan:
-        if isinstance(record, Channel):
-            schema = scan.schemas.get(record.schema_id)
-            resolved[record.id] = (record.topic, schema.name if schema else '')
         if not isinstance(record, Message):
+            if isinstance(record, Channel):
+                schema = scan.schemas.get(record.schema_id)
+                resolved[record.id] = (record.topic, schema.name if schema else '')
             continue
         if scan.record_offset != current:
             current = scan.record_offset
