@@ -9,7 +9,8 @@ import xml.etree.ElementTree as ET
 import pytest
 
 REPO = Path(__file__).resolve().parent.parent
-EXECUTABLES = ('sim_node', 'actor_node', 'critic_node', 'learner_node', 'replay_node')
+EXECUTABLES = ('sim_node', 'actor_node', 'critic_node', 'learner_node', 'replay_node',
+               'policy_node')
 SOURCES = ('package.xml', 'setup.py', 'setup.cfg', 'resource', 'pg_node', 'config', 'launch')
 
 
@@ -159,9 +160,6 @@ def test_launch_runs_the_supervised_bring_up_on_request(monkeypatch):
     assert cmd[1:4] == ['-m', 'pg_node', 'train'] and 'total_steps=5000' in cmd
     assert cmd[cmd.index('--run-dir') + 1] == '/tmp/r'
     assert _ends_launch_with(handler, train)
-
-
-EXECUTABLES = ('sim_node', 'actor_node', 'critic_node', 'learner_node', 'replay_node')
 
 
 @pytest.mark.skipif(sys.prefix == sys.base_prefix, reason='runs in the venv that make creates')

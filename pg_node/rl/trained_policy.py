@@ -59,10 +59,10 @@ def find_checkpoint(path) -> Tuple[dict, Path]:
     else:
         raise PolicySourceError(f'no such file or directory: {path}')
     if not isinstance(state, dict) or not {'policy', 'config', 'obs_dim'} <= set(state):
-        kind = ('a critic (value function) checkpoint'
-                if isinstance(state, dict) and 'value_fn' in state else 'no policy checkpoint')
-        raise PolicySourceError(f'{path} holds {kind}; give the run directory or its '
-                                f'checkpoints/')
+        kind = ('critic (value function)' if isinstance(state, dict) and 'value_fn' in state
+                else 'no')
+        raise PolicySourceError(f'{path} holds {kind} checkpoints, not policy ones; give the '
+                                f'run directory or its checkpoints/')
     return state, file
 
 

@@ -8,13 +8,11 @@ policy was trained on, and an unreadable file are refused in one line.
 """
 import argparse
 import json
-from pathlib import Path
 import sys
 
-from pg_node.rl.checkpoint import load_latest
 from pg_node.rl.evaluate import evaluate_policy
 from pg_node.rl.learner import make_policy
-import torch
+from pg_node.rl.trained_policy import find_checkpoint, PolicySourceError
 
 
 def _positive_int(text: str) -> int:
@@ -22,37 +20,6 @@ def _positive_int(text: str) -> int:
     if value < 1:
         raise argparse.ArgumentTypeError(f'must be >= 1, got {value}')
     return value
-
-
-def load_policy_state(path: Path):
-    """
-    Return ``(state, error)``: the policy checkpoint at ``path``, or why there is none.
-
-    ``path`` is a run directory (with ``checkpoints/``), a directory of ``ckpt_*.pt`` files
-    or one such file.
-    """
-    if path.is_dir() and (path / 'checkpoints').is_dir():
-        path = path / 'checkpoints'
-    if path.is_dir():
-        state, problems = load_latest(path)
-        for p in problems:
-            print(p, file=sys.stderr)
-        if state is None:
-            return None, (f'no readable checkpoint in {path} (give a run directory, its '
-                          f'checkpoints/ or a ckpt_*.pt file)')
-    elif path.exists():
-        try:
-            state = torch.load(path, map_location='cpu', weights_only=False)
-        except Exception as exc:  # noqa: B902 - report any unreadable file clearly
-            return None, f'cannot read checkpoint {path}: {exc}'
-    else:
-        return None, f'no such file or directory: {path}'
-    if not isinstance(state, dict) or not {'policy', 'config', 'obs_dim'} <= set(state):
-        kind = 'critic (value function)' if isinstance(state, dict) and 'value_fn' in state \
-            else 'not a policy'
-        return None, (f'{path} holds {kind} checkpoints, not policy ones; give the run '
-                      f'directory or its checkpoints/')
-    return state, None
 
 
 def main(argv=None) -> int:
@@ -67,9 +34,10 @@ def main(argv=None) -> int:
     parser.add_argument('--model', help='arm model (default: the one it was trained on)')
     parser.add_argument('--json', action='store_true', help='print JSON')
     args = parser.parse_args(argv)
-    state, error = load_policy_state(Path(args.checkpoint))
-    if error:
-        print(f'eval: {error}', file=sys.stderr)
+    try:
+        state, _ = find_checkpoint(args.checkpoint)
+    except PolicySourceError as exc:
+        print(f'eval: {exc}', file=sys.stderr)
         return 1
     cfg = state['config']
     model = args.model or cfg['model']
