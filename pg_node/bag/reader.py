@@ -305,8 +305,8 @@ class BagReader:
         for f in self.files:
             scan = McapScan(f)
             for record in scan:
-                ch = scan.channels.get(getattr(record, 'channel_id', None))
-                if ch is not None:
+                ch = isinstance(record, Message) and scan.channels.get(record.channel_id)
+                if ch:
                     counts[ch.topic] = counts.get(ch.topic, 0) + 1
             for ch in scan.channels.values():
                 schema = scan.schemas.get(ch.schema_id)
