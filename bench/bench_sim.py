@@ -106,6 +106,7 @@ def in_process(n, seconds):
 
 def through_node(n, seconds, domain_id):
     """Return lock-step batch steps/s of sim_node driven by a minimal client."""
+    from pg_node.ros import command
     import rclpy
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
     from std_msgs.msg import Float64MultiArray
@@ -119,12 +120,12 @@ def through_node(n, seconds, domain_id):
     rclpy.init(context=context, domain_id=domain_id)
     node = rclpy.create_node('bench_client', context=context)
     pub = node.create_publisher(Float64MultiArray, '/arm_controller/commands', 10)
-    command = Float64MultiArray(data=[0.1] * (2 * n))
+    act = np.full((n, 2), 0.1)
     count = [0]
 
-    def on_transition(_msg):
+    def on_transition(msg):
         count[0] += 1
-        pub.publish(command)
+        pub.publish(command.to_msg(act, int(msg.data[0])))   # the answer to this transition
 
     qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
