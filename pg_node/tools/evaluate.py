@@ -13,13 +13,7 @@ import sys
 from pg_node.rl.evaluate import evaluate_policy
 from pg_node.rl.learner import make_policy
 from pg_node.rl.trained_policy import find_checkpoint, PolicySourceError
-
-
-def _positive_int(text: str) -> int:
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f'must be >= 1, got {value}')
-    return value
+from pg_node.tools.args import positive_int
 
 
 def main(argv=None) -> int:
@@ -28,7 +22,7 @@ def main(argv=None) -> int:
                                      description='Evaluate a saved policy checkpoint.')
     parser.add_argument('checkpoint', help='a run directory, its checkpoints/ (the newest '
                                            'valid one is used) or a ckpt_*.pt file')
-    parser.add_argument('--episodes', type=_positive_int, default=100,
+    parser.add_argument('--episodes', type=positive_int, default=100,
                         help='default: %(default)s')
     parser.add_argument('--seed', type=int, default=0, help='default: %(default)s')
     parser.add_argument('--model', help='arm model (default: the one it was trained on)')

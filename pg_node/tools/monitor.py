@@ -25,6 +25,8 @@ import threading
 import time
 from typing import Deque, Dict, Tuple
 
+from pg_node.tools.args import positive_float
+
 METRICS_PREFIX = '/pg_node/metrics/'
 EPISODE_TOPIC = '/pg_node/episode'
 ORDER = ('episode_return', 'episode_length', 'eval_return', 'policy_loss', 'value_loss',
@@ -175,24 +177,17 @@ class MonitorNode:
                 self.subscribed.add(name)
 
 
-def _positive(text: str) -> float:
-    value = float(text)
-    if not 0 < value < float('inf'):
-        raise argparse.ArgumentTypeError(f'must be > 0, got {text}')
-    return value
-
-
 def main(argv=None) -> int:
     """Show the live view (or print it once); return the exit status."""
     parser = argparse.ArgumentParser(prog='python -m pg_node monitor',
                                      description='Live terminal view of a running training.')
-    parser.add_argument('--duration', type=_positive,
+    parser.add_argument('--duration', type=positive_float,
                         help='quit after this many seconds (with --once: listen this long)')
     parser.add_argument('--once', action='store_true',
                         help='listen, print the view once and exit (no live screen)')
-    parser.add_argument('--stale', type=_positive, default=5.0,
+    parser.add_argument('--stale', type=positive_float, default=5.0,
                         help='seconds after which a diagnostic status is STALE')
-    parser.add_argument('--refresh', type=_positive, default=4.0,
+    parser.add_argument('--refresh', type=positive_float, default=4.0,
                         help='screen updates per second')
     args = parser.parse_args(argv)
     import rclpy

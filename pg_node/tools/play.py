@@ -10,27 +10,13 @@ never trains: no torch optimiser runs beside the OpenGL context), from the obser
 simulator published: the angles from ``cos q``/``sin q``, the goal from the target field.
 """
 import argparse
-import math
 from pathlib import Path
 import sys
 import tempfile
 import time
 
 import numpy as np
-
-
-def _positive_int(text: str) -> int:
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f'must be >= 1, got {value}')
-    return value
-
-
-def _positive_float(text: str) -> float:
-    value = float(text)
-    if not value > 0 or not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f'must be a number > 0, got {text}')
-    return value
+from pg_node.tools.args import positive_float, positive_int
 
 
 def parse_args(argv):
@@ -40,15 +26,15 @@ def parse_args(argv):
         description='Run a trained policy on the simulated arm in real time and report it.')
     parser.add_argument('policy', help='a run directory, its checkpoints/, a ckpt_*.pt file or '
                                        'an exported .onnx file')
-    parser.add_argument('--episodes', type=_positive_int, default=5,
+    parser.add_argument('--episodes', type=positive_int, default=5,
                         help='episodes to play (all arms together; default: %(default)s)')
-    parser.add_argument('--arms', type=_positive_int, default=1,
+    parser.add_argument('--arms', type=positive_int, default=1,
                         help='arms in the simulator (default: %(default)s)')
     parser.add_argument('--seed', type=int, default=0, help='simulator seed (default: 0)')
-    parser.add_argument('--real-time-factor', type=_positive_float, default=1.0,
+    parser.add_argument('--real-time-factor', type=positive_float, default=1.0,
                         help='simulated seconds per wall second (default: %(default)s)')
     parser.add_argument('--gif', help='write an animation of arm 0 (.gif)')
-    parser.add_argument('--gif-episodes', type=_positive_int, default=1,
+    parser.add_argument('--gif-episodes', type=positive_int, default=1,
                         help='episodes of arm 0 in the animation (default: %(default)s)')
     parser.add_argument('--log-dir', help="where the nodes' logs go (default: a temporary "
                                           'directory)')
@@ -170,11 +156,11 @@ def main(argv=None) -> int:
         print(f'play: {exc}', file=sys.stderr)
         return 1
     from diagnostic_msgs.msg import DiagnosticArray
+    from pg_node.ros import transition
+    from pg_node.tools import processes
     import rclpy
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
     from std_msgs.msg import Float64MultiArray
-    from pg_node.ros import transition
-    from pg_node.tools import processes
     log_dir = Path(args.log_dir or tempfile.mkdtemp(prefix='pg_node_play_'))
     log_dir.mkdir(parents=True, exist_ok=True)
     env = processes.child_env()

@@ -28,6 +28,7 @@ import sys
 from typing import Dict, Optional
 
 import numpy as np
+from pg_node.tools.args import positive_int
 
 PANELS = ('policy_loss', 'value_loss', 'entropy')
 #: (return, label) of reference policies on the shipped reacher2 model, measured here
@@ -278,13 +279,6 @@ def draw_runs(runs, width=1500, height=800, dpi=100, title=None):
     return fig
 
 
-def _positive_int(text: str) -> int:
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f'must be >= 1, got {value}')
-    return value
-
-
 def main(argv=None) -> int:
     """Plot bags or run directories; return the exit status."""
     parser = argparse.ArgumentParser(
@@ -296,8 +290,8 @@ def main(argv=None) -> int:
     parser.add_argument('-o', '--output', type=Path,
                         help='PNG to write (default: learning_curve.png in the run directory '
                              'when one run directory is given, else in the current one)')
-    parser.add_argument('--width', type=_positive_int, default=1500, help='pixels')
-    parser.add_argument('--height', type=_positive_int, default=800, help='pixels')
+    parser.add_argument('--width', type=positive_int, default=1500, help='pixels')
+    parser.add_argument('--height', type=positive_int, default=800, help='pixels')
     parser.add_argument('--title', help='default: the run name (one run), else the names')
     args = parser.parse_args(argv)
     runs = []

@@ -26,6 +26,7 @@ import sys
 from typing import List
 
 import numpy as np
+from pg_node.tools.args import positive_float, positive_int
 
 
 @dataclass
@@ -199,20 +200,6 @@ def write_animation(frames, path: Path, fps: float):
                    duration=max(20, int(round(1000 / fps))), optimize=False)
 
 
-def _positive_int(text: str) -> int:
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f'must be >= 1, got {value}')
-    return value
-
-
-def _positive_float(text: str) -> float:
-    value = float(text)
-    if not 0 < value < float('inf'):
-        raise argparse.ArgumentTypeError(f'must be > 0, got {text}')
-    return value
-
-
 def main(argv=None) -> int:
     """Render one recorded episode; return the exit status."""
     parser = argparse.ArgumentParser(prog='python -m pg_node render',
@@ -223,11 +210,11 @@ def main(argv=None) -> int:
     parser.add_argument('--arm', type=int, help="count only this arm's episodes")
     parser.add_argument('-o', '--output', type=Path, default=Path('episode.gif'))
     parser.add_argument('--model', help='MJCF path or shipped model name')
-    parser.add_argument('--width', type=_positive_int, default=480, help='pixels')
-    parser.add_argument('--height', type=_positive_int, default=480, help='pixels')
-    parser.add_argument('--fps', type=_positive_float,
+    parser.add_argument('--width', type=positive_int, default=480, help='pixels')
+    parser.add_argument('--height', type=positive_int, default=480, help='pixels')
+    parser.add_argument('--fps', type=positive_float,
                         help='frames per second (default: real time)')
-    parser.add_argument('--every', type=_positive_int, default=1,
+    parser.add_argument('--every', type=positive_int, default=1,
                         help='render every k-th step')
     parser.add_argument('--list', action='store_true', help='list the episodes and exit')
     args = parser.parse_args(argv)
