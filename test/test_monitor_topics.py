@@ -137,7 +137,7 @@ def publisher():
 
 @pytest.mark.e2e
 def test_monitor_once_shows_live_metrics_and_nodes(publisher):
-    done = run('monitor', '--once', '--duration', '3')
+    done = run('monitor', '--once', '--duration', '6')  # discovery can take seconds
     assert done.returncode == 0, done.stderr
     out = done.stdout
     row = cells(next(line for line in out.splitlines() if 'episode_return' in line))
@@ -161,7 +161,7 @@ def test_topics_lists_types_endpoints_and_rates(publisher):
     diag = rows['/diagnostics']
     assert diag['types'] == ['diagnostic_msgs/msg/DiagnosticArray']
     assert 1.0 < diag['rate_hz'] < 3.5  # 2 Hz
-    plain = run('topics', '--discovery', '2', '--duration', '0.5', columns=80)
+    plain = run('topics', '--discovery', '4', '--duration', '0.5', columns=80)
     assert plain.returncode == 0 and '/pg_node/metrics/policy_loss' in plain.stdout
     lines = plain.stdout.splitlines()
     assert max(len(line) for line in lines) <= 80, plain.stdout
