@@ -46,3 +46,28 @@ def use_headless_gl() -> str:
     from mujoco.rendering.classic import gl_context
     gl_context.GLContext = GLContext
     return 'osmesa'
+
+
+def draw_pose(renderer, camera, model, data, spec, angles, goal):
+    """
+    Return the picture (``(H, W, 3)`` uint8) of the arm at joint ``angles`` reaching ``goal``.
+
+    The goal is drawn once more as a larger translucent sphere, so that it shows at any
+    resolution. ``spec`` is the model's :class:`pg_node.sim.arm_task.ArmSpec`.
+    """
+    import numpy as np
+    mujoco.mj_resetData(model, data)
+    data.qpos[spec.qpos_adr] = angles
+    if spec.target_mocap >= 0:
+        data.mocap_pos[spec.target_mocap][:len(goal)] = goal
+    else:
+        data.qpos[spec.target_qpos_adr] = goal
+    mujoco.mj_forward(model, data)
+    renderer.update_scene(data, camera)
+    scene = renderer.scene
+    if scene.ngeom < scene.maxgeom:
+        mujoco.mjv_initGeom(scene.geoms[scene.ngeom], mujoco.mjtGeom.mjGEOM_SPHERE,
+                            np.array([0.02, 0.0, 0.0]), data.xpos[spec.target_body].copy(),
+                            np.eye(3).ravel(), np.array([0.9, 0.2, 0.2, 0.5], dtype=np.float32))
+        scene.ngeom += 1
+    return renderer.render()

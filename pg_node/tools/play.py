@@ -89,7 +89,7 @@ class Episodes:
 
 def render_frames(card, frames, episodes, width=400, height=400):
     """Return RGB frames of arm 0's episodes: ``[(obs, return so far), ...]`` per episode."""
-    from pg_node.sim.view import framing_camera, use_headless_gl
+    from pg_node.sim.view import draw_pose, framing_camera, use_headless_gl
     use_headless_gl()
     import mujoco
     from pg_node.sim.arm_task import ArmSpec
@@ -105,24 +105,8 @@ def render_frames(card, frames, episodes, width=400, height=400):
     try:
         for number, (ep, steps, ret) in enumerate(episodes):
             for k, (obs, so_far) in enumerate(steps):
-                mujoco.mj_resetData(model, data)
-                data.qpos[spec.qpos_adr] = frames.angles(obs)
-                goal = obs[frames.target]
-                if spec.target_mocap >= 0:
-                    data.mocap_pos[spec.target_mocap][:len(goal)] = goal
-                else:
-                    data.qpos[spec.target_qpos_adr] = goal
-                mujoco.mj_forward(model, data)
-                renderer.update_scene(data, camera)
-                scene = renderer.scene
-                if scene.ngeom < scene.maxgeom:
-                    # the goal, larger and translucent, as render draws it
-                    mujoco.mjv_initGeom(scene.geoms[scene.ngeom], mujoco.mjtGeom.mjGEOM_SPHERE,
-                                        np.array([0.02, 0.0, 0.0]),
-                                        data.xpos[spec.target_body].copy(), np.eye(3).ravel(),
-                                        np.array([0.9, 0.2, 0.2, 0.5], dtype=np.float32))
-                    scene.ngeom += 1
-                image = Image.fromarray(renderer.render())
+                image = Image.fromarray(draw_pose(renderer, camera, model, data, spec,
+                                                  frames.angles(obs), obs[frames.target]))
                 draw = ImageDraw.Draw(image)
                 dist = float(np.linalg.norm(obs[frames.vec]))
                 draw.rectangle([0, height - 40, width, height], fill=(0, 0, 0))

@@ -124,6 +124,7 @@ def render_episode(ep: Episode, model_path: str, width=480, height=480, every=1,
     os.environ.setdefault('MUJOCO_GL', 'osmesa')
     import mujoco
     from pg_node.sim.arm_task import ArmSpec
+    from pg_node.sim.view import draw_pose
     from PIL import Image, ImageDraw
     model = mujoco.MjModel.from_xml_path(model_path)
     model.vis.global_.offwidth = max(model.vis.global_.offwidth, width)
@@ -142,24 +143,8 @@ def render_episode(ep: Episode, model_path: str, width=480, height=480, every=1,
     cum = np.cumsum(ep.rewards) if ep.rewards else np.zeros(0)
     try:
         for k in range(0, len(ep.stamps), every):
-            mujoco.mj_resetData(model, data)
-            data.qpos[spec.qpos_adr] = ep.positions[k]
-            if spec.target_mocap >= 0:
-                data.mocap_pos[spec.target_mocap][:spec.target_dim] = goal
-            else:
-                data.qpos[spec.target_qpos_adr] = goal
-            mujoco.mj_forward(model, data)
-            renderer.update_scene(data, camera)
-            scene = renderer.scene
-            if scene.ngeom < scene.maxgeom:
-                # the goal, larger and translucent, so that it shows at any resolution
-                mujoco.mjv_initGeom(scene.geoms[scene.ngeom], mujoco.mjtGeom.mjGEOM_SPHERE,
-                                    np.array([0.02, 0.0, 0.0]),
-                                    data.xpos[spec.target_body].copy(),
-                                    np.eye(3).ravel(), np.array([0.9, 0.2, 0.2, 0.5],
-                                                                dtype=np.float32))
-                scene.ngeom += 1
-            image = Image.fromarray(renderer.render())
+            image = Image.fromarray(draw_pose(renderer, camera, model, data, spec,
+                                              ep.positions[k], goal))
             if caption:
                 draw = ImageDraw.Draw(image)
                 t = (ep.stamps[k] - ep.stamps[0]) / 1e9
