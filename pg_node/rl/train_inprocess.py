@@ -14,6 +14,7 @@ from pg_node.rl.critic import Critic
 from pg_node.rl.evaluate import evaluate_policy
 from pg_node.rl.learner import Learner
 from pg_node.rl.rollout_buffer import RolloutBuffer
+from pg_node.rl.sampler import make_rng, NumpySampler
 from pg_node.sim.arm_task import ArmTask
 import torch
 
@@ -30,7 +31,11 @@ def train_inprocess(cfg: Dict[str, Dict], total_steps: int,
     learner = Learner(task.obs_dim, task.act_dim, {**l_cfg, **a_cfg})
     critic = Critic(task.obs_dim, c_cfg)
     buf = RolloutBuffer(a_cfg['n_steps'], task.num_envs, task.obs_dim, task.act_dim)
-    gen = torch.Generator().manual_seed(shared['seed'])
+    # the actor node's sampler and generator (actor_id 0), loaded with the state the learner
+    # publishes after each update: the same arithmetic, hence the same bits, as the graph
+    sampler = NumpySampler.from_config(task.obs_dim, task.act_dim, {**l_cfg, **a_cfg})
+    sampler.load(*learner.weights())
+    rng = make_rng(shared['seed'])
     lo, hi = task.spec.ctrl_low, task.spec.ctrl_high
     obs = task.reset()
     ep_step = task.episode_step.copy()
@@ -42,7 +47,7 @@ def train_inprocess(cfg: Dict[str, Dict], total_steps: int,
     try:
         while steps < total_steps:
             for _ in range(a_cfg['n_steps']):
-                act, logp = policy.act_numpy(obs, generator=gen)
+                act, logp = sampler.sample(obs, rng)
                 buf.add_action(obs, act, logp, ep_step, ep_id, 0)
                 obs, rew, term, trunc, info = task.step(np.clip(act, lo, hi))
                 buf.add_outcome(rew, term, trunc, info['final_obs'])
@@ -52,6 +57,7 @@ def train_inprocess(cfg: Dict[str, Dict], total_steps: int,
             ro = buf.finish()
             adv, ret, c_stats = critic.annotate(ro, policy)
             l_stats = learner.learn(ro.obs, ro.act, ro.logp, adv)
+            sampler.load(*learner.weights())
             steps += ro.rew.size
             recent = recent[-100:]
             if callback is not None:

@@ -23,9 +23,8 @@ import time
 import numpy as np
 from pg_node.common.params import params_for
 from pg_node.common.paths import resolve_model
-from pg_node.rl.learner import make_policy
 from pg_node.rl.rollout_buffer import RolloutBuffer
-from pg_node.rl.weights import load_flat_state
+from pg_node.rl.sampler import make_rng, NumpySampler
 from pg_node.ros import command
 from pg_node.ros import messages
 from pg_node.ros import table_msg
@@ -35,7 +34,6 @@ from pg_node.ros.parameters import declare_params
 from pg_node.sim.arm_task import ArmSpec
 from rclpy.node import Node
 from std_msgs.msg import Float64MultiArray
-import torch
 
 
 class ActorNode(Node):
@@ -43,16 +41,15 @@ class ActorNode(Node):
 
     def __init__(self):
         super().__init__('actor_node')
-        torch.set_num_threads(1)
         self.cfg = declare_params(self, params_for('actor_node'))
         model = resolve_model(self.cfg['model'])
         import mujoco
         self.spec = ArmSpec.from_model(mujoco.MjModel.from_xml_path(str(model)))
         self.act_dim = len(self.spec.ctrl_low)
         self.obs_dim = 3 * len(self.spec.joint_names) + 2 * self.spec.target_dim
-        self.policy = make_policy(self.obs_dim, self.act_dim, self.cfg)
+        self.policy = NumpySampler.from_config(self.obs_dim, self.act_dim, self.cfg)
         self.version = -1                      # no weights yet: do not act
-        self.gen = torch.Generator().manual_seed(self.cfg['seed'] + 7919 * self.cfg['actor_id'])
+        self.rng = make_rng(self.cfg['seed'] + 7919 * self.cfg['actor_id'])
         self.buf = RolloutBuffer(self.cfg['n_steps'], self.cfg['num_envs'], self.obs_dim,
                                  self.act_dim)
         self.buf_version = None
@@ -87,7 +84,7 @@ class ActorNode(Node):
         """Load a new policy version; in sync mode, resume acting when it is the awaited one."""
         try:
             header, layout, vec = messages.unpack_weights(*table_msg.from_msg(msg))
-            load_flat_state(self.policy, layout, vec)
+            self.policy.load(layout, vec)
         except ValueError as exc:
             self.counters['weights_dropped'] += 1
             self.get_logger().warning(f'dropped policy weights: {exc}',
@@ -147,7 +144,7 @@ class ActorNode(Node):
         """Sample and send the command for ``tr``'s observations."""
         if self.buf.pos == 0 and not self.buf.pending:
             self.buf_version = self.version
-        act, logp = self.policy.act_numpy(tr.obs, generator=self.gen)
+        act, logp = self.policy.sample(tr.obs, self.rng)
         cmd = np.clip(act, self.spec.ctrl_low, self.spec.ctrl_high)
         self.buf.add_action(tr.obs, act, logp, tr.episode_step, tr.episode_id, tr.seq)
         self.pub_cmd.publish(command.to_msg(cmd, tr.seq))
