@@ -6,6 +6,10 @@ ends by itself when the learner exits (it has learned ``total_steps``): every ot
 then stopped, as Ctrl-C does. Arguments:
 
 - ``params_file``, ``run_dir``;
+- ``preset``: the name of a parameter file in the package's ``config/`` (``preset:=ppo`` is
+  ``config/ppo.yaml``, ``preset:=a2c`` the design's A2C); when given it replaces
+  ``params_file``. A preset names only its algorithm's values; the nodes' defaults fill in the
+  rest. An unknown name stops the launch with one line that lists the presets;
 - ``total_steps``, ``seed``, ``num_envs``, ``algo``: override the parameter file's values
   (empty, the default: the file's value);
 - ``namespace`` (of the simulator/actor pair), ``actor_id`` and ``use_learner:=false`` to start
@@ -41,8 +45,20 @@ def _end_with(action, reason):
         target_action=action, on_exit=[EmitEvent(event=Shutdown(reason=reason))]))
 
 
+def _preset_file(name):
+    """Return the path of preset ``name`` (``config/<name>.yaml``), or say which exist."""
+    config = os.path.join(get_package_share_directory('pg_node'), 'config')
+    path = os.path.join(config, f'{name}.yaml')
+    if os.path.basename(name) != name or not os.path.isfile(path):
+        known = sorted(f[:-5] for f in os.listdir(config) if f.endswith('.yaml'))
+        raise RuntimeError(f'preset {name!r} is not in {config} (presets: {", ".join(known)})')
+    return path
+
+
 def _bring_up(context):
     params = _value(context, 'params_file')
+    if _value(context, 'preset'):
+        params = _preset_file(_value(context, 'preset'))
     run_dir = _value(context, 'run_dir')
     given = {k: yaml.safe_load(_value(context, k)) for k in OVERRIDES if _value(context, k)}
     if _value(context, 'supervised').lower() == 'true':
@@ -76,11 +92,13 @@ def generate_launch_description():
                                   'pg_node.yaml')
     args = [
         ('params_file', default_params, 'ROS 2 parameter file of all pg_node nodes'),
+        ('preset', '', "a parameter file of the package's config/ by name: a2c, ppo "
+                       '(replaces params_file)'),
         ('run_dir', 'runs/latest', 'where checkpoints, the bag and progress go'),
         ('total_steps', '', 'environment steps to learn (empty: from params_file)'),
         ('seed', '', 'seed of simulator, policy and sampling (empty: from params_file)'),
         ('num_envs', '', 'arms per simulator (empty: from params_file)'),
-        ('algo', '', 'a2c or ppo (empty: from params_file)'),
+        ('algo', '', 'a2c, ppo, npg or trpo (empty: from params_file)'),
         ('namespace', '', 'namespace of the simulator/actor pair'),
         ('actor_id', '0', 'id of this pair when several feed one learner'),
         ('use_learner', 'true', 'also start the critic and the learner'),

@@ -46,6 +46,8 @@ def test_share_holds_package_xml_config_launch_models(install):
     share = install / 'share' / 'pg_node'
     assert (share / 'package.xml').is_file()
     assert (share / 'config' / 'pg_node.yaml').is_file()
+    for preset in ('a2c', 'ppo'):
+        assert (share / 'config' / f'{preset}.yaml').is_file()
     assert (share / 'launch' / 'train.launch.py').is_file()
     models = {p.name for p in (share / 'models').glob('*.xml')}
     assert models >= {'reacher2.xml', 'arm5_3d.xml'}
@@ -160,6 +162,21 @@ def test_launch_runs_the_supervised_bring_up_on_request(monkeypatch):
     assert cmd[1:4] == ['-m', 'pg_node', 'train'] and 'total_steps=5000' in cmd
     assert cmd[cmd.index('--run-dir') + 1] == '/tmp/r'
     assert _ends_launch_with(handler, train)
+
+
+def test_launch_takes_a_preset_by_name_or_its_file(monkeypatch):
+    for given in ({'preset': 'ppo'}, {'params_file': str(REPO / 'config' / 'ppo.yaml')}):
+        actions = _bring_up(monkeypatch, **given)
+        nodes = [a for a in actions if type(a).__name__ == 'Node']
+        assert len(nodes) == 4
+        for node in nodes:
+            assert node.kwargs['parameters'][0] == str(REPO / 'config' / 'ppo.yaml')
+    train, _ = _bring_up(monkeypatch, preset='a2c', supervised='true')
+    cmd = train.kwargs['cmd']
+    assert cmd[cmd.index('--config') + 1] == str(REPO / 'config' / 'a2c.yaml')
+    for bad in ('nosuch', '../config/ppo'):
+        with pytest.raises(RuntimeError, match=r'presets: a2c, pg_node, ppo\)$'):
+            _bring_up(monkeypatch, preset=bad)
 
 
 @pytest.mark.skipif(sys.prefix == sys.base_prefix, reason='runs in the venv that make creates')

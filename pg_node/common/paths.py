@@ -32,6 +32,30 @@ def default_config() -> Path:
     return share_dir() / 'config' / 'pg_node.yaml'
 
 
+def presets() -> list:
+    """Return the names of the shipped parameter files (``config/<name>.yaml``), sorted."""
+    return sorted(p.stem for p in (share_dir() / 'config').glob('*.yaml'))
+
+
+def config_file(name_or_path: str) -> Path:
+    """
+    Turn a parameter file's path or a preset's name into an existing file path.
+
+    An existing file wins; a bare name such as ``ppo`` (no ``/``, no ``.yaml``) means the
+    shipped preset ``config/ppo.yaml``. Raises FileNotFoundError naming the presets otherwise.
+    """
+    candidate = Path(os.path.expanduser(name_or_path))
+    if candidate.is_file():
+        return candidate
+    if candidate.name == name_or_path and candidate.suffix == '':
+        shipped = share_dir() / 'config' / f'{name_or_path}.yaml'
+        if shipped.is_file():
+            return shipped
+    raise FileNotFoundError(
+        f'config {name_or_path!r} is neither an existing file nor a preset '
+        f'(presets: {", ".join(presets()) or "none"})')
+
+
 def resolve_model(name_or_path: str) -> Path:
     """Turn a model name (``reacher2``) or an MJCF path into an existing file path."""
     candidate = Path(os.path.expanduser(name_or_path))

@@ -13,6 +13,11 @@ learned ``total_steps`` (or on Ctrl-C) the nodes are stopped with SIGINT (then S
 then SIGKILL), the deterministic policy is evaluated over ``--eval-episodes`` episodes, and
 ``summary.json`` and ``learning_curve.png`` are written next to ``checkpoints/``, ``bag/``
 and ``progress.csv``.
+
+``--config`` takes a parameter file's path or a preset's name: ``--config ppo`` is the
+package's ``config/ppo.yaml`` (tuned PPO), ``--config a2c`` its ``config/a2c.yaml`` (the
+design's A2C, the same values as the default ``config/pg_node.yaml``). A preset names only
+the values of its algorithm; every other value is the default.
 """
 import argparse
 import csv
@@ -39,7 +44,9 @@ def parse_args(argv):
                     'learner nodes as processes).')
     parser.add_argument('overrides', nargs='*', metavar='key=value',
                         help='override any parameter (node.key=value for one node only)')
-    parser.add_argument('--config', help='ROS 2 parameter file (default: config/pg_node.yaml)')
+    parser.add_argument('--config', help='ROS 2 parameter file, or the name of a preset in the '
+                                         "package's config/: a2c, ppo (default: "
+                                         "config/pg_node.yaml, the design's A2C)")
     parser.add_argument('--total-steps', type=int, help='environment steps to learn')
     parser.add_argument('--seed', type=int, help='seed of everything')
     parser.add_argument('--run-dir', help='where the run writes everything '
@@ -53,7 +60,7 @@ def parse_args(argv):
 
 def resolve_config(args) -> dict:
     """Return the validated configuration of every node, overrides applied."""
-    from pg_node.common.paths import default_config
+    from pg_node.common.paths import config_file, default_config
     overrides = list(args.overrides)
     if args.total_steps is not None:
         overrides.append(f'total_steps={args.total_steps}')
@@ -61,7 +68,11 @@ def resolve_config(args) -> dict:
         overrides.append(f'seed={args.seed}')
     run_dir = args.run_dir or os.path.join('runs', datetime.now().strftime('%Y%m%d-%H%M%S'))
     overrides.append(f'run_dir={os.path.abspath(run_dir)}')
-    return load_config(args.config or default_config(), overrides)
+    try:
+        path = config_file(args.config) if args.config else default_config()
+    except FileNotFoundError as exc:
+        raise ConfigError(str(exc)) from None
+    return load_config(path, overrides)
 
 
 def write_params(cfg: dict, path: Path):

@@ -1,0 +1,116 @@
+"""
+The parameter presets in ``config/``: they load, they change only what they should.
+
+``a2c.yaml`` is the design's A2C, the values ``make train`` runs (``config/pg_node.yaml``);
+``ppo.yaml`` is tuned PPO. A preset names only algorithm settings: the arm, the seed, the
+run's bookkeeping and the simulator stay the defaults. ``--config`` and the launch file's
+``preset:=`` take a preset's name as well as a path.
+"""
+from pathlib import Path
+import subprocess
+import sys
+
+from pg_node.common.params import defaults, load_config, SCHEMA, SHARED, SHARED_PARAMS
+from pg_node.common.paths import config_file, default_config, presets
+import pytest
+import yaml
+
+REPO = Path(__file__).resolve().parent.parent
+PRESETS = ('a2c', 'ppo')
+#: what no preset may set: the task, the seed, the run's bookkeeping, the transport
+NOT_A_PRESET_SETTING = {
+    SHARED: ('model', 'seed', 'sync_mode', 'max_policy_lag', 'num_actors', 'run_dir'),
+    'actor_node': ('actor_id', 'rollout_resend_timeout'),
+    'critic_node': ('checkpoint_every',),
+    'learner_node': ('total_steps', 'checkpoint_every', 'record_arms', 'bag_split_episodes',
+                     'exit_when_done'),
+    'sim_node': tuple(SCHEMA['sim_node']),
+}
+
+
+def _raw(name):
+    return {k: v['ros__parameters'] for k, v in
+            yaml.safe_load(config_file(name).read_text()).items()}
+
+
+@pytest.mark.parametrize('name', PRESETS)
+def test_preset_is_shipped_loads_and_validates(name):
+    assert name in presets()
+    assert config_file(name) == REPO / 'config' / f'{name}.yaml'
+    cfg = load_config(config_file(name))
+    assert cfg['learner_node']['algo'] == name
+    raw = _raw(name)
+    for section, values in raw.items():
+        node = section.replace('/**/', '')
+        banned = set(NOT_A_PRESET_SETTING.get(node, ())) & set(values)
+        assert not banned, f'{name}.yaml sets {banned} in {section}'
+        for key, value in values.items():   # each named value arrives as written
+            target = cfg[SHARED] if section == SHARED else cfg[node]
+            assert target[key] == pytest.approx(value), (section, key)
+
+
+@pytest.mark.parametrize('name', PRESETS)
+def test_preset_keeps_the_defaults_of_what_it_does_not_tune(name):
+    cfg = load_config(config_file(name))
+    for node, keys in NOT_A_PRESET_SETTING.items():
+        want = ({k: p.default for k, p in SHARED_PARAMS.items()} if node == SHARED
+                else defaults(node))
+        for key in keys:
+            assert cfg[node][key] == want[key], (node, key)
+
+
+def test_a2c_preset_is_the_default_job():
+    """``make train`` (config/pg_node.yaml) and ``--config a2c`` run the same A2C."""
+    assert load_config(config_file('a2c')) == load_config(default_config())
+    raw = _raw('a2c')
+    assert set(raw['/**/learner_node']) >= {'algo', 'learning_rate'}
+    for section, values in raw.items():
+        node = section.replace('/**/', '')
+        table = SHARED_PARAMS if section == SHARED else SCHEMA[node]
+        for key, value in values.items():
+            assert table[key].default == pytest.approx(value), (section, key)
+
+
+def test_ppo_preset_differs_from_the_default_only_in_tuned_values():
+    ppo, a2c = load_config(config_file('ppo')), load_config(default_config())
+    changed = {(n, k) for n in ppo for k in ppo[n] if ppo[n][k] != a2c[n][k]}
+    assert ('learner_node', 'algo') in changed
+    tuned = {(n.replace('/**/', ''), k) for n, v in _raw('ppo').items() for k in v}
+    # a shared value reaches every node that reads it
+    shared = {k for n, k in tuned if n == SHARED}
+    assert {(n, k) for n, k in changed if k not in shared} <= tuned
+
+
+def test_config_file_takes_a_path_or_a_preset_name(tmp_path, monkeypatch):
+    monkeypatch.chdir(REPO)
+    own = tmp_path / 'mine.yaml'
+    own.write_text('/**:\n  ros__parameters:\n    seed: 3\n')
+    assert config_file(str(own)) == own
+    assert config_file('config/ppo.yaml').resolve() == REPO / 'config' / 'ppo.yaml'
+    for bad in ('nosuch', 'ppo.yaml', 'config/nosuch.yaml', '../config/ppo'):
+        with pytest.raises(FileNotFoundError, match='presets: a2c, pg_node, ppo'):
+            config_file(bad)
+
+
+@pytest.mark.parametrize('args, word', [
+    (['--config', 'nosuch'], "config 'nosuch' is neither an existing file nor a preset"),
+    (['--config', 'ppo', 'n_epochs=0'], "parameter 'learner_node.n_epochs': 0"),
+])
+def test_train_refuses_an_unknown_preset_in_one_line(tmp_path, args, word):
+    done = subprocess.run([sys.executable, '-m', 'pg_node', 'train', *args,
+                           '--run-dir', str(tmp_path / 'run')],
+                          cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert done.returncode == 2, done.stderr
+    assert done.stderr.startswith('configuration error: ') and word in done.stderr
+    assert len(done.stderr.strip().splitlines()) == 1, done.stderr
+    assert not (tmp_path / 'run').exists()
+
+
+def test_train_resolves_a_preset_name_to_the_shipped_file(monkeypatch):
+    monkeypatch.chdir(REPO)
+    from pg_node.tools.train import parse_args, resolve_config
+    by_name = resolve_config(parse_args(['--config', 'ppo', '--run-dir', 'r']))
+    by_path = resolve_config(parse_args(['--config', 'config/ppo.yaml', '--run-dir', 'r']))
+    assert by_name == by_path and by_name['learner_node']['algo'] == 'ppo'
+    default = resolve_config(parse_args(['--run-dir', 'r']))
+    assert default['learner_node']['algo'] == 'a2c'
