@@ -12,13 +12,18 @@ MJCF that follows these conventions can be used instead:
   that order whose qpos equals the world coordinate (``ref`` equal to the body position, as
   in Reacher-v5); the goal then has as many dimensions as the target has joints;
 * optional ``<custom><numeric>`` fields: ``pg_target_radius`` (disc/ball radius of the goal,
-  default 0.2), ``pg_target_center`` (default the origin), ``pg_init_qpos_noise`` (0.1) and
-  ``pg_init_qvel_noise`` (0.005).
+  default 0.2), ``pg_target_center`` (default the origin), ``pg_init_qpos_noise`` (0.1),
+  ``pg_init_qvel_noise`` (0.005), ``pg_init_qpos`` (the arm joints' start pose, one angle
+  per arm joint; default the model's ``qpos0``) and ``pg_target_points`` (x y z of goals
+  the arm can reach, 3 numbers a point, mocap targets only: each goal is one of them, drawn
+  uniformly, in place of the ball; ``python -m pg_node arm import`` writes them).
 
 Episode start (as ``Reacher-v5.reset_model`` draws it, in the same order, so that an env
 seeded like a Gymnasium env draws the same numbers):
-``qpos = qpos0 + U(-a, a)`` over all ``nq``; the goal by rejection,
-``g ~ U(-r, r)^k`` until ``|g| < r``, written over the target's qpos (or ``mocap_pos``);
+``qpos = qpos0 + U(-a, a)`` over all ``nq`` (the arm joints' ``qpos0`` replaced by
+``pg_init_qpos`` when given); the goal by rejection,
+``g ~ U(-r, r)^k`` until ``|g| < r``, written over the target's qpos (or ``mocap_pos``), or
+with ``pg_target_points`` the point of index ``integers(n_points)``;
 ``qvel = U(-b, b)`` over all ``nv`` with the target's velocities zeroed; then ``mj_forward``.
 
 One control step applies ``act`` as ``ctrl`` (MuJoCo clamps it to ``ctrlrange``) for
@@ -100,6 +105,8 @@ class ArmSpec:
     init_qvel_noise: float
     link_bodies: np.ndarray
     link_parents: np.ndarray
+    init_qpos: Optional[np.ndarray] = None
+    target_points: Optional[np.ndarray] = None
 
     @classmethod
     def from_model(cls, model: mujoco.MjModel) -> 'ArmSpec':
@@ -150,6 +157,16 @@ class ArmSpec:
         center = _custom_numeric(model, 'pg_target_center', np.zeros(dim))
         if center.shape != (dim,):
             raise ValueError(f'pg_target_center needs {dim} numbers')
+        init_qpos = _custom_numeric(model, 'pg_init_qpos', model.qpos0[
+            model.jnt_qposadr[joint_ids]])
+        if init_qpos.shape != (len(joint_ids),):
+            raise ValueError(f'pg_init_qpos needs {len(joint_ids)} numbers (one per arm joint)')
+        points = None
+        if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_NUMERIC, 'pg_target_points') >= 0:
+            points = _custom_numeric(model, 'pg_target_points', [])
+            if mocap < 0 or points.size == 0 or points.size % 3:
+                raise ValueError('pg_target_points needs a mocap target and x y z per point')
+            points = points.reshape(-1, 3)
         # bodies that carry an arm joint, and the fingertip's, to draw the links
         chain = sorted({int(model.jnt_bodyid[j]) for j in joint_ids}
                        | {int(model.site_bodyid[site])})
@@ -177,6 +194,8 @@ class ArmSpec:
             init_qvel_noise=float(_custom_numeric(model, 'pg_init_qvel_noise', [0.005])[0]),
             link_bodies=np.array(chain, dtype=int),
             link_parents=model.body_parentid[chain].copy(),
+            init_qpos=init_qpos,
+            target_points=points,
         )
 
 
@@ -269,13 +288,18 @@ class ArmTask:
         m, d, s, rng = self.model, self.datas[i], self.spec, self._rngs[i]
         mujoco.mj_resetData(m, d)
         qpos = rng.uniform(low=-s.init_qpos_noise, high=s.init_qpos_noise, size=m.nq) + m.qpos0
-        # the goal, uniform in the disc/ball by rejection (Reacher-v5's loop)
-        while True:
-            goal = rng.uniform(low=-s.target_radius, high=s.target_radius, size=s.target_dim)
-            if np.linalg.norm(goal) < s.target_radius:
-                break
-        if np.any(s.target_center):
-            goal = goal + s.target_center
+        qpos[s.qpos_adr] += s.init_qpos - m.qpos0[s.qpos_adr]
+        if s.target_points is not None:
+            goal = s.target_points[rng.integers(len(s.target_points))].copy()
+        else:
+            # the goal, uniform in the disc/ball by rejection (Reacher-v5's loop)
+            while True:
+                goal = rng.uniform(low=-s.target_radius, high=s.target_radius,
+                                   size=s.target_dim)
+                if np.linalg.norm(goal) < s.target_radius:
+                    break
+            if np.any(s.target_center):
+                goal = goal + s.target_center
         qvel = rng.uniform(low=-s.init_qvel_noise, high=s.init_qvel_noise, size=m.nv)
         if s.target_mocap >= 0:
             d.mocap_pos[s.target_mocap] = goal

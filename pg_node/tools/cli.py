@@ -26,6 +26,7 @@ COMMANDS = {
     'export': ('pg_node.tools.export', 'a trained policy as ONNX with its card (runs without '
                                        'torch)'),
     'play': ('pg_node.tools.play', 'watch a trained policy act: real-time sim_node + policy_node'),
+    'arm': ('pg_node.tools.arm', "import a robot's URDF as an arm model (arm import)"),
 }
 
 
