@@ -71,6 +71,54 @@ def test_markdown_marks_missing_graph():
     assert '| SB3 A2C |' in text
 
 
+def fake_curves(order):
+    """Curves results in which the estimators' final evaluations follow ``order`` (best first)."""
+    from pg_node.tools import bench_curves as bc
+    points = bc.points_of(4096)
+    runs = {}
+    for key in bc.configurations():
+        best = order.index(key) if key in order else len(order)
+        runs[key] = [{'seed': s, 'evals': {p: -5.0 - best - s * 0.5 + p / 4096 for p in points},
+                      'wall_seconds': 10.0 + s, 'steps_per_second': 400.0,
+                      'total_steps': 4096} for s in (0, 1)]
+    runs['npg'][1] = {'seed': 1, 'error': 'boom\nmore'}
+    return {'steps': 4096, 'seeds': [0, 1], 'points': points, 'eval_episodes': 10,
+            'runs': runs, 'load': '1'}
+
+
+def test_curves_table_ranks_and_quotes_from_fixed_numbers():
+    from pg_node.tools import bench_curves as bc
+    by_variance = list(bc.ESTIMATORS)   # variance rows in this order, lowest first
+    variance = {'rows': [{'estimator': e, 'relative_variance': 10.0 ** -i}
+                         for i, e in enumerate(reversed(by_variance))]}
+    res = fake_results()
+    res['variance'] = variance
+    for order, rho in ((by_variance, 1.0), (by_variance[::-1], -1.0)):
+        res['curves'] = fake_curves(order)
+        rows = {r['key']: r for r in bc.summarize(res['curves'], res['learning'], variance)}
+        final = res['curves']['points'][-1]
+        assert rows['gae']['evals'][final][0] == pytest.approx(
+            -5.0 - order.index('gae') - 0.25 + 1.0)
+        assert rows['a2c']['evals'] == rows['gae']['evals']   # the same runs
+        assert rows['npg']['seeds'] == 1 and 'failed: boom' in rows['npg']['note']
+        rk = bc.ranks(list(rows.values()), final)
+        assert rk['n'] == 8 and rk['spearman'] == pytest.approx(rho)
+        assert rk['rows'][order[0]]['eval'] == 1
+    # SB3 from the learning section, at the points it evaluated (here all three)
+    assert rows['sb3_a2c']['evals'][4096][0] == pytest.approx(-6.0)
+    assert rows['sb3_a2c']['evals'][1024] is None and rows['sb3_a2c']['wall_seconds'][0] == 4.1
+    assert 'evaluated at' not in rows['sb3_a2c']['note']
+    res['learning']['points'] = [4096]
+    rows = {r['key']: r for r in bc.summarize(res['curves'], res['learning'], variance)}
+    assert 'evaluated at 4,096 only' in rows['sb3_a2c']['note']
+    text = '\n'.join(bc.render(res, {'curves': 'bench_plots/curves.png'}))
+    assert "## 5. Every estimator's learning curve" in text
+    assert 'github.com/thu-ml/tianshou/blob/master/examples/mujoco/README.md' in text
+    assert '| Tianshou PPO (published) |' in text and '-4.1 ± 0.3' in text
+    assert 'over 8 estimators: -1.00' in text
+    assert bc.render({}, {}) == []
+
+
 def test_rejects_unknown_section():
     res = subprocess.run([sys.executable, '-m', 'pg_node', 'bench', '--only', 'nope'],
                          capture_output=True, text=True, cwd=REPO)
@@ -114,5 +162,13 @@ def test_quick_bench_writes_every_table(tmp_path):
     var = data['variance']['rows']
     assert [r['estimator'] for r in var][0] == 'total_return' and len(var) == 11
     assert all(math.isfinite(r['variance']) and r['variance'] > 0 for r in var)
-    for name in ('throughput', 'latency', 'learning', 'variance'):
+    from pg_node.tools.bench_curves import configurations
+    assert "## 5. Every estimator's learning curve" in text
+    curves = data['curves']
+    assert set(curves['runs']) == set(configurations())
+    for key, runs in curves['runs'].items():
+        assert len(runs) == 1 and 'error' not in runs[0], (key, runs)
+        assert all(math.isfinite(v) for v in runs[0]['evals'].values()), key
+    assert '| SB3 A2C (defaults, 8 envs; learning section) |' in text
+    for name in ('throughput', 'latency', 'learning', 'variance', 'curves'):
         assert (tmp_path / 'bench_plots' / f'{name}.png').stat().st_size > 1000

@@ -21,6 +21,8 @@ Sections (``--only``, comma-separated; default all):
   ``pg_node/Reacher2-v0``, and SB3 A2C/PPO on Gymnasium's ``Reacher-v5``, over seeds:
   deterministic evaluation return at fixed step counts, wall-clock time to -10 and -6;
 * ``variance``: the gradient-estimator lab on the arm (:mod:`pg_node.lab.arm`);
+* ``curves``: every estimator's (and algorithm's) learning curve, beside the variance table
+  (:mod:`pg_node.tools.bench_curves`; SB3 rows from ``learning``);
 * ``profile`` (only when asked for): the training graph with every node under cProfile, and
   where each node's time goes (``--only profile --report PROFILE.md`` keeps it apart).
 
@@ -41,10 +43,11 @@ import traceback
 from typing import Dict, List
 
 import numpy as np
+from pg_node.tools import bench_curves
 from pg_node.tools.processes import terminate_as_interrupt
 
-SECTIONS = ('throughput', 'latency', 'variance', 'learning', 'profile')
-DEFAULT_SECTIONS = ('throughput', 'latency', 'variance', 'learning')
+SECTIONS = ('throughput', 'latency', 'variance', 'curves', 'learning', 'profile')
+DEFAULT_SECTIONS = ('throughput', 'latency', 'variance', 'curves', 'learning')
 LEARNERS = ('pg_node_graph', 'pg_node_inprocess', 'sb3_a2c', 'sb3_ppo', 'sb3_a2c_v5',
             'sb3_ppo_v5')
 LEARNER_NAMES = {
@@ -79,6 +82,7 @@ BUDGETS = {
     'var_true_episodes': (32_768, 256),
     'var_value_episodes': (4_096, 128),
     'profile_steps': (100_000, 4_096),
+    **bench_curves.BUDGETS,
 }
 
 
@@ -571,6 +575,7 @@ def render_markdown(results: Dict, command: str, plots: Dict[str, str]) -> str:
                     for r in var['rows']]), '']
         if 'variance' in plots:
             out += [f'![variance]({plots["variance"]})', '']
+    out += bench_curves.render(results, plots)
     if 'profile' in results:
         out += render_profile(results['profile'])
     if results.get('errors'):
@@ -684,6 +689,7 @@ def make_plots(results: Dict, plot_dir: Path) -> Dict[str, str]:
         fig.savefig(plot_dir / 'variance.png', dpi=100)
         plt.close(fig)
         out['variance'] = f'{rel}/variance.png'
+    out.update(bench_curves.make_plot(results, plot_dir))
     return out
 
 
@@ -790,6 +796,8 @@ def main(argv=None) -> int:
         'latency': lambda: run_latency(budgets, log),
         'learning': lambda: run_learning(budgets, args.learners, log, learning_progress),
         'variance': lambda: run_variance(budgets, log),
+        'curves': lambda: bench_curves.run_curves(
+            budgets, log, lambda partial: (results.update(curves=partial), write_report())),
         'profile': lambda: run_profile(budgets, log),
     }
     with terminate_as_interrupt():  # kill/timeout stop the children as Ctrl-C does

@@ -1,0 +1,313 @@
+"""
+The ``curves`` section of ``python -m pg_node bench``: every estimator's learning curve.
+
+Each choice of phi of the critic (``estimator``: total return, reward-to-go, constant,
+optimal and time baselines, value baseline, TD residual, GAE) is trained in-process
+(:func:`pg_node.rl.train_inprocess.train_inprocess`, the graph's computation) with otherwise
+the default settings, the design's A2C, over the same seeds; the deterministic policy is
+evaluated at a quarter, half and all of the budget (full: 250k, 500k and 1M environment
+steps, 100 episodes, 3 seeds). The algorithm rows go in the same table: A2C (the ``gae`` runs
+above: the defaults), plain REINFORCE (total return, no advantage normalisation), PPO (the
+``config/ppo.yaml`` preset), NPG and TRPO (``algo=npg`` / ``algo=trpo``, defaults otherwise);
+SB3 A2C and PPO come from the ``learning`` section of the same invocation (not run twice),
+and Tianshou's published numbers are quoted with their source (:data:`TIANSHOU`).
+
+The report's text says only what the numbers compute: each estimator's rank by variance
+(the ``variance`` section, same invocation) and by final evaluation, and Spearman's rank
+correlation between the two.
+"""
+import time
+import traceback
+from typing import Callable, Dict, List, Optional, Sequence
+
+import numpy as np
+
+ESTIMATORS = ('total_return', 'reward_to_go', 'constant_baseline', 'optimal_baseline',
+              'time_baseline', 'value_baseline', 'td_residual', 'gae')
+#: algorithm rows: key -> (name, preset or None for the defaults, overrides)
+ALGORITHMS = {
+    'reinforce': ('plain REINFORCE (total return, no baseline, advantages not normalised)',
+                  None, ('estimator=total_return', 'normalize_advantage=false')),
+    'ppo': ('PPO (config/ppo.yaml)', 'ppo', ()),
+    'npg': ('NPG (algo=npg, defaults)', None, ('algo=npg',)),
+    'trpo': ('TRPO (algo=trpo, defaults)', None, ('algo=trpo',)),
+}
+#: rows that are the runs of another row (same configuration): key -> (name, that row's key)
+SAME_RUNS = {'a2c': ('A2C (the defaults, config/a2c.yaml)', 'gae')}
+#: SB3 rows of the ``learning`` section shown in this table
+SB3_ROWS = {'sb3_a2c': 'SB3 A2C (defaults, 8 envs; learning section)',
+            'sb3_ppo': 'SB3 PPO (defaults, 8 envs; learning section)'}
+TIANSHOU_SOURCE = ('https://github.com/thu-ml/tianshou/blob/master/examples/mujoco/README.md '
+                   '(Tianshou MuJoCo benchmark, Reacher-v2, 1M steps, 10 seeds: max average '
+                   'return during training, each seed averaged over 10 test episodes, '
+                   '+/- one std over seeds)')
+#: Tianshou's published Reacher returns at 1M steps: name -> (mean, std)
+TIANSHOU = {'PPO': (-4.1, 0.3), 'NPG': (-4.5, 0.5), 'TRPO': (-5.1, 0.8), 'A2C': (-6.7, 2.3)}
+#: Gymnasium's return at which Reacher counts as solved
+SOLVED = -3.75
+
+#: budgets: full run, and --quick
+BUDGETS = {'curve_steps': (1_000_000, 1_024), 'curve_seeds': (3, 1),
+           'curve_eval_episodes': (100, 4)}
+
+
+def points_of(steps: int) -> List[int]:
+    """Return the evaluation points of a budget: a quarter, half and all of it."""
+    return sorted({steps // 4, steps // 2, steps})
+
+
+def configurations() -> Dict[str, Dict]:
+    """Return every trained row: key -> name, preset, overrides."""
+    rows = {e: {'name': f'phi = {e}', 'preset': None, 'overrides': (f'estimator={e}',),
+                'kind': 'estimator'} for e in ESTIMATORS}
+    for key, (name, preset, overrides) in ALGORITHMS.items():
+        rows[key] = {'name': name, 'preset': preset, 'overrides': overrides,
+                     'kind': 'algorithm'}
+    return rows
+
+
+def curve_run(preset: Optional[str], overrides: Sequence[str], steps: int, seed: int,
+              points: Sequence[int], eval_episodes: int) -> Dict:
+    """
+    Train one configuration in-process; deterministic evaluations at ``points``.
+
+    Returns the evaluations, the training seconds (evaluations excluded) and steps/s.
+    """
+    from pg_node.common.params import load_config
+    from pg_node.common.paths import config_file
+    from pg_node.rl.evaluate import evaluate_policy
+    from pg_node.rl.train_inprocess import train_inprocess
+    cfg = load_config(config_file(preset) if preset else None,
+                      [*overrides, f'seed={seed}'])
+    todo = sorted({int(p) for p in points})
+    rec = {'evals': {}, 'eval_time': 0.0, 'at': {}}
+
+    def callback(stats):
+        while todo and stats['env_steps'] >= todo[0]:
+            t = time.perf_counter()
+            res = evaluate_policy(stats['learner'].policy, cfg['/**']['model'], eval_episodes,
+                                  seed)
+            rec['eval_time'] += time.perf_counter() - t
+            point = todo.pop(0)
+            rec['evals'][point] = res['eval_return']
+            rec['at'][point] = stats['wall_seconds'] - rec['eval_time']
+
+    summary = train_inprocess(cfg, steps, callback, eval_episodes=eval_episodes)
+    for p in todo:   # the budget ended before a point (whole batches)
+        rec['evals'][p] = summary['eval_return']
+    wall = summary['wall_seconds'] - rec['eval_time']
+    return {'evals': rec['evals'], 'wall_at': rec['at'], 'wall_seconds': wall,
+            'total_steps': int(summary['total_steps']),
+            'steps_per_second': summary['total_steps'] / wall}
+
+
+def run_curves(b: Dict, log: Callable[[str], None],
+               progress: Optional[Callable[[Dict], None]] = None,
+               progress_every: float = 30.0) -> Dict:
+    """
+    Train every row over the seeds; ``progress(partial)`` after a run, ``progress_every`` s apart.
+
+    ``b`` holds :data:`BUDGETS`' keys (one value each). A failed run is kept as its error.
+    """
+    steps, seeds = b['curve_steps'], list(range(b['curve_seeds']))
+    points = points_of(steps)
+    out = {'steps': steps, 'seeds': seeds, 'points': points,
+           'eval_episodes': b['curve_eval_episodes'], 'runs': {}}
+    last = time.monotonic()
+    for key, spec in configurations().items():
+        out['runs'][key] = []
+        for seed in seeds:
+            log(f'curves: {spec["name"]}, seed {seed}, {steps:,} steps')
+            try:
+                res = curve_run(spec['preset'], spec['overrides'], steps, seed, points,
+                                b['curve_eval_episodes'])
+            except Exception as exc:  # noqa: B902 - reported in the table
+                log(traceback.format_exc())
+                res = {'error': str(exc).splitlines()[0]}
+            res['seed'] = seed
+            out['runs'][key].append(res)
+            if progress is not None and time.monotonic() - last >= progress_every:
+                progress(dict(out, partial=True))   # a report of the runs so far
+                last = time.monotonic()
+    return out
+
+
+# --- summary -------------------------------------------------------------------------------
+
+def _evals_of(run: Dict, point: int):
+    evals = run.get('evals', {})
+    return evals.get(point, evals.get(str(point)))
+
+
+def _mean_std(values):
+    vals = [float(v) for v in values if v is not None and np.isfinite(v)]
+    if not vals:
+        return None
+    return float(np.mean(vals)), float(np.std(vals)), len(vals)
+
+
+def summarize(curves: Dict, learning: Optional[Dict] = None,
+              variance: Optional[Dict] = None) -> List[Dict]:
+    """
+    Return the table's rows: mean/std over seeds at each point, wall seconds, steps/s.
+
+    Estimator rows also carry their variance relative to REINFORCE (the lab's row of the same
+    name, its exact V) when the ``variance`` section ran. SB3 rows are read from ``learning``
+    at the same points when it evaluated there.
+    """
+    points = curves['points']
+    configs = configurations()
+    var = {}
+    if variance and variance.get('rows'):
+        var = {r['estimator']: r['relative_variance'] for r in variance['rows']}
+    rows = []
+
+    def add(key, name, kind, runs, note=''):
+        ok = [r for r in runs if 'error' not in r]
+        errors = [r['error'] for r in runs if 'error' in r]
+        if errors:
+            note = (note + '; ' if note else '') + f'{len(errors)} seed(s) failed: {errors[0]}'
+        rows.append({'key': key, 'name': name, 'kind': kind, 'seeds': len(ok),
+                     'evals': {p: _mean_std([_evals_of(r, p) for r in ok]) for p in points},
+                     'wall_seconds': _mean_std([r.get('wall_seconds') for r in ok]),
+                     'steps_per_second': _mean_std([r.get('steps_per_second') for r in ok]),
+                     'relative_variance': var.get(key) if kind == 'estimator' else None,
+                     'note': note})
+
+    for key, runs in curves['runs'].items():
+        spec = configs.get(key, {'name': key, 'kind': 'algorithm'})
+        add(key, spec['name'], spec['kind'], runs)
+        for same, (name, of) in SAME_RUNS.items():
+            if of == key:
+                add(same, name, 'algorithm', runs, f'the runs of phi = {of}')
+    learned = (learning or {}).get('runs', {})
+    for key, name in SB3_ROWS.items():
+        runs = learned.get(key)
+        if not isinstance(runs, list):
+            continue
+        at = [p for p in points if p in learning.get('points', [])]
+        note = ('' if len(at) == len(points) else
+                f'learning section ran {learning.get("steps", 0):,} steps: evaluated at '
+                f'{", ".join(f"{p:,}" for p in learning.get("points", []))} only')
+        note = '; '.join(x for x in (note, f'{learning.get("eval_episodes", "?")} episodes, '
+                                           'SB3 evaluate_policy') if x)
+        add(key, name, 'sb3', runs, note)
+    return rows
+
+
+def ranks(rows: List[Dict], final: int) -> Dict[str, Dict]:
+    """
+    Rank the estimator rows by variance (1: lowest) and by final evaluation (1: highest).
+
+    Only estimators with both numbers are ranked; returns ``{key: {'variance': r, 'eval': r}}``
+    and, under ``'spearman'``, the rank correlation of the two orders (None below 3 rows).
+    """
+    est = [r for r in rows if r['kind'] == 'estimator' and r['relative_variance'] is not None
+           and r['evals'].get(final) is not None]
+    by_var = sorted(est, key=lambda r: r['relative_variance'])
+    by_eval = sorted(est, key=lambda r: -r['evals'][final][0])
+    out = {r['key']: {'variance': by_var.index(r) + 1, 'eval': by_eval.index(r) + 1}
+           for r in est}
+    n = len(est)
+    rho = None
+    if n >= 3:
+        d2 = sum((v['variance'] - v['eval']) ** 2 for v in out.values())
+        rho = 1 - 6 * d2 / (n * (n * n - 1))
+    return {'rows': out, 'spearman': rho, 'n': n}
+
+
+# --- report --------------------------------------------------------------------------------
+
+def _fmt(ms) -> str:
+    if ms is None:
+        return '—'
+    mean, std, n = ms
+    return f'{mean:.2f} ± {std:.2f}' if n > 1 else f'{mean:.2f}'
+
+
+def render(results: Dict, plots: Dict[str, str]) -> List[str]:
+    """Return the lines of the section (nothing when it did not run)."""
+    curves = results.get('curves')
+    if not curves:
+        return []
+    points, final = curves['points'], curves['points'][-1]
+    rows = summarize(curves, results.get('learning'), results.get('variance'))
+    rk = ranks(rows, final)
+    out = ["## 5. Every estimator's learning curve", '',
+           f"Each phi of the critic trained in-process (`train_inprocess`, the graph's "
+           f'computation) for {curves["steps"]:,} environment steps with otherwise the default '
+           f'settings (the design\'s A2C), seeds {", ".join(map(str, curves["seeds"]))}; '
+           f'deterministic evaluation over {curves["eval_episodes"]} episodes at each point, '
+           'mean ± std over seeds. Wall seconds: training only, evaluations excluded. '
+           "Variance / REINFORCE: the estimator lab's row of the same name (section 4, exact "
+           'V, gamma = 1); ranks: 1 = lowest variance, 1 = best final evaluation. '
+           f'Load average {curves.get("load", "?")}.', '']
+    header = (['row'] + [f'eval @ {p:,}' for p in points]
+              + ['wall s', 'env steps/s', 'variance / REINFORCE', 'variance rank',
+                 'eval rank', 'note'])
+    table = []
+    for r in rows:
+        rank = rk['rows'].get(r['key'], {})
+        table.append([r['name']] + [_fmt(r['evals'][p]) for p in points]
+                     + [f'{r["wall_seconds"][0]:.1f}' if r['wall_seconds'] else '—',
+                        f'{r["steps_per_second"][0]:,.0f}' if r['steps_per_second'] else '—',
+                        (f'{r["relative_variance"]:.4f}' if r['relative_variance'] is not None
+                         else ''),
+                        str(rank.get('variance', '')), str(rank.get('eval', '')), r['note']])
+    for name, (mean, std) in TIANSHOU.items():
+        table.append([f'Tianshou {name} (published)'] + ['—'] * (len(points) - 1)
+                     + [f'{mean:.1f} ± {std:.1f}', '—', '—', '', '', '',
+                        'at 1M, 10 seeds, max over training; see source below'])
+    out += ['| ' + ' | '.join(header) + ' |', '|' + '|'.join('---' for _ in header) + '|']
+    out += ['| ' + ' | '.join(row) + ' |' for row in table]
+    out += ['', f'Tianshou: {TIANSHOU_SOURCE}. Their metric is the best evaluation during '
+                "training, ours the evaluation at the point; their Reacher is Gym's "
+                'Reacher-v2.', '']
+    if rk['spearman'] is not None:
+        out += [f'Spearman rank correlation between variance (lower first) and final '
+                f'evaluation at {final:,} steps (best first) over {rk["n"]} estimators: '
+                f'{rk["spearman"]:+.2f} (+1: the variance order is the learning order).', '']
+    solved = [r['name'] for r in rows if r['evals'][final] is not None
+              and r['evals'][final][0] >= SOLVED]
+    out += [f'Rows whose mean final evaluation reaches {SOLVED} (Gymnasium\'s "solved"): '
+            + (', '.join(solved) if solved else 'none') + '.', '']
+    if 'curves' in plots:
+        out += [f'![curves]({plots["curves"]})', '']
+    return out
+
+
+def make_plot(results: Dict, plot_dir) -> Dict[str, str]:
+    """Write ``curves.png``: one line per estimator, dashed per algorithm row."""
+    curves = results.get('curves')
+    if not curves:
+        return {}
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    rows = summarize(curves, results.get('learning'), results.get('variance'))
+    points = curves['points']
+    fig, ax = plt.subplots(figsize=(12, 5.5))
+    style = {'estimator': '-', 'algorithm': '--', 'sb3': ':'}
+    colors = plt.get_cmap('tab20').colors
+    drawn = [r for r in rows if r['key'] not in SAME_RUNS
+             and any(r['evals'][p] is not None for p in points)]
+    for i, r in enumerate(drawn):
+        xs = [p for p in points if r['evals'][p] is not None]
+        ax.plot(xs, [r['evals'][p][0] for p in xs], style[r['kind']], marker='o', ms=3,
+                lw=1.4, color=colors[i % len(colors)],
+                label=r['key'] if r['kind'] == 'estimator' else r['name'])
+    for i, (name, (mean, std)) in enumerate(TIANSHOU.items()):
+        x = points[-1] * (1.02 + 0.02 * i)
+        ax.errorbar([x], [mean], yerr=[std], fmt='x', color='k', ms=5, lw=0.7,
+                    label='Tianshou (published, 1M; max over training)' if i == 0 else None)
+        ax.annotate(name, (x, mean), xytext=(3, 0), textcoords='offset points', fontsize=6,
+                    va='center')
+    ax.axhline(SOLVED, color='k', ls=':', lw=0.7)
+    ax.set_xlabel('environment steps')
+    ax.set_ylabel(f'deterministic evaluation return ({curves["eval_episodes"]} episodes)')
+    ax.set_title("Every estimator's learning curve on the arm (mean over seeds)")
+    ax.legend(fontsize=7, loc='upper left', bbox_to_anchor=(1.01, 1.0))
+    fig.tight_layout()
+    fig.savefig(plot_dir / 'curves.png', dpi=100)
+    plt.close(fig)
+    return {'curves': f'{plot_dir.name}/curves.png'}
