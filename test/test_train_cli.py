@@ -81,6 +81,21 @@ def test_summary_separates_bringup_training_and_wall_time(runs):
         (4096 - first_update) / training, rel=1e-6)
 
 
+def test_summary_reports_each_nodes_memory_and_cpu(runs):
+    """Peak memory and CPU seconds of every node; the nodes that only act hold no torch."""
+    _, out, summary, _, _ = runs
+    nodes = summary['nodes']
+    assert set(nodes) == {'sim_node', 'actor_node', 'critic_node', 'learner_node'}
+    for name, u in nodes.items():
+        assert 0 < u['cpu_seconds_training'] <= u['cpu_seconds'], (name, u)
+        assert 20 < u['peak_rss_mb'] < 4000, (name, u)
+    # torch alone maps several hundred MB; the simulator and the actor never import it
+    for light in ('sim_node', 'actor_node'):
+        assert nodes[light]['peak_rss_mb'] < 300 < nodes['learner_node']['peak_rss_mb']
+    line = next(ln for ln in out.splitlines() if ln.startswith('nodes (peak memory'))
+    assert f"actor_node {nodes['actor_node']['peak_rss_mb']:.0f} MB" in line
+
+
 def test_resume_says_so_and_counts_this_session_only(runs):
     run_dir, _, sum1, out, summary = runs
     lines = out.splitlines()

@@ -114,3 +114,27 @@ def stop_logged(proc: subprocess.Popen):
     text = proc.log.read()
     proc.log.close()
     return proc.returncode, text
+
+
+_TICK = os.sysconf('SC_CLK_TCK') if hasattr(os, 'sysconf') else 100
+
+
+def process_usage(pid: int) -> Optional[Dict[str, float]]:
+    """
+    Return a live process's CPU seconds (user + system), resident and peak resident MB.
+
+    Read from ``/proc/<pid>/stat`` and ``/proc/<pid>/status`` (Linux); None when the process
+    is gone or ``/proc`` cannot tell. The peak (``VmHWM``) is the kernel's high-water mark,
+    exact however seldom it is read.
+    """
+    try:
+        with open(f'/proc/{pid}/stat') as f:
+            # the command name (field 2) may hold spaces: count fields after its ')'
+            fields = f.read().rsplit(')', 1)[1].split()
+        with open(f'/proc/{pid}/status') as f:
+            status = dict(line.split(':', 1) for line in f if ':' in line)
+        return {'cpu_seconds': (int(fields[11]) + int(fields[12])) / _TICK,
+                'rss_mb': int(status['VmRSS'].split()[0]) / 1024,
+                'peak_rss_mb': int(status['VmHWM'].split()[0]) / 1024}
+    except (OSError, IndexError, KeyError, ValueError):
+        return None

@@ -31,8 +31,8 @@ import time
 from typing import Optional
 
 from pg_node.common.params import ConfigError, load_config, SHARED
-from pg_node.tools.processes import (child_env, shutting_down, signal_process, STOP_WAITS,
-                                     terminate_as_interrupt)
+from pg_node.tools.processes import (child_env, process_usage, shutting_down, signal_process,
+                                     STOP_WAITS, terminate_as_interrupt)
 import yaml
 
 
@@ -158,6 +158,8 @@ class Supervisor:
         self.procs = {}
         self.restarts = dict.fromkeys(commands, 0)
         self.next_start = {}
+        self.samples = {}           # (name, pid) -> the newest process_usage of that process
+        self.cpu_at_first_update = None
         (run_dir / 'logs').mkdir(parents=True, exist_ok=True)
         self.env = child_env()
         self.env.setdefault('AMENT_PREFIX_PATH', sys.prefix)
@@ -195,6 +197,9 @@ class Supervisor:
         for name, proc in list(self.procs.items()):
             code = proc.poll()
             if code is None:
+                sample = process_usage(proc.pid)
+                if sample is not None:
+                    self.samples[(name, proc.pid)] = sample
                 continue
             if name == 'learner_node' and code == 0 and self._learned_all():
                 return 'done'
@@ -218,6 +223,30 @@ class Supervisor:
                   f'{self.run_dir / "logs" / (name + ".log")}', file=sys.stderr)
             self.next_start[name] = time.monotonic() + delay
         return 'running'
+
+    def cpu_seconds(self) -> dict:
+        """Return each node's CPU seconds so far, summed over its restarts."""
+        total = dict.fromkeys(self.commands, 0.0)
+        for (name, _), sample in self.samples.items():
+            total[name] += sample['cpu_seconds']
+        return total
+
+    def usage(self) -> dict:
+        """
+        Return each node's peak resident memory (MB) and CPU seconds, whole and in training.
+
+        Sampled from ``/proc`` at every :meth:`check` (twice a second): the peak is exact,
+        CPU seconds miss at most the last half second of a process. ``cpu_seconds_training``
+        counts from the first update (the first progress row), without start-up.
+        """
+        cpu = self.cpu_seconds()
+        start = self.cpu_at_first_update or {}
+        return {name: {'peak_rss_mb': round(max((s['peak_rss_mb'] for (n, _), s
+                                                 in self.samples.items() if n == name),
+                                                default=float('nan')), 1),
+                       'cpu_seconds': round(cpu[name], 2),
+                       'cpu_seconds_training': round(cpu[name] - start.get(name, 0.0), 2)}
+                for name in self.commands}
 
     def _learned_all(self) -> bool:
         if self.total_steps is None:
@@ -445,6 +474,8 @@ def supervise(sup: Supervisor, view: ProgressView) -> str:
         time.sleep(0.5)
         state = sup.check()
         view.poll()
+        if sup.cpu_at_first_update is None and view.first is not None:
+            sup.cpu_at_first_update = sup.cpu_seconds()
     view.poll()
     view.stopping()
     return state
@@ -506,7 +537,8 @@ def main(argv=None) -> int:
                                             if last else 0.0),
                # from the start of this command to its first progress row
                'bringup_seconds': view.bringup_seconds,
-               'restarts': sup.restarts}
+               'restarts': sup.restarts,
+               'nodes': sup.usage()}
     summary['steps_per_second'] = view.steps_per_second(last) if last else float('nan')
     print(f'evaluating the deterministic policy over {args.eval_episodes} episodes ...',
           flush=True)
@@ -533,6 +565,9 @@ def main(argv=None) -> int:
           f"({summary['total_steps']} in all): {_rate(summary['steps_per_second'])} steps/s "
           f"from its first update to its last ({summary['session_training_seconds']:.1f} s); "
           f"bring-up {bringup}, {summary['wall_seconds_total']:.0f} s in total")
+    print('nodes (peak memory, CPU in training): ' + '; '.join(
+        f"{name} {u['peak_rss_mb']:.0f} MB, {u['cpu_seconds_training']:.1f} s"
+        for name, u in summary['nodes'].items()))
     print(f'run dir:    {run_dir}\nbag:        {run_dir / "bag"}\n'
           f'checkpoint: {summary.get("checkpoint", "none")}\nsummary:    '
           f'{run_dir / "summary.json"}\ncurve:      {png}')
