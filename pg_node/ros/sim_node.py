@@ -5,12 +5,12 @@ The physics and the task are :class:`pg_node.sim.arm_task.ArmTask`; this node on
 
 Topics published:
 
-* ``/joint_states`` (``sensor_msgs/JointState``), every control step, one message for all
-  arms: names ``arm<i>/<joint>`` (``<joint>`` the model's joint name, ``i`` from 0, for
-  every ``num_envs`` including 1), position (rad), velocity (rad/s), effort (actuator
-  torque, N m), stamped with simulated time;
+* ``/joint_states`` (``sensor_msgs/JointState``), every control step while it has a
+  subscriber, one message for all arms: names ``arm<i>/<joint>`` (``<joint>`` the model's
+  joint name, ``i`` from 0, for every ``num_envs`` including 1), position (rad), velocity
+  (rad/s), effort (actuator torque, N m), stamped with simulated time;
 * ``/clock`` (``rosgraph_msgs/Clock``): simulated time, ``control steps * dt``, every
-  control step; it never goes back, not even on a world reset;
+  control step while it has a subscriber; it never goes back, not even on a world reset;
 * ``/target`` (``geometry_msgs/PointStamped``): one message per arm whenever its target
   changes (episode start), ``frame_id = 'arm<i>'`` and the point in that arm's own
   coordinates; reliable, transient-local, depth ``num_envs``, so a late subscriber still
@@ -18,10 +18,10 @@ Topics published:
 * ``/pg_node/transition`` (``std_msgs/Float64MultiArray``): every control step, the layout
   of :mod:`pg_node.ros.transition`; reliable, transient-local, depth 1;
 * ``/pg_node/markers`` (``visualization_msgs/MarkerArray``) at ``marker_rate`` Hz of wall
-  time: three markers in ``frame_id`` for all arms, the links (``LINE_LIST``, ns ``links``),
-  the fingertips and the targets (``SPHERE_LIST``, ns ``fingertips`` and ``targets``); arm
-  ``i`` is drawn shifted by its place on a square grid with ``marker_spacing`` between arms
-  (frame ``arm<i>`` is ``frame_id`` shifted so);
+  time while it has a subscriber: three markers in ``frame_id`` for all arms, the links
+  (``LINE_LIST``, ns ``links``), the fingertips and the targets (``SPHERE_LIST``, ns
+  ``fingertips`` and ``targets``); arm ``i`` is drawn shifted by its place on a square
+  grid with ``marker_spacing`` between arms (frame ``arm<i>`` is ``frame_id`` shifted so);
 * ``/diagnostics`` (``diagnostic_msgs/DiagnosticArray``) at ``diagnostics_rate`` Hz: mode,
   paused, steps, simulated time, steps per second, commands received / dropped (wrong size,
   non-finite, absurd) / clipped / ignored, lock-step timeouts.
@@ -131,7 +131,6 @@ class SimNode(Node):
         self.held_time = -math.inf
         self.seq = -1
         self.last_transition = None
-        self.last_joint_state = None
         self.last_sent = time.monotonic()
         self._diag_steps, self._diag_time = 0, time.monotonic()
 
@@ -265,8 +264,8 @@ class SimNode(Node):
                 f'no command for {waited:.1f} s, re-sending transition {self.seq}',
                 throttle_duration_sec=10.0)
             self.pub_transition.publish(self.last_transition)
-            if self.last_joint_state is not None:
-                self.pub_joints.publish(self.last_joint_state)
+            if self.pub_joints.get_subscription_count():
+                self.pub_joints.publish(self.joint_state_msg(sim_stamp(self.sim_time)))
             self.counters['transitions_resent'] += 1
             self.last_sent = time.monotonic()
 
@@ -293,18 +292,23 @@ class SimNode(Node):
             episode_id=self.task.episode_id.copy(), episode_step=self.task.episode_step.copy())
 
     def publish_state(self, tr: transition.Transition):
-        """Publish clock, joint states, new targets and the transition ``tr``."""
+        """
+        Publish the transition ``tr``, then clock, joint states and new targets.
+
+        The transition goes first: in lock-step it is what the actor waits for, so the
+        other messages are built while the actor answers. ``/clock`` and ``/joint_states``
+        are built only when someone subscribes them (no subscriber sees the difference; in
+        training nobody does, the learner records joint states from its batches). The
+        latched ``/target`` is always published, for subscribers that come later.
+        """
+        self.last_transition = transition.to_msg(tr)
+        self.pub_transition.publish(self.last_transition)
+        self.last_sent = time.monotonic()
         stamp = sim_stamp(self.sim_time)
-        self.pub_clock.publish(Clock(clock=stamp))
-        pos, vel, eff = self.task.joint_state()
-        js = JointState()
-        js.header.stamp = stamp
-        js.name = self.joint_names
-        js.position = as_array(pos.ravel())
-        js.velocity = as_array(vel.ravel())
-        js.effort = as_array(eff.ravel())
-        self.pub_joints.publish(js)
-        self.last_joint_state = js
+        if self.pub_clock.get_subscription_count():
+            self.pub_clock.publish(Clock(clock=stamp))
+        if self.pub_joints.get_subscription_count():
+            self.pub_joints.publish(self.joint_state_msg(stamp))
         new = np.flatnonzero(tr.episode_step == 0)
         if new.size:
             targets = self.task.target_pos()
@@ -315,9 +319,17 @@ class SimNode(Node):
                 point.point = Point(x=float(targets[i, 0]), y=float(targets[i, 1]),
                                     z=float(targets[i, 2]))
                 self.pub_target.publish(point)
-        self.last_transition = transition.to_msg(tr)
-        self.pub_transition.publish(self.last_transition)
-        self.last_sent = time.monotonic()
+
+    def joint_state_msg(self, stamp: Time) -> JointState:
+        """Return every arm's joint state as one ``JointState`` stamped ``stamp``."""
+        pos, vel, eff = self.task.joint_state()
+        js = JointState()
+        js.header.stamp = stamp
+        js.name = self.joint_names
+        js.position = as_array(pos.ravel())
+        js.velocity = as_array(vel.ravel())
+        js.effort = as_array(eff.ravel())
+        return js
 
     def publish_markers(self):
         """
@@ -328,6 +340,8 @@ class SimNode(Node):
         number of arms (192 single markers for 64 arms cost 46 ms a call in Python, the
         simulator's largest cost in PROFILE.md).
         """
+        if not self.pub_markers.get_subscription_count():
+            return                      # nobody draws them: do not spend the time
         stamp = sim_stamp(self.sim_time)
         n = self.task.num_envs
         links = self.task.link_positions().reshape(n, -1, 3) + self.offsets[:, None, :]
