@@ -175,7 +175,7 @@ def test_launch_takes_a_preset_by_name_or_its_file(monkeypatch):
     cmd = train.kwargs['cmd']
     assert cmd[cmd.index('--config') + 1] == str(REPO / 'config' / 'a2c.yaml')
     for bad in ('nosuch', '../config/ppo'):
-        with pytest.raises(RuntimeError, match=r'presets: a2c, pg_node, ppo\)$'):
+        with pytest.raises(RuntimeError, match=r'presets: a2c, arm7, pg_node, ppo\)$'):
             _bring_up(monkeypatch, preset=bad)
 
 
