@@ -155,6 +155,27 @@ def test_arm_joints_fixed_joints_and_options(tmp_path, capsys):
     assert ArmTask(out).spec.init_qpos.tolist() == [0.5]
 
 
+MOBILE = """
+  <link name="wheel"><inertial><mass value="1"/>
+    <inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial></link>
+  <joint name="wheel_joint" type="continuous"><parent link="base_link"/><child link="wheel"/>
+    <origin xyz="0 0.2 0"/><axis xyz="0 1 0"/></joint>
+  <link name="odom"/>
+  <joint name="odom_joint" type="floating"><parent link="odom"/><child link="base_link"/></joint>
+</robot>"""
+
+
+def test_a_mobile_base_is_fixed_with_its_wheels(tmp_path, capsys):
+    urdf = tmp_path / 'mobile.urdf'
+    urdf.write_text(TWO_LINK.read_text().replace('</robot>', MOBILE))
+    code, stdout, err = run_import(capsys, urdf, '--tip', 'fingertip', '-o', tmp_path / 'm.xml')
+    assert code == 0, err
+    assert 'arm joints (2): joint0, joint1' in stdout
+    assert 'fixed joints (2): odom_joint, wheel_joint' in stdout
+    model = mujoco.MjModel.from_xml_path(str(tmp_path / 'm.xml'))
+    assert model.njnt == 2 and model.nu == 2
+
+
 def one_line_error(capsys, *argv):
     code, _, err = run_import(capsys, *argv)
     assert code == 1

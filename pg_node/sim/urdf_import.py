@@ -281,6 +281,13 @@ def import_urdf(urdf_path, opts: ImportOptions, out_path=None, command: str = ''
         raise UrdfImportError(f'--home needs {len(arm)} angles (the arm joints '
                               f'{", ".join(arm)}), got {len(opts.home)}')
     _prepare_meshes(robot, urdf_dir, opts, warnings)
+    # a floating or planar joint (a mobile base) is fixed like every other non-arm joint;
+    # MuJoCo would refuse a free joint below the URDF's root body anyway
+    fixed = []
+    for j in robot.findall('joint'):
+        if j.get('type') in ('floating', 'planar'):
+            j.set('type', 'fixed')
+            fixed.append(j.get('name'))
     for old in robot.findall('mujoco'):
         robot.remove(old)
     ext = ET.Element('mujoco')
@@ -297,12 +304,13 @@ def import_urdf(urdf_path, opts: ImportOptions, out_path=None, command: str = ''
     _compile(spec)
 
     # joints: the chain's revolute joints stay, every other moving joint is fixed
-    fixed = [j.name for j in spec.joints if j.name not in arm]
+    others = [j.name for j in spec.joints if j.name not in arm]
     for eq in list(spec.equalities):   # URDF <mimic> becomes a joint equality
-        if eq.type == mujoco.mjtEq.mjEQ_JOINT and {eq.name1, eq.name2} & set(fixed):
+        if eq.type == mujoco.mjtEq.mjEQ_JOINT and {eq.name1, eq.name2} & set(others):
             spec.delete(eq)
-    for name in fixed:
+    for name in others:
         spec.delete(spec.joint(name))
+    fixed += others
     spec.option.timestep = opts.timestep
     spec.option.integrator = {'euler': mujoco.mjtIntegrator.mjINT_EULER,
                               'rk4': mujoco.mjtIntegrator.mjINT_RK4,

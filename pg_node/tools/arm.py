@@ -112,6 +112,10 @@ def main(argv=None) -> int:
     except UrdfImportError as exc:
         print(f'arm import: {exc}', file=sys.stderr)
         return 1
+    except (ValueError, OSError) as exc:   # a number that is not one, and the like
+        reason = '; '.join(line.strip() for line in str(exc).splitlines() if line.strip())
+        print(f'arm import: {args.urdf}: {reason}', file=sys.stderr)
+        return 1
     try:
         Path(out).write_text(result.xml)
     except OSError as exc:
