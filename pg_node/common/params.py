@@ -110,7 +110,8 @@ POSITIVE = {'low': 0.0, 'low_inclusive': False}
 
 #: Values every node reads (the ``/**`` section).
 SHARED_PARAMS: Dict[str, Param] = {
-    'model': Param('reacher2', 'shipped arm model (reacher2, arm5_3d) or a path to an MJCF file',
+    'model': Param('reacher2',
+                   'shipped arm model (reacher2, arm5_3d, arm7) or a path to an MJCF file',
                    validate=check_model),
     'num_envs': Param(64, 'arms simulated side by side, all in one message per step', low=1),
     'seed': Param(0, 'seed of the simulator, the policy initialisation and the sampling', low=0),
