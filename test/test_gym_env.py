@@ -2,19 +2,20 @@
 import gymnasium as gym
 from gymnasium.utils.env_checker import check_env
 import numpy as np
-from pg_node.sim.envs import ARM5_ID, REACHER2_ID
+from pg_node.sim.envs import ARM5_ID, ARM7_ID, REACHER2_ID
 import pytest
 
 
 def test_ids_are_registered_on_import():
     """In this process, by the tests' import of pg_node; the next test checks a fresh one."""
     assert REACHER2_ID == 'pg_node/Reacher2-v0' and ARM5_ID == 'pg_node/Arm5-v0'
-    for env_id in (REACHER2_ID, ARM5_ID):
+    assert ARM7_ID == 'pg_node/Arm7-v0'
+    for env_id in (REACHER2_ID, ARM5_ID, ARM7_ID):
         assert env_id in gym.registry
         assert gym.registry[env_id].max_episode_steps == 50
 
 
-@pytest.mark.parametrize('env_id', [REACHER2_ID, ARM5_ID])
+@pytest.mark.parametrize('env_id', [REACHER2_ID, ARM5_ID, ARM7_ID])
 def test_gymnasium_and_sb3_checkers_pass(env_id):
     from stable_baselines3.common.env_checker import check_env as sb3_check_env
     check_env(gym.make(env_id).unwrapped, skip_render_check=True)

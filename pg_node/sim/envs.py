@@ -7,8 +7,9 @@ only when an environment is made.
 """
 
 #: id -> shipped model
-ENV_IDS = {'pg_node/Reacher2-v0': 'reacher2', 'pg_node/Arm5-v0': 'arm5_3d'}
-REACHER2_ID, ARM5_ID = ENV_IDS
+ENV_IDS = {'pg_node/Reacher2-v0': 'reacher2', 'pg_node/Arm5-v0': 'arm5_3d',
+           'pg_node/Arm7-v0': 'arm7'}
+REACHER2_ID, ARM5_ID, ARM7_ID = ENV_IDS
 MAX_EPISODE_STEPS = 50
 
 
