@@ -3,6 +3,7 @@ What pg_node's nodes share: QoS profiles, the ``main`` loop, diagnostics, rate c
 
 Kept apart from the math: only nodes import this module.
 """
+import os
 import sys
 import time
 from typing import Callable, Dict, Optional
@@ -64,6 +65,31 @@ class RateCounter:
         return r
 
 
+#: the executors a node can spin in (environment variable ``PG_NODE_EXECUTOR``)
+EXECUTORS = ('events', 'single_threaded')
+
+
+def make_executor():
+    """
+    Return the executor named by ``PG_NODE_EXECUTOR``: ``events`` (default) or ``single_threaded``.
+
+    ``events`` is rclpy's EventsExecutor (``rclpy.experimental``), whose wait loop and
+    dispatch are C++: every message of the lock-step loop wakes a node, and rclpy's Python
+    ``SingleThreadedExecutor`` spends more per wake-up than the actor spends sampling (see
+    PROFILE.md). Its ``spin()`` does not return on shutdown in this rclpy, so nodes call
+    ``spin_once`` in a loop, which does. ``single_threaded`` is rclpy's default executor,
+    the one ``rclpy.spin`` uses.
+    """
+    name = os.environ.get('PG_NODE_EXECUTOR', 'events').strip() or 'events'
+    if name == 'events':
+        from rclpy.experimental import EventsExecutor
+        return EventsExecutor()
+    if name == 'single_threaded':
+        from rclpy.executors import SingleThreadedExecutor
+        return SingleThreadedExecutor()
+    raise ConfigError(f'PG_NODE_EXECUTOR={name!r}: choose one of {", ".join(EXECUTORS)}')
+
+
 def run(make_node: Callable[[], Node], args=None,
         cleanup: Optional[Callable[[Node], None]] = None) -> int:
     """
@@ -74,7 +100,6 @@ def run(make_node: Callable[[], Node], args=None,
     parameter file or ROS arguments that rcl cannot parse (rcl's own log lines of that are
     held back; when init succeeds, whatever it wrote to stderr is passed on).
     """
-    import os
     import tempfile
     with tempfile.TemporaryFile() as held:
         sys.stderr.flush()
@@ -103,7 +128,10 @@ def run(make_node: Callable[[], Node], args=None,
     code = 0
     try:
         node = make_node()
-        rclpy.spin(node)
+        executor = make_executor()
+        executor.add_node(node)
+        while rclpy.ok():
+            executor.spin_once(timeout_sec=0.5)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except _rclpy.RCLError:

@@ -369,7 +369,9 @@ if _out and _mod:
 
 #: what each node's wall time goes to, by the function that spends it (cProfile ``tottime``)
 PROFILE_GROUPS = (
-    ('waiting (rclpy wait: idle)', ('_rclpy_pybind11.wait',)),
+    # the events executor waits, takes and deserialises in C++, inside its spin_once
+    ('waiting (executor: idle; events executor: also take)',
+     ('_rclpy_pybind11.wait', 'EventsExecutor')),
     ('publish (serialise + DDS write)',
      ('_rclpy_pybind11.publish', '_rclpy_pybind11.rclpy_serialize')),
     ('take (DDS read + deserialise)', ('_rclpy_pybind11.take',)),
