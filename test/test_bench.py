@@ -170,5 +170,13 @@ def test_quick_bench_writes_every_table(tmp_path):
         assert len(runs) == 1 and 'error' not in runs[0], (key, runs)
         assert all(math.isfinite(v) for v in runs[0]['evals'].values()), key
     assert '| SB3 A2C (defaults, 8 envs; learning section) |' in text
+    assert '## The ROS tax: the graph against the same computation in one process' in text
+    tax = data['tax']
+    assert len(tax['pairs']) == 1 and all(v > 0 for v in tax['pairs'][0].values())
+    assert set(tax['nodes']) == {'sim_node', 'actor_node', 'critic_node', 'learner_node'}
+    assert [(r['arms'], r['pairs']) for r in tax['scaling']] == [(16, 1), (16, 2)]
+    assert all(r['graph'] > 0 and r['inprocess'] > 0 for r in tax['scaling']), tax['scaling']
+    for key in ('idle', 'training'):
+        assert tax['latency'][key]['round_trips'] >= 100, tax['latency']
     for name in ('throughput', 'latency', 'learning', 'variance', 'curves'):
         assert (tmp_path / 'bench_plots' / f'{name}.png').stat().st_size > 1000

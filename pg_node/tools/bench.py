@@ -17,6 +17,9 @@ Sections (``--only``, comma-separated; default all):
   defaults) training on ``pg_node/Reacher2-v0``; each as a ratio to SB3 A2C and to raw MuJoCo;
 * ``latency``: sim_node's lock-step round trip (transition published to its command
   received), measured inside sim_node (:mod:`pg_node.tools.latency_probe`), for 1 and 64 arms;
+* ``tax``: the graph against the same computation in one process, each node's memory and
+  CPU, scaling with arms and simulator/actor pairs, the round trip while training runs
+  (:mod:`pg_node.tools.bench_tax`);
 * ``learning``: pg_node A2C through the graph and in-process, SB3 A2C and SB3 PPO on
   ``pg_node/Reacher2-v0``, and SB3 A2C/PPO on Gymnasium's ``Reacher-v5``, over seeds:
   deterministic evaluation return at fixed step counts, wall-clock time to -10 and -6;
@@ -44,10 +47,11 @@ from typing import Dict, List
 
 import numpy as np
 from pg_node.tools import bench_curves
+from pg_node.tools import bench_tax
 from pg_node.tools.processes import terminate_as_interrupt
 
-SECTIONS = ('throughput', 'latency', 'variance', 'curves', 'learning', 'profile')
-DEFAULT_SECTIONS = ('throughput', 'latency', 'variance', 'curves', 'learning')
+SECTIONS = ('throughput', 'latency', 'tax', 'variance', 'curves', 'learning', 'profile')
+DEFAULT_SECTIONS = ('throughput', 'latency', 'tax', 'variance', 'curves', 'learning')
 LEARNERS = ('pg_node_graph', 'pg_node_inprocess', 'sb3_a2c', 'sb3_ppo', 'sb3_a2c_v5',
             'sb3_ppo_v5')
 LEARNER_NAMES = {
@@ -83,6 +87,7 @@ BUDGETS = {
     'var_value_episodes': (4_096, 128),
     'profile_steps': (100_000, 4_096),
     **bench_curves.BUDGETS,
+    **bench_tax.BUDGETS,
 }
 
 
@@ -492,6 +497,8 @@ def render_markdown(results: Dict, command: str, plots: Dict[str, str]) -> str:
                     for r in lat['rows']]), '']
         if 'latency' in plots:
             out += [f'![latency]({plots["latency"]})', '']
+    if 'tax' in results:
+        out += bench_tax.render_tax(results['tax'], _table)
     if 'learning' in results:
         learn = results['learning']
         summ = learning_summary(learn)
@@ -794,6 +801,7 @@ def main(argv=None) -> int:
     runners = {
         'throughput': lambda: run_throughput(budgets, log),
         'latency': lambda: run_latency(budgets, log),
+        'tax': lambda: bench_tax.run_tax(budgets, log),
         'learning': lambda: run_learning(budgets, args.learners, log, learning_progress),
         'variance': lambda: run_variance(budgets, log),
         'curves': lambda: bench_curves.run_curves(
