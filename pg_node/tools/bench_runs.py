@@ -371,7 +371,7 @@ if _out and _mod:
 PROFILE_GROUPS = (
     # the events executor waits, takes and deserialises in C++, inside its spin_once
     ('waiting (executor: idle; events executor: also take)',
-     ('_rclpy_pybind11.wait', 'EventsExecutor')),
+     ('_rclpy_pybind11.wait', '_rclpy_pybind11.spin_once')),
     ('publish (serialise + DDS write)',
      ('_rclpy_pybind11.publish', '_rclpy_pybind11.rclpy_serialize')),
     ('take (DDS read + deserialise)', ('_rclpy_pybind11.take',)),
