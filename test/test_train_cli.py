@@ -87,8 +87,10 @@ def test_summary_reports_each_nodes_memory_and_cpu(runs):
     nodes = summary['nodes']
     assert set(nodes) == {'sim_node', 'actor_node', 'critic_node', 'learner_node'}
     for name, u in nodes.items():
-        assert 0 < u['cpu_seconds_training'] <= u['cpu_seconds'], (name, u)
-        assert 20 < u['peak_rss_mb'] < 4000, (name, u)
+        # a 4096-step run trains for a second or two: a node's CPU in it may round to 0
+        assert 0 <= u['cpu_seconds_training'] <= u['cpu_seconds'], (name, u)
+        assert u['cpu_seconds'] > 0 and 20 < u['peak_rss_mb'] < 4000, (name, u)
+    assert sum(u['cpu_seconds_training'] for u in nodes.values()) > 0, nodes
     # torch alone maps several hundred MB; the simulator and the actor never import it
     for light in ('sim_node', 'actor_node'):
         assert nodes[light]['peak_rss_mb'] < 300 < nodes['learner_node']['peak_rss_mb']

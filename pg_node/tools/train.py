@@ -194,12 +194,10 @@ class Supervisor:
         (when given): a learner stopped by SIGTERM or SIGINT also exits with 0, and is
         restarted as any node that stopped early.
         """
+        self.sample_usage()
         for name, proc in list(self.procs.items()):
             code = proc.poll()
             if code is None:
-                sample = process_usage(proc.pid)
-                if sample is not None:
-                    self.samples[(name, proc.pid)] = sample
                 continue
             if name == 'learner_node' and code == 0 and self._learned_all():
                 return 'done'
@@ -223,6 +221,14 @@ class Supervisor:
                   f'{self.run_dir / "logs" / (name + ".log")}', file=sys.stderr)
             self.next_start[name] = time.monotonic() + delay
         return 'running'
+
+    def sample_usage(self):
+        """Read every live node's CPU seconds and memory from ``/proc``."""
+        for name, proc in self.procs.items():
+            if proc.poll() is None:
+                sample = process_usage(proc.pid)
+                if sample is not None:
+                    self.samples[(name, proc.pid)] = sample
 
     def cpu_seconds(self) -> dict:
         """Return each node's CPU seconds so far, summed over its restarts."""
@@ -256,6 +262,7 @@ class Supervisor:
 
     def stop_all(self):
         """Stop every node: SIGINT, then SIGTERM, then SIGKILL, waiting between."""
+        self.sample_usage()         # the last reading of each node's CPU and memory
         for sig, wait in STOP_WAITS:
             alive = [p for p in self.procs.values() if p.poll() is None]
             for p in alive:
