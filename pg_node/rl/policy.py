@@ -6,18 +6,15 @@ parameter vector, or, with ``state_dependent_std``, a second head of the same ML
 The score ``grad_theta log pi_theta(u|s)`` that every estimator in the notes multiplies
 (eqs. 14 and 17) is what autograd computes from :meth:`GaussianPolicy.log_prob`.
 """
-import math
 from typing import Sequence, Tuple
 
 import numpy as np
 from pg_node.rl.networks import activation, mlp
 from pg_node.rl.normalization import RunningNorm
+from pg_node.rl.sampler import LOG_SQRT_2PI, LOG_STD_MAX, LOG_STD_MIN
 import torch
 from torch import nn
 from torch.distributions import Normal
-
-LOG_STD_MIN, LOG_STD_MAX = -20.0, 2.0
-_LOG_SQRT_2PI = math.log(math.sqrt(2 * math.pi))
 
 
 class GaussianPolicy(nn.Module):
@@ -79,7 +76,7 @@ class GaussianPolicy(nn.Module):
         # Normal(mu, std).log_prob(act), the same operations in the same order (so the same
         # bits), without building and validating a distribution object at every step: the
         # actor samples once per control step, and this halves the cost for 64 arms
-        logp = -((act - mu) ** 2) / (2 * std ** 2) - std.log() - _LOG_SQRT_2PI
+        logp = -((act - mu) ** 2) / (2 * std ** 2) - std.log() - LOG_SQRT_2PI
         return act, logp.sum(-1)
 
     @torch.no_grad()

@@ -16,16 +16,15 @@ actor node and :func:`pg_node.rl.train_inprocess.train_inprocess` both sample wi
 class and the same seeded numpy generator.
 """
 import math
-from typing import List, Sequence, Tuple
+from typing import Sequence, Tuple
 
 import numpy as np
+from pg_node.rl.weights import Layout, unflatten
 
 LOG_STD_MIN, LOG_STD_MAX = -20.0, 2.0
-_LOG_SQRT_2PI = math.log(math.sqrt(2 * math.pi))
+LOG_SQRT_2PI = math.log(math.sqrt(2 * math.pi))
 _ACTIVATIONS = {'tanh': np.tanh, 'relu': lambda x: np.maximum(x, np.float32(0)),
                 'elu': lambda x: np.where(x > 0, x, np.expm1(x))}
-
-Layout = List[Tuple[str, Tuple[int, ...]]]
 
 
 def policy_layout(obs_dim: int, act_dim: int, hidden: Sequence[int],
@@ -75,7 +74,6 @@ class NumpySampler:
         self.normalize_obs = bool(normalize_obs)
         self.layout = policy_layout(self.obs_dim, self.act_dim, self.hidden,
                                     self.state_dependent_std)
-        self.size = sum(int(np.prod(s)) for _, s in self.layout)
         self.loaded = False
 
     @classmethod
@@ -86,22 +84,7 @@ class NumpySampler:
 
     def load(self, layout, vec) -> None:
         """Take the policy's state as ``(layout, flat float64 vector)``; ValueError if unfit."""
-        vec = np.asarray(vec, dtype=np.float64)
-        layout = [(str(n), tuple(int(d) for d in s)) for n, s in layout]
-        if layout != self.layout:
-            diff = next(((a, b) for a, b in zip(layout, self.layout) if a != b),
-                        (f'{len(layout)} tensors', f'{len(self.layout)} tensors'))
-            raise ValueError(f'weights layout does not match the network: got {diff[0]}, '
-                             f'expected {diff[1]}')
-        if vec.shape != (self.size,):
-            raise ValueError(f'weights vector has {vec.size} values, layout needs {self.size}')
-        if not np.all(np.isfinite(vec)):
-            raise ValueError('weights vector holds non-finite values')
-        state, pos = {}, 0
-        for name, shape in layout:
-            n = int(np.prod(shape))
-            state[name] = vec[pos:pos + n].reshape(shape)
-            pos += n
+        state = unflatten(layout, vec, self.layout)
         # the torch policy keeps the running moments in float64 and casts mean and
         # sqrt(var + eps) to the input's dtype; its weights are float32
         self.norm_mean = state['obs_norm.mean'].astype(np.float32)
@@ -144,7 +127,7 @@ class NumpySampler:
         mu, std = self.mean_std(obs)
         eps = rng.standard_normal(mu.shape, dtype=np.float32)
         act = mu + std * eps
-        logp = -((act - mu) ** 2) / (2 * std ** 2) - np.log(std) - np.float32(_LOG_SQRT_2PI)
+        logp = -((act - mu) ** 2) / (2 * std ** 2) - np.log(std) - np.float32(LOG_SQRT_2PI)
         return act.astype(np.float64), logp.sum(-1).astype(np.float64)
 
     def mean_action(self, obs: np.ndarray) -> np.ndarray:

@@ -4,32 +4,38 @@ A network's state (parameters and normalisation statistics) as one flat float64 
 The learner publishes its policy this way and the actors load it; the layout (names and
 shapes, in ``state_dict`` order) travels with the vector, and loading refuses a vector whose
 layout does not match the receiving network, naming the first difference.
+
+Only the functions that take a torch module import torch, so :func:`unflatten` (the checks
+and the split) also serves the torch-free sampler of the actor
+(:class:`pg_node.rl.sampler.NumpySampler`).
 """
-from typing import List, Tuple
+from typing import Dict, List, Tuple
 
 import numpy as np
-import torch
-from torch import nn
 
 Layout = List[Tuple[str, Tuple[int, ...]]]
 
 
-def layout_of(module: nn.Module) -> Layout:
+def layout_of(module) -> Layout:
     """Return ``[(name, shape), ...]`` of every tensor in ``module.state_dict()``."""
     return [(k, tuple(v.shape)) for k, v in module.state_dict().items()]
 
 
-def flatten_state(module: nn.Module) -> Tuple[Layout, np.ndarray]:
+def flatten_state(module) -> Tuple[Layout, np.ndarray]:
     """Return ``(layout, vector)`` of the module's whole state."""
     state = module.state_dict()
     vec = np.concatenate([v.detach().double().reshape(-1).numpy() for v in state.values()])
     return layout_of(module), vec
 
 
-def load_flat_state(module: nn.Module, layout: Layout, vec) -> None:
-    """Load a ``(layout, vector)`` pair into ``module``; ValueError if they do not fit."""
+def unflatten(layout: Layout, vec, want: Layout) -> Dict[str, np.ndarray]:
+    """
+    Return ``{name: float64 array}`` of a ``(layout, vector)`` pair that must fit ``want``.
+
+    ValueError, naming the first difference, when the layout is not ``want``, the vector's
+    length is not the layout's, or a value is not finite.
+    """
     vec = np.asarray(vec, dtype=np.float64)
-    want = layout_of(module)
     layout = [(str(n), tuple(int(d) for d in s)) for n, s in layout]
     if layout != want:
         diff = next(((a, b) for a, b in zip(layout, want) if a != b),
@@ -42,9 +48,17 @@ def load_flat_state(module: nn.Module, layout: Layout, vec) -> None:
     if not np.all(np.isfinite(vec)):
         raise ValueError('weights vector holds non-finite values')
     state, pos = {}, 0
-    ref = module.state_dict()
     for name, shape in layout:
         n = int(np.prod(shape))
-        state[name] = torch.as_tensor(vec[pos:pos + n].reshape(shape), dtype=ref[name].dtype)
+        state[name] = vec[pos:pos + n].reshape(shape)
         pos += n
-    module.load_state_dict(state)
+    return state
+
+
+def load_flat_state(module, layout: Layout, vec) -> None:
+    """Load a ``(layout, vector)`` pair into ``module``; ValueError if they do not fit."""
+    import torch
+    ref = module.state_dict()
+    state = unflatten(layout, vec, layout_of(module))
+    module.load_state_dict({name: torch.as_tensor(value, dtype=ref[name].dtype)
+                            for name, value in state.items()})
