@@ -50,9 +50,11 @@ The bag's ``metadata.yaml`` ``custom_data`` holds ``pg_node.model`` (the MJCF pa
 ``pg_node.dt``, ``pg_node.record_arms`` and ``pg_node.joint_names`` for the tools that
 read the bag.
 """
+import array
 import math
 import re
 import threading
+from types import SimpleNamespace
 from typing import Callable, Dict, Optional
 
 from builtin_interfaces.msg import Time
@@ -64,6 +66,7 @@ from pg_node.bag.writer import BagWriter
 from pg_node.common.paths import resolve_model
 from pg_node.sim.arm_task import ArmSpec
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.serialization import serialize_message
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, Float64MultiArray, MultiArrayDimension
@@ -95,6 +98,11 @@ def sim_stamp(seconds: float) -> Time:
     """Return a ``builtin_interfaces/Time`` for a simulated time in seconds."""
     ns = int(round(seconds * 1e9))
     return Time(sec=ns // 10**9, nanosec=ns % 10**9)
+
+
+def _doubles(values: np.ndarray) -> array.array:
+    """Return an array's values, row-major, as the ``array.array`` a float64[] field holds."""
+    return array.array('d', np.ascontiguousarray(values, dtype=np.float64).tobytes())
 
 
 def _fmt(value) -> str:
@@ -146,15 +154,16 @@ class EpisodeRecorder:
     :param split_max_bytes: start a new file at this size (0: never).
     :param dt: simulated seconds per control step; by default the model's timestep times
         ``frame_skip``.
-    :param on_summary: called with each episode summary (a ``DiagnosticStatus``) after it is
-        written, e.g. a publisher's ``publish``, so that live tools see what the bag gets.
+    :param on_summary: called with each episode summary (a ``DiagnosticStatus``, as the
+        CDR bytes the bag holds) after it is written, e.g. a publisher's ``publish`` (which
+        sends bytes as they are), so that live tools see what the bag gets.
     """
 
     def __init__(self, directory, model_path, record_arms: int = 4,
                  split_max_episodes: int = 200, split_max_bytes: int = 64 << 20,
                  dt: Optional[float] = None, frame_skip: int = 2, record_actor: int = 0,
                  compression: str = 'zstd',
-                 on_summary: Optional[Callable[[DiagnosticStatus], None]] = None):
+                 on_summary: Optional[Callable[[bytes], None]] = None):
         """Read the model and create the bag with its topics declared."""
         self.model_path = str(resolve_model(str(model_path)))
         model = mujoco.MjModel.from_xml_path(self.model_path)
@@ -175,6 +184,11 @@ class EpisodeRecorder:
         self._last_t: Optional[int] = None
         self._target_for: Dict[int, int] = {}  # recorded arm -> episode of its last goal
         self._angles: Dict[int, np.ndarray] = {}  # recorded arm -> its last unwrapped angles
+        self._names: Dict[bytes, list] = {}  # recorded arms -> their joint names
+        self._msgs = SimpleNamespace(
+            clock=Clock(), joints=JointState(), commands=Float64MultiArray(),
+            reward=Float64MultiArray())
+        self._layout_arms = None  # arms the layouts of commands and reward describe
         self._lock = threading.RLock()
         self.writer = BagWriter(
             directory, split_max_bytes=split_max_bytes, split_max_episodes=split_max_episodes,
@@ -259,49 +273,62 @@ class EpisodeRecorder:
         middle of an episode (a restarted learner) starts from its wrapped angle.
         """
         out = wrapped.copy()
-        for r, arm in enumerate(arms):
-            last = self._angles.get(int(arm))
-            if last is not None and ep_step[r] > 0:
-                out[r] = last + np.angle(np.exp(1j * (wrapped[r] - last)))
-            self._angles[int(arm)] = out[r]
+        keys = arms.tolist()
+        last = [self._angles.get(arm) for arm in keys]
+        rows = [r for r, prev in enumerate(last) if prev is not None and ep_step[r] > 0]
+        if rows:
+            prev = np.stack([last[r] for r in rows])
+            out[rows] = prev + np.angle(np.exp(1j * (wrapped[rows] - prev)))
+        for r, arm in enumerate(keys):
+            self._angles[arm] = out[r]
         return out
 
     def _write_step(self, t_log, obs, act, rew, ep_id, ep_step, arms, seq):
         n, k = self.n_joints, self.target_dim
         stamp = sim_stamp(seq * self.dt)
-        w = self.writer
-        w.write('/clock', Clock(clock=stamp), t_log)
+        w, m = self.writer, self._msgs
+        # the writer serialises a message as it takes it, so one object of each type is
+        # filled and written again every step (an rclpy message costs microseconds to make)
+        m.clock.clock = stamp
+        w.write('/clock', m.clock, t_log)
         act_c = np.clip(act, self.spec.ctrl_low, self.spec.ctrl_high)
-        js = JointState()
+        names = self._names.get(arms.tobytes())
+        if names is None:
+            names = self._names[arms.tobytes()] = [
+                f'arm{int(i)}/{j}' for i in arms for j in self.spec.joint_names]
+        js = m.joints
         js.header.stamp = stamp
-        js.name = [f'arm{int(i)}/{j}' for i in arms for j in self.spec.joint_names]
-        js.position = self._unwrapped(np.arctan2(obs[:, n:2 * n], obs[:, :n]), arms,
-                                      ep_step).ravel().tolist()
-        js.velocity = obs[:, 2 * n + k:3 * n + k].ravel().tolist()
-        js.effort = (act_c * self.gear).ravel().tolist()
+        js.name = names
+        js.position = _doubles(self._unwrapped(np.arctan2(obs[:, n:2 * n], obs[:, :n]), arms,
+                                               ep_step))
+        js.velocity = _doubles(obs[:, 2 * n + k:3 * n + k])
+        js.effort = _doubles(act_c * self.gear)
         w.write('/joint_states', js, t_log)
-        for r, arm in enumerate(arms):
+        for r, arm in enumerate(arms.tolist()):
             eid = int(ep_id[r])
-            if self._target_for.get(int(arm)) != eid:
+            if self._target_for.get(arm) != eid:
                 # the first recorded step of this arm's episode: its goal
-                self._target_for[int(arm)] = eid
+                self._target_for[arm] = eid
                 point = PointStamped()
                 point.header.stamp = stamp
-                point.header.frame_id = f'arm{int(arm)}'
+                point.header.frame_id = f'arm{arm}'
                 goal = obs[r, 2 * n:2 * n + k]
                 point.point.x = float(goal[0])
                 point.point.y = float(goal[1]) if k > 1 else 0.0
                 point.point.z = float(goal[2]) if k > 2 else 0.0
                 w.write('/target', point, t_log)
-        cmd = Float64MultiArray()
-        cmd.layout.dim = [
-            MultiArrayDimension(label='arm', size=len(arms), stride=len(arms) * self.act_dim),
-            MultiArrayDimension(label='actuator', size=self.act_dim, stride=self.act_dim)]
-        cmd.data = act_c.ravel().tolist()
+        cmd, reward = m.commands, m.reward
+        if self._layout_arms != len(arms):
+            self._layout_arms = len(arms)
+            cmd.layout.dim = [
+                MultiArrayDimension(label='arm', size=len(arms),
+                                    stride=len(arms) * self.act_dim),
+                MultiArrayDimension(label='actuator', size=self.act_dim, stride=self.act_dim)]
+            reward.layout.dim = [MultiArrayDimension(label='arm', size=len(arms),
+                                                     stride=len(arms))]
+        cmd.data = _doubles(act_c)
         w.write('/arm_controller/commands', cmd, t_log)
-        reward = Float64MultiArray()
-        reward.layout.dim = [MultiArrayDimension(label='arm', size=len(arms), stride=len(arms))]
-        reward.data = rew.ravel().tolist()
+        reward.data = _doubles(rew)
         w.write('/pg_node/reward', reward, t_log)
 
     def _accumulate(self, rew, term, trunc, ep_step, ep_id, actors, arm_of, version, t_ns):
@@ -314,8 +341,20 @@ class EpisodeRecorder:
         starts[0] = True
         starts[1:] = (ep_id[1:] != ep_id[:-1]) | done[:-1]
         pending = []  # (step, column, key, episode, terminated, truncated, cut_short)
+        # most columns are one running episode from end to end: add their sums in one go
+        through = (~starts[1:].any(axis=0) & ~done[-1]).tolist()
+        # (summed row by row as one column alone is, so the float sums stay the same)
+        sums = np.ascontiguousarray(rew.T).sum(axis=1).tolist()
+        first_id, last_step = ep_id[0].tolist(), ep_step[-1]
         for col in range(N):
             key = (int(actors[col]), int(arm_of[col]))
+            if through[col]:
+                cur = self._open.get(key)
+                if cur is not None and cur.episode_id == first_id[col]:
+                    cur.ret += sums[col]
+                    cur.recorded += T
+                    cur.last_ep_step = int(last_step[col])
+                    continue
             bounds = np.flatnonzero(starts[:, col]).tolist() + [T]
             for a, b in zip(bounds[:-1], bounds[1:]):
                 eid = int(ep_id[a, col])
@@ -364,10 +403,11 @@ class EpisodeRecorder:
         recent = self._closed_recently.setdefault(key, [])
         recent.append(eid)
         del recent[:-8]
-        self.writer.write(EPISODE_TOPIC, status, t_ns)
+        data = serialize_message(status)  # once, for the bag and for on_summary
+        self.writer.write(EPISODE_TOPIC, data, t_ns)
         self.episodes_written += 1
         if self.on_summary is not None:
-            self.on_summary(status)
+            self.on_summary(data)
 
     def mark_cut_short(self, actor: int, arm: int, episode_id: int, t_wall_ns: int,
                        policy_version: int = -1) -> bool:
