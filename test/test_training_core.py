@@ -5,7 +5,7 @@ import numpy as np
 from pg_node.common.params import ConfigError, load_config, Param
 from pg_node.rl.checkpoint import list_checkpoints, load_latest, save_checkpoint
 from pg_node.rl.critic import Critic
-from pg_node.rl.learner import Learner
+from pg_node.rl.learner import EpisodeStats, Learner
 from pg_node.rl.policy import GaussianPolicy
 from pg_node.rl.rollout_buffer import RolloutBuffer
 from pg_node.rl.train_inprocess import train_inprocess
@@ -177,6 +177,50 @@ def test_learner_versions_and_refuses_wrong_version():
     assert stats['skipped_updates'] == 1 and learner.version == 2
     for k, v in learner.policy.state_dict().items():
         assert torch.equal(v, before[k]), k
+
+
+def _stats_one_step_at_a_time(stats, rew, terminated, truncated, episode_id, actor):
+    """EpisodeStats.update as the definition reads: each (step, column) in turn."""
+    done = np.asarray(terminated) | np.asarray(truncated)
+    for t in range(rew.shape[0]):
+        for n in range(rew.shape[1]):
+            key, ep = (int(actor[t, n]), n), int(episode_id[t, n])
+            cur = stats.open.get(key)
+            if cur is None or cur[0] != ep:
+                cur = stats.open[key] = [ep, 0.0, 0]
+            cur[1] += float(rew[t, n])
+            cur[2] += 1
+            if done[t, n]:
+                stats.returns.append(cur[1])
+                stats.lengths.append(cur[2])
+                del stats.open[key]
+    stats.returns, stats.lengths = stats.returns[-stats.window:], stats.lengths[-stats.window:]
+
+
+@pytest.mark.parametrize('T,N', [(1, 3), (8, 64), (16, 5)])
+def test_episode_stats_sum_as_one_step_at_a_time(T, N):
+    # the learner adds whole columns at once; returns, lengths and the open sums must be
+    # exactly (bit for bit) those of adding one reward at a time, resets and ends included
+    rng = np.random.default_rng(T * 100 + N)
+    fast, slow = EpisodeStats(window=40), EpisodeStats(window=40)
+    eid, step = np.arange(N) * 1000, np.zeros(N, int)
+    actor = np.broadcast_to(np.arange(N) % 2, (T, N))
+    for _ in range(40):
+        rew = rng.normal(size=(T, N)) * 7
+        ids, term, trunc = np.empty((T, N), int), np.zeros((T, N), bool), np.zeros((T, N), bool)
+        for t in range(T):
+            if rng.random() < 0.03:      # a reset: every episode cut short
+                eid, step = eid + 1, np.zeros(N, int)
+            ids[t], step = eid, step + 1
+            trunc[t] = step >= rng.integers(3, 40)
+            term[t] = rng.random(N) < 0.02
+            ended = term[t] | trunc[t]
+            eid, step = np.where(ended, eid + 1, eid), np.where(ended, 0, step)
+        fast.update(rew, term, trunc, ids, actor)
+        _stats_one_step_at_a_time(slow, rew, term, trunc, ids, actor)
+        assert fast.returns == slow.returns and fast.lengths == slow.lengths
+        assert fast.open == slow.open
+    assert len(fast.returns) >= 10  # episodes did end, in every case
 
 
 def test_learner_checkpoint_resume(tmp_path):

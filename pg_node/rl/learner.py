@@ -132,11 +132,24 @@ class EpisodeStats:
 
     def update(self, rew, terminated, truncated, episode_id, actor) -> int:
         """Add a batch's ``(T, N)`` arrays; return how many episodes finished in it."""
+        rew = np.asarray(rew, dtype=np.float64)
+        episode_id = np.asarray(episode_id)
         done = np.asarray(terminated) | np.asarray(truncated)
-        n_done = 0
-        for t in range(rew.shape[0]):
-            for n in range(rew.shape[1]):
-                key = (int(actor[t, n]), n)
+        T, N = rew.shape
+        # a column that continues its open episode to the batch's end (most of them) adds
+        # its rewards in one cumulative sum, in the same order as one at a time
+        through = ~done.any(axis=0) & (episode_id == episode_id[0]).all(axis=0)
+        ended = []  # (t, n, return, length)
+        cols, opened = [], []
+        ids, actors = episode_id[0].tolist(), np.asarray(actor)[0].tolist()
+        for n in range(N):
+            cur = self.open.get((int(actors[n]), n))
+            if through[n] and cur is not None and cur[0] == ids[n]:
+                cols.append(n)
+                opened.append(cur)
+                continue
+            key = (int(actors[n]), n)
+            for t in range(T):
                 ep = int(episode_id[t, n])
                 cur = self.open.get(key)
                 if cur is None or cur[0] != ep:
@@ -144,14 +157,20 @@ class EpisodeStats:
                 cur[1] += float(rew[t, n])
                 cur[2] += 1
                 if done[t, n]:
-                    self.returns.append(cur[1])
-                    self.lengths.append(cur[2])
+                    ended.append((t, n, cur[1], cur[2]))
                     del self.open[key]
-                    n_done += 1
+        if cols:
+            sums = np.cumsum(np.vstack([[cur[1] for cur in opened], rew[:, cols]]), axis=0)[-1]
+            for cur, total in zip(opened, sums.tolist()):
+                cur[1] = total
+                cur[2] += T
+        ended.sort(key=lambda e: (e[0], e[1]))
+        self.returns.extend(e[2] for e in ended)
+        self.lengths.extend(e[3] for e in ended)
         self.returns = self.returns[-self.window:]
         self.lengths = self.lengths[-self.window:]
-        self.finished += n_done
-        return n_done
+        self.finished += len(ended)
+        return len(ended)
 
     def forget_actor(self, actor: int) -> int:
         """Drop the open sums of ``actor``'s arms (its simulator restarted); return how many."""
