@@ -253,7 +253,8 @@ class ArmTask:
         self._pool = None
         self._chunks = [range(self.num_envs)]
         if self.num_threads > 1:
-            self._pool = ThreadPoolExecutor(self.num_threads, thread_name_prefix='arm_task')
+            # the calling thread steps the first chunk itself: one hand-off fewer per step
+            self._pool = ThreadPoolExecutor(self.num_threads - 1, thread_name_prefix='arm_task')
             bounds = np.linspace(0, self.num_envs, self.num_threads + 1).astype(int)
             self._chunks = [range(a, b) for a, b in zip(bounds[:-1], bounds[1:])]
 
@@ -402,10 +403,10 @@ class ArmTask:
                 ctrl[i][:] = act[i]
                 mujoco.mj_step(m, datas[i], nstep=n)
 
-        if self._pool is None:
-            advance(self._chunks[0])
-        else:
-            list(self._pool.map(advance, self._chunks))
+        others = [self._pool.submit(advance, c) for c in self._chunks[1:]] if self._pool else ()
+        advance(self._chunks[0])
+        for job in others:
+            job.result()
         obs, vec = self._observe()
         # reward from the post-step positions, in Reacher-v5's order of operations
         reward_dist = -np.sqrt(np.einsum('ij,ij->i', vec, vec))
