@@ -146,8 +146,9 @@ class ActorNode(Node):
             self.buf_version = self.version
         act, logp = self.policy.sample(tr.obs, self.rng)
         cmd = np.clip(act, self.spec.ctrl_low, self.spec.ctrl_high)
-        self.buf.add_action(tr.obs, act, logp, tr.episode_step, tr.episode_id, tr.seq)
+        # the simulator waits for the command: send it first, then keep the step
         self.pub_cmd.publish(command.to_msg(cmd, tr.seq))
+        self.buf.add_action(tr.obs, act, logp, tr.episode_step, tr.episode_id, tr.seq)
         self.counters['commands'] += 1
         self.steps.add(self.cfg['num_envs'])
 

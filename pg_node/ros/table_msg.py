@@ -99,22 +99,28 @@ def check_fields(table: Mapping[str, np.ndarray], bool_fields=(), int_fields=()
     """
     out = {}
     for name, block in table.items():
-        if not np.all(np.isfinite(block)):
-            raise ValueError(f'field {name!r} holds non-finite values')
+        # one reduction per field for a good message; the errors are told apart after
         if name in bool_fields:
-            if not np.all((block == 0.0) | (block == 1.0)):
-                raise ValueError(f'field {name!r} must hold 0.0 or 1.0')
+            if not ((block == 0.0) | (block == 1.0)).all():
+                _raise_bad(name, block, 'must hold 0.0 or 1.0')
             value = block.astype(bool)
         elif name in int_fields:
-            if np.any(block != np.round(block)):
-                raise ValueError(f'field {name!r} must hold whole numbers')
+            if not np.isfinite(block).all() or not (block == np.round(block)).all():
+                _raise_bad(name, block, 'must hold whole numbers')
             value = block.astype(np.int64)
-        elif np.any(np.abs(block) > MAX_ABS):
-            raise ValueError(f'field {name!r} holds absurd values (|x| > {MAX_ABS:g})')
         else:
+            if not np.abs(block).max(initial=0.0) <= MAX_ABS:  # False for NaN too
+                _raise_bad(name, block, f'holds absurd values (|x| > {MAX_ABS:g})')
             value = block.copy()
         out[name] = value[:, 0] if value.shape[1] == 1 else value
     return out
+
+
+def _raise_bad(name: str, block: np.ndarray, rule: str):
+    """Raise the ValueError of a field that broke its rule: non-finite values come first."""
+    if not np.isfinite(block).all():
+        raise ValueError(f'field {name!r} holds non-finite values')
+    raise ValueError(f'field {name!r} {rule}')
 
 
 def to_msg(dims, data_offset: int, data):
