@@ -257,6 +257,37 @@ def test_lock_step_steps_only_on_the_answer_to_its_transition(tmp_path, client):
 
 
 @pytest.mark.e2e
+def test_a_target_subscriber_that_joins_late_gets_every_current_target(tmp_path, client):
+    """Targets are published while someone listens; one who joins gets them all at once."""
+    for sub in [s for s in client.node.subscriptions if s.topic_name == '/target']:
+        client.node.destroy_subscription(sub)     # nobody listens to /target at first
+    proc = start_node(tmp_path, 'num_envs:=3', 'max_episode_steps:=2', 'lock_step_timeout:=5.0')
+    try:
+        client.wait_ready()
+        for _ in range(5):                  # two episode starts after the first
+            tr = client.step([0.0] * 6)
+        late = []
+        qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        client.node.create_subscription(PointStamped, '/target', late.append, qos)
+        client.spin_until(lambda: len(late) >= 3)
+        assert [t.header.frame_id for t in late[:3]] == ['arm0', 'arm1', 'arm2']
+        for i, target in enumerate(late[:3]):   # the goals of the episodes running now
+            np.testing.assert_allclose([target.point.x, target.point.y], tr.obs[i, 4:6],
+                                       atol=1e-12)
+        # and the next episode's targets come as its episodes start
+        tr = client.step([0.0] * 6)
+        assert np.all(tr.episode_step == 0)
+        client.spin_until(lambda: len(late) >= 6)
+        for i, target in enumerate(late[3:6]):
+            np.testing.assert_allclose([target.point.x, target.point.y], tr.obs[i, 4:6],
+                                       atol=1e-12)
+    finally:
+        rc, log = stop_node(proc)
+    assert rc == 0, log
+
+
+@pytest.mark.e2e
 @pytest.mark.slow
 def test_services_pause_step_reset_and_lock_step_timeout(tmp_path, client):
     proc = start_node(tmp_path, 'lock_step_timeout:=0.3', 'model:=arm5_3d')

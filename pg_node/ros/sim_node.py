@@ -12,9 +12,11 @@ Topics published:
 * ``/clock`` (``rosgraph_msgs/Clock``): simulated time, ``control steps * dt``, every
   control step while it has a subscriber; it never goes back, not even on a world reset;
 * ``/target`` (``geometry_msgs/PointStamped``): one message per arm whenever its target
-  changes (episode start), ``frame_id = 'arm<i>'`` and the point in that arm's own
-  coordinates; reliable, transient-local, depth ``num_envs``, so a late subscriber still
-  gets the current targets;
+  changes (episode start) while someone subscribes, and every arm's current target when a
+  subscriber joins, ``frame_id = 'arm<i>'`` and the point in that arm's own coordinates;
+  reliable, transient-local, depth ``num_envs``, so a late subscriber gets the current
+  targets (one message per arm and episode cost the lock-step loop about 7 ms every 50 steps
+  for 64 arms, the p99 of its round trip, when nobody listened);
 * ``/pg_node/transition`` (``std_msgs/Float64MultiArray``): every control step, the layout
   of :mod:`pg_node.ros.transition`; reliable, transient-local, depth 1;
 * ``/pg_node/markers`` (``visualization_msgs/MarkerArray``) at ``marker_rate`` Hz of wall
@@ -80,6 +82,7 @@ from pg_node.ros import transition
 from pg_node.ros.node_utils import run
 from pg_node.ros.parameters import declare_params
 from pg_node.sim.arm_task import ArmTask
+from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
@@ -140,7 +143,9 @@ class SimNode(Node):
                                  durability=DurabilityPolicy.TRANSIENT_LOCAL)
         self.pub_joints = self.create_publisher(JointState, 'joint_states', 10)
         self.pub_clock = self.create_publisher(Clock, 'clock', 10)
-        self.pub_target = self.create_publisher(PointStamped, 'target', targets_qos)
+        self.pub_target = self.create_publisher(
+            PointStamped, 'target', targets_qos,
+            event_callbacks=PublisherEventCallbacks(matched=self.on_target_matched))
         self.pub_transition = self.create_publisher(Float64MultiArray, 'pg_node/transition',
                                                     reliable_latched)
         self.pub_markers = self.create_publisher(MarkerArray, 'pg_node/markers', 1)
@@ -298,8 +303,8 @@ class SimNode(Node):
         The transition goes first: in lock-step it is what the actor waits for, so the
         other messages are built while the actor answers. ``/clock`` and ``/joint_states``
         are built only when someone subscribes them (no subscriber sees the difference; in
-        training nobody does, the learner records joint states from its batches). The
-        latched ``/target`` is always published, for subscribers that come later.
+        training nobody does, the learner records joint states from its batches); so are
+        new targets (a subscriber that joins gets them all from :meth:`on_target_matched`).
         """
         self.last_transition = transition.to_msg(tr)
         self.pub_transition.publish(self.last_transition)
@@ -310,15 +315,24 @@ class SimNode(Node):
         if self.pub_joints.get_subscription_count():
             self.pub_joints.publish(self.joint_state_msg(stamp))
         new = np.flatnonzero(tr.episode_step == 0)
-        if new.size:
-            targets = self.task.target_pos()
-            for i in new:
-                point = PointStamped()
-                point.header.stamp = stamp
-                point.header.frame_id = f'arm{i}'
-                point.point = Point(x=float(targets[i, 0]), y=float(targets[i, 1]),
-                                    z=float(targets[i, 2]))
-                self.pub_target.publish(point)
+        if new.size and self.pub_target.get_subscription_count():
+            self.publish_targets(new, stamp)
+
+    def publish_targets(self, arms: np.ndarray, stamp: Time):
+        """Publish the current target of each of ``arms``, stamped ``stamp``."""
+        targets = self.task.target_pos()
+        for i in arms:
+            point = PointStamped()
+            point.header.stamp = stamp
+            point.header.frame_id = f'arm{i}'
+            point.point = Point(x=float(targets[i, 0]), y=float(targets[i, 1]),
+                                z=float(targets[i, 2]))
+            self.pub_target.publish(point)
+
+    def on_target_matched(self, info):
+        """Give a subscriber that joins ``/target`` every arm's current target."""
+        if info.current_count_change > 0 and self.task is not None:
+            self.publish_targets(np.arange(self.task.num_envs), sim_stamp(self.sim_time))
 
     def joint_state_msg(self, stamp: Time) -> JointState:
         """Return every arm's joint state as one ``JointState`` stamped ``stamp``."""
