@@ -69,7 +69,7 @@ class RateCounter:
 EXECUTORS = ('events', 'single_threaded')
 
 
-def make_executor():
+def make_executor(context=None):
     """
     Return the executor named by ``PG_NODE_EXECUTOR``: ``events`` (default) or ``single_threaded``.
 
@@ -78,15 +78,15 @@ def make_executor():
     ``SingleThreadedExecutor`` spends more per wake-up than the actor spends sampling (see
     PROFILE.md). Its ``spin()`` does not return on shutdown in this rclpy, so nodes call
     ``spin_once`` in a loop, which does. ``single_threaded`` is rclpy's default executor,
-    the one ``rclpy.spin`` uses.
+    the one ``rclpy.spin`` uses. ``context``: rclpy's default context if None.
     """
     name = os.environ.get('PG_NODE_EXECUTOR', 'events').strip() or 'events'
     if name == 'events':
         from rclpy.experimental import EventsExecutor
-        return EventsExecutor()
+        return EventsExecutor(context=context)
     if name == 'single_threaded':
         from rclpy.executors import SingleThreadedExecutor
-        return SingleThreadedExecutor()
+        return SingleThreadedExecutor(context=context)
     raise ConfigError(f'PG_NODE_EXECUTOR={name!r}: choose one of {", ".join(EXECUTORS)}')
 
 

@@ -165,8 +165,8 @@ def lock_step_latency(n: int, steps: int, warmup: int = 200, timeout: float = 60
     probe's ``--ros-args`` (e.g. ``-p marker_rate:=0.0``).
     """
     from pg_node.ros import command
+    from pg_node.ros.node_utils import make_executor
     import rclpy
-    from rclpy.executors import SingleThreadedExecutor
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
     from std_msgs.msg import Float64MultiArray
     domain = domain_id()
@@ -195,7 +195,8 @@ def lock_step_latency(n: int, steps: int, warmup: int = 200, timeout: float = 60
         qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
         node.create_subscription(Float64MultiArray, 'pg_node/transition', on_transition, qos)
-        executor = SingleThreadedExecutor(context=context)
+        # the executor the nodes use (the actor answers with it in training)
+        executor = make_executor(context)
         executor.add_node(node)
         try:
             deadline = time.monotonic() + 60
