@@ -50,7 +50,6 @@ The bag's ``metadata.yaml`` ``custom_data`` holds ``pg_node.model`` (the MJCF pa
 ``pg_node.dt``, ``pg_node.record_arms`` and ``pg_node.joint_names`` for the tools that
 read the bag.
 """
-import array
 import math
 import re
 import threading
@@ -62,6 +61,7 @@ from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PointStamped
 import mujoco
 import numpy as np
+from pg_node.bag.ros_types import float64_field
 from pg_node.bag.writer import BagWriter
 from pg_node.common.paths import resolve_model
 from pg_node.sim.arm_task import ArmSpec
@@ -98,11 +98,6 @@ def sim_stamp(seconds: float) -> Time:
     """Return a ``builtin_interfaces/Time`` for a simulated time in seconds."""
     ns = int(round(seconds * 1e9))
     return Time(sec=ns // 10**9, nanosec=ns % 10**9)
-
-
-def _doubles(values: np.ndarray) -> array.array:
-    """Return an array's values, row-major, as the ``array.array`` a float64[] field holds."""
-    return array.array('d', np.ascontiguousarray(values, dtype=np.float64).tobytes())
 
 
 def _fmt(value) -> str:
@@ -299,10 +294,10 @@ class EpisodeRecorder:
         js = m.joints
         js.header.stamp = stamp
         js.name = names
-        js.position = _doubles(self._unwrapped(np.arctan2(obs[:, n:2 * n], obs[:, :n]), arms,
-                                               ep_step))
-        js.velocity = _doubles(obs[:, 2 * n + k:3 * n + k])
-        js.effort = _doubles(act_c * self.gear)
+        angles = self._unwrapped(np.arctan2(obs[:, n:2 * n], obs[:, :n]), arms, ep_step)
+        js.position = float64_field(angles)
+        js.velocity = float64_field(obs[:, 2 * n + k:3 * n + k])
+        js.effort = float64_field(act_c * self.gear)
         w.write('/joint_states', js, t_log)
         for r, arm in enumerate(arms.tolist()):
             eid = int(ep_id[r])
@@ -326,9 +321,9 @@ class EpisodeRecorder:
                 MultiArrayDimension(label='actuator', size=self.act_dim, stride=self.act_dim)]
             reward.layout.dim = [MultiArrayDimension(label='arm', size=len(arms),
                                                      stride=len(arms))]
-        cmd.data = _doubles(act_c)
+        cmd.data = float64_field(act_c)
         w.write('/arm_controller/commands', cmd, t_log)
-        reward.data = _doubles(rew)
+        reward.data = float64_field(rew)
         w.write('/pg_node/reward', reward, t_log)
 
     def _accumulate(self, rew, term, trunc, ep_step, ep_id, actors, arm_of, version, t_ns):

@@ -5,8 +5,10 @@ Helpers shared by the bag writer and reader: turning a message class or a type n
 the canonical ``pkg/msg/Type`` string, finding the message class, building the full
 ``ros2msg`` definition text that rosbag2_storage_mcap puts in an MCAP schema, finding the
 ``RIHS01_...`` type description hash, and converting QoS profiles to and from the YAML
-form of rosbag2 metadata version 9 (Jazzy).
+form of rosbag2 metadata version 9 (Jazzy); and :func:`float64_field`, the value every
+writer of a ``float64[]`` message field gives it.
 """
+import array
 import functools
 import importlib
 import json
@@ -14,7 +16,19 @@ import os
 from pathlib import Path
 import re
 
+import numpy as np
 import yaml
+
+
+def float64_field(values) -> array.array:
+    """
+    Return ``values``, row-major, as the ``array.array('d')`` a ``float64[]`` field holds.
+
+    rclpy copies an ``array.array`` into the message in one go; a list is converted element
+    by element.
+    """
+    return array.array('d', np.ascontiguousarray(values, dtype=np.float64).tobytes())
+
 
 # rmw's RMW_DURATION_INFINITE, as rosbag2 writes it for "no deadline/lifespan/lease".
 INFINITE_SEC = 9223372036

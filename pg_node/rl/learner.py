@@ -143,12 +143,12 @@ class EpisodeStats:
         cols, opened = [], []
         ids, actors = episode_id[0].tolist(), np.asarray(actor)[0].tolist()
         for n in range(N):
-            cur = self.open.get((int(actors[n]), n))
+            key = (int(actors[n]), n)
+            cur = self.open.get(key)
             if through[n] and cur is not None and cur[0] == ids[n]:
                 cols.append(n)
                 opened.append(cur)
                 continue
-            key = (int(actors[n]), n)
             for t in range(T):
                 ep = int(episode_id[t, n])
                 cur = self.open.get(key)

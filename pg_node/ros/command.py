@@ -8,10 +8,10 @@ other reader, and a lock-step simulator steps only on the command that answers i
 transition, so a second publisher on the topic cannot desynchronise training. A plain
 command (no tag) drives a simulator in real-time mode, as a robot's controller would.
 """
-import array
 from typing import Optional
 
 import numpy as np
+from pg_node.bag.ros_types import float64_field
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
 TAG = 'transition'
@@ -32,7 +32,7 @@ def to_msg(act: np.ndarray, seq: Optional[int] = None) -> Float64MultiArray:
     dims = [MultiArrayDimension(label='arm', size=n, stride=n * a),
             MultiArrayDimension(label='actuator', size=a, stride=a)]
     msg.layout.dim = dims
-    msg.data = array.array('d', np.ascontiguousarray(act, dtype=np.float64).tobytes())
+    msg.data = float64_field(act)
     return msg if seq is None else tag(msg, seq)
 
 

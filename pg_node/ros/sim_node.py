@@ -66,7 +66,6 @@ Parameters: :data:`pg_node.common.params.SIM_PARAMS` (and the shared ``model``, 
 ``seed``) list them with their defaults, descriptions and allowed values; the shipped
 ``config/pg_node.yaml`` holds the same defaults, as a file to copy and edit.
 """
-import array
 import math
 import time
 
@@ -74,6 +73,7 @@ from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Point, PointStamped
 import numpy as np
+from pg_node.bag.ros_types import float64_field
 from pg_node.common.params import params_for
 from pg_node.common.paths import resolve_model
 from pg_node.ros import command
@@ -100,11 +100,6 @@ def sim_stamp(seconds: float) -> Time:
     """Return ``seconds`` of simulated time as a ``builtin_interfaces/Time``."""
     nanos = int(round(seconds * 1e9))
     return Time(sec=nanos // 1_000_000_000, nanosec=nanos % 1_000_000_000)
-
-
-def as_array(values: np.ndarray) -> array.array:
-    """Return a float64 numpy array as the ``array.array`` that message fields hold."""
-    return array.array('d', np.ascontiguousarray(values, dtype=np.float64).tobytes())
 
 
 class SimNode(Node):
@@ -340,9 +335,9 @@ class SimNode(Node):
         js = JointState()
         js.header.stamp = stamp
         js.name = self.joint_names
-        js.position = as_array(pos.ravel())
-        js.velocity = as_array(vel.ravel())
-        js.effort = as_array(eff.ravel())
+        js.position = float64_field(pos)
+        js.velocity = float64_field(vel)
+        js.effort = float64_field(eff)
         return js
 
     def publish_markers(self):

@@ -17,6 +17,7 @@ import array
 from typing import Dict, Mapping, Optional, Sequence, Tuple
 
 import numpy as np
+from pg_node.bag.ros_types import float64_field
 
 ROWS_LABEL = 'rows'
 #: Largest magnitude a real value on pg_node's wire may have (observations, actions,
@@ -130,7 +131,7 @@ def to_msg(dims, data_offset: int, data):
     msg.layout.dim = [MultiArrayDimension(label=label, size=size, stride=stride)
                       for label, size, stride in dims]
     msg.layout.data_offset = int(data_offset)
-    msg.data = array.array('d', np.ascontiguousarray(data, dtype=np.float64).tobytes())
+    msg.data = float64_field(data)
     return msg
 
 
