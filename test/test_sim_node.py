@@ -287,6 +287,78 @@ def test_a_target_subscriber_that_joins_late_gets_every_current_target(tmp_path,
     assert rc == 0, log
 
 
+@pytest.fixture
+def paused_sim(client, monkeypatch):
+    """
+    Return a factory of a paused 3-arm sim_node in the test's process and DDS participant.
+
+    Paused, it starts no episodes, so only a join can make it publish targets; nobody
+    subscribes ``/target`` at first. ``lose_matched_events`` replaces the matched-event
+    callback by one that does nothing.
+    """
+    from pg_node.ros.sim_node import SimNode
+    from rclpy.parameter import Parameter
+    for sub in [s for s in client.node.subscriptions if s.topic_name == '/target']:
+        client.node.destroy_subscription(sub)
+    nodes = []
+
+    def make(lose_matched_events=False):
+        if lose_matched_events:
+            monkeypatch.setattr(SimNode, 'on_target_matched', lambda self, info: None)
+        node = SimNode(context=client.context, parameter_overrides=[
+            Parameter('num_envs', value=3), Parameter('start_paused', value=True)])
+        client.executor.add_node(node)
+        nodes.append(node)
+        return node
+
+    yield make
+    for node in nodes:
+        client.executor.remove_node(node)
+        node.task.close()
+        node.destroy_node()
+
+
+def late_target_subscriber(client):
+    """Subscribe ``/target`` as a latecomer would; return the list its messages go to."""
+    late = []
+    qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    client.node.create_subscription(PointStamped, '/target', late.append, qos)
+    return late
+
+
+def test_a_matched_event_without_a_count_change_still_serves_the_newcomer(client, paused_sim):
+    """
+    Fast DDS can report the first match with ``current_count_change`` 0; the count decides.
+
+    It did so in CI: a subscriber that was there before the node got no targets.
+    """
+    from types import SimpleNamespace
+    node = paused_sim()
+    sent = []
+    node.publish_targets = lambda arms, stamp: sent.append(list(arms))
+    assert node.target_readers == 0
+    node.on_target_matched(SimpleNamespace(current_count=1, current_count_change=0))
+    assert sent == [[0, 1, 2]] and node.target_readers == 1
+    node.on_target_matched(SimpleNamespace(current_count=1, current_count_change=0))
+    assert sent == [[0, 1, 2]]             # nobody new
+    node.on_target_matched(SimpleNamespace(current_count=1, current_count_change=1))
+    assert sent == [[0, 1, 2]] * 2         # one left, one joined
+
+
+def test_a_late_target_subscriber_is_served_even_when_the_matched_event_is_lost(
+        client, paused_sim):
+    """With no matched event at all, the subscriber-count watch gives the targets."""
+    node = paused_sim(lose_matched_events=True)
+    client.spin_for(0.3)
+    late = late_target_subscriber(client)
+    client.spin_until(lambda: len(late) >= 3, timeout=5.0)
+    assert [t.header.frame_id for t in late] == ['arm0', 'arm1', 'arm2']
+    goals = node.task.target_pos()
+    for i, target in enumerate(late):
+        np.testing.assert_allclose([target.point.x, target.point.y], goals[i, :2])
+
+
 @pytest.mark.e2e
 @pytest.mark.slow
 def test_services_pause_step_reset_and_lock_step_timeout(tmp_path, client):

@@ -13,10 +13,11 @@ Topics published:
   control step while it has a subscriber; it never goes back, not even on a world reset;
 * ``/target`` (``geometry_msgs/PointStamped``): one message per arm whenever its target
   changes (episode start) while someone subscribes, and every arm's current target when a
-  subscriber joins, ``frame_id = 'arm<i>'`` and the point in that arm's own coordinates;
-  reliable, transient-local, depth ``num_envs``, so a late subscriber gets the current
-  targets (one message per arm and episode cost the lock-step loop about 7 ms every 50 steps
-  for 64 arms, the p99 of its round trip, when nobody listened);
+  subscriber joins (on its matched event, or within 0.5 s if that event was lost),
+  ``frame_id = 'arm<i>'`` and the point in that arm's own coordinates; reliable,
+  transient-local, depth ``num_envs``, so a late subscriber gets the current targets (one
+  message per arm and episode cost the lock-step loop about 7 ms every 50 steps for 64
+  arms, the p99 of its round trip, when nobody listened);
 * ``/pg_node/transition`` (``std_msgs/Float64MultiArray``): every control step, the layout
   of :mod:`pg_node.ros.transition`; reliable, transient-local, depth 1;
 * ``/pg_node/markers`` (``visualization_msgs/MarkerArray``) at ``marker_rate`` Hz of wall
@@ -105,9 +106,14 @@ def sim_stamp(seconds: float) -> Time:
 class SimNode(Node):
     """Publish simulated arms and step them on torque commands."""
 
-    def __init__(self):
-        """Declare parameters, build the task and the ROS interfaces, publish the start."""
-        super().__init__('sim_node')
+    def __init__(self, **node_options):
+        """
+        Declare parameters, build the task and the ROS interfaces, publish the start.
+
+        ``node_options`` go to rclpy's ``Node`` (``context``, ``parameter_overrides``: how a
+        test runs the node in its own process).
+        """
+        super().__init__('sim_node', **node_options)
         p = declare_params(self, params_for('sim_node'), self.on_parameter)
         self.mode = p['mode']
         self.task = ArmTask(resolve_model(p['model']), num_envs=p['num_envs'], seed=p['seed'],
@@ -134,6 +140,7 @@ class SimNode(Node):
 
         reliable_latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                                       durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        self.target_readers = 0
         targets_qos = QoSProfile(depth=n, reliability=ReliabilityPolicy.RELIABLE,
                                  durability=DurabilityPolicy.TRANSIENT_LOCAL)
         self.pub_joints = self.create_publisher(JointState, 'joint_states', 10)
@@ -161,6 +168,7 @@ class SimNode(Node):
                 1.0, self.on_lock_step_watch)
         for name in self.timers_by_param:
             self.on_parameter(name, p[name])
+        self.create_timer(0.5, self.watch_target_readers)
 
         obs = self.task.reset()
         self.publish_state(self._reset_transition(obs))
@@ -309,9 +317,14 @@ class SimNode(Node):
             self.pub_clock.publish(Clock(clock=stamp))
         if self.pub_joints.get_subscription_count():
             self.pub_joints.publish(self.joint_state_msg(stamp))
-        new = np.flatnonzero(tr.episode_step == 0)
-        if new.size and self.pub_target.get_subscription_count():
-            self.publish_targets(new, stamp)
+        readers = self.pub_target.get_subscription_count()
+        if readers > self.target_readers:
+            self.publish_targets(np.arange(self.task.num_envs), stamp)
+        elif readers:
+            new = np.flatnonzero(tr.episode_step == 0)
+            if new.size:
+                self.publish_targets(new, stamp)
+        self.target_readers = readers
 
     def publish_targets(self, arms: np.ndarray, stamp: Time):
         """Publish the current target of each of ``arms``, stamped ``stamp``."""
@@ -325,9 +338,31 @@ class SimNode(Node):
             self.pub_target.publish(point)
 
     def on_target_matched(self, info):
-        """Give a subscriber that joins ``/target`` every arm's current target."""
-        if info.current_count_change > 0 and self.task is not None:
+        """
+        Give a subscriber that joins ``/target`` every arm's current target.
+
+        A join shows as more subscribers than the node last saw or, if one left and another
+        joined in between, as a positive ``current_count_change``; the first event can come
+        with a change of 0 (Fast DDS counted the match while the publisher was being made,
+        before the event was listened for), so the count decides too.
+        """
+        if info.current_count > self.target_readers or info.current_count_change > 0:
             self.publish_targets(np.arange(self.task.num_envs), sim_stamp(self.sim_time))
+        self.target_readers = info.current_count
+
+    def watch_target_readers(self):
+        """
+        Give new ``/target`` subscribers the current targets if no matched event did.
+
+        A middleware need not report a match that happened before the executor listened for
+        its events (rmw_zenoh did not, ros2/rmw_zenoh#586); every control step compares the
+        subscriber count too, and this timer does it while the simulation waits (paused, or
+        no command in lock-step).
+        """
+        readers = self.pub_target.get_subscription_count()
+        if readers > self.target_readers:
+            self.publish_targets(np.arange(self.task.num_envs), sim_stamp(self.sim_time))
+        self.target_readers = readers
 
     def joint_state_msg(self, stamp: Time) -> JointState:
         """Return every arm's joint state as one ``JointState`` stamped ``stamp``."""
