@@ -119,6 +119,34 @@ def test_curves_table_ranks_and_quotes_from_fixed_numbers():
     assert bc.render({}, {}) == []
 
 
+def test_curves_time_to_a_return_is_the_first_point_that_reached_it():
+    """Per seed, the training seconds of the first evaluation at or above the return."""
+    from pg_node.tools import bench_curves as bc
+    points = [1024, 2048, 4096]
+    runs = [{'seed': 0, 'evals': {1024: -6.0, 2048: -4.8, 4096: -4.4},
+             'wall_at': {1024: 10.0, 2048: 20.0, 4096: 40.0}, 'wall_seconds': 40.0,
+             'steps_per_second': 100.0, 'total_steps': 4096},
+            {'seed': 1, 'evals': {1024: -5.5, 2048: -5.2, 4096: -4.9},
+             'wall_at': {'1024': 12.0, '2048': 24.0, '4096': 48.0}, 'wall_seconds': 48.0,
+             'steps_per_second': 90.0, 'total_steps': 4096}]       # keys as from JSON
+    curves = {'steps': 4096, 'seeds': [0, 1], 'points': points, 'eval_episodes': 10,
+              'runs': {'gae': runs}}
+    row = bc.summarize(curves)[0]
+    assert row['time_to'][-5.0] == {'mean': pytest.approx(34.0), 'reached': 2, 'of': 2}
+    assert row['time_to'][-4.5] == {'mean': pytest.approx(40.0), 'reached': 1, 'of': 2}
+    # a learning run has no wall_at: its training curve gives the time of the point
+    learning = fake_results()['learning']
+    sb3 = learning['runs']['pg_node_graph'][0]
+    assert bc.eval_time_at(sb3, learning['points'], -9.5) == pytest.approx(2.048)
+    assert bc.eval_time_at(sb3, learning['points'], -5.5) == pytest.approx(4.1)
+    assert bc.eval_time_at(sb3, learning['points'], -5.0) is None
+    text = '\n'.join(bc.render({'curves': curves}, {}))
+    assert '| time to -5 | time to -4.5 |' in text
+    assert '| <= 34 s (2/2) | <= 40 s (1/2) |' in text
+    runs[0]['evals'][4096] = -4.6
+    assert 'not reached (0/2)' in '\n'.join(bc.render({'curves': curves}, {}))
+
+
 def test_rejects_unknown_section():
     res = subprocess.run([sys.executable, '-m', 'pg_node', 'bench', '--only', 'nope'],
                          capture_output=True, text=True, cwd=REPO)

@@ -47,6 +47,7 @@ from typing import Dict, List
 
 import numpy as np
 from pg_node.tools import bench_curves
+from pg_node.tools.bench_curves import eval_time_at, reached
 from pg_node.tools import bench_tax
 from pg_node.tools.processes import terminate_as_interrupt
 
@@ -329,39 +330,14 @@ def learning_summary(learning: Dict) -> Dict[str, Dict]:
             row['evals'][p] = _mean_std([r['evals'].get(p, r['evals'].get(str(p)))
                                          for r in ok])
             row['train_return'][p] = _mean_std([value_at(r['curve'], p) for r in ok])
-        row['time_to'] = {th: _reached([first_time_at(r['curve'], th) for r in ok])
+        row['time_to'] = {th: reached([first_time_at(r['curve'], th) for r in ok])
                           for th in THRESHOLDS}
-        row['eval_time_to'] = {th: _reached([eval_time_at(r, learning['points'], th)
-                                             for r in ok]) for th in THRESHOLDS}
+        row['eval_time_to'] = {th: reached([eval_time_at(r, learning['points'], th)
+                                            for r in ok]) for th in THRESHOLDS}
         row['wall_seconds'] = _mean_std([r['wall_seconds'] for r in ok])
         row['steps_per_second'] = _mean_std([r['steps_per_second'] for r in ok])
         out[key] = row
     return out
-
-
-def _reached(times: List) -> Dict:
-    """Return the mean time of the seeds that reached a return (None marks one that did not)."""
-    reached = [t for t in times if t is not None]
-    return {'mean': float(np.mean(reached)) if reached else None, 'reached': len(reached),
-            'of': len(times)}
-
-
-def eval_time_at(run: Dict, points: List[int], threshold: float):
-    """
-    Return the wall time of the first fixed point whose deterministic evaluation >= threshold.
-
-    An upper bound on the time to the threshold (the policy may have got there between
-    points); None if no evaluated point reached it.
-    """
-    for p in points:
-        ret = run['evals'].get(p, run['evals'].get(str(p)))
-        if ret is None or ret < threshold:
-            continue
-        if p >= run['total_steps'] or not run.get('curve'):
-            return float(run['wall_seconds'])
-        later = [c['wall_seconds'] for c in run['curve'] if c['env_steps'] >= p]
-        return float(later[0]) if later else float(run['wall_seconds'])
-    return None
 
 
 def targets(results: Dict) -> List[Dict]:
