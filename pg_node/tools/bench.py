@@ -47,8 +47,8 @@ from typing import Dict, List
 
 import numpy as np
 from pg_node.tools import bench_curves
-from pg_node.tools.bench_curves import eval_time_at, reached
 from pg_node.tools import bench_tax
+from pg_node.tools.bench_curves import eval_time_at, reached
 from pg_node.tools.processes import terminate_as_interrupt
 
 SECTIONS = ('throughput', 'latency', 'tax', 'variance', 'curves', 'learning', 'profile')
