@@ -277,3 +277,42 @@ def test_bad_action_shape_is_refused():
     task.reset()
     with pytest.raises(ValueError, match='shape'):
         task.step(np.zeros(4))
+
+
+@pytest.mark.parametrize('groups', [2, 3, 7])
+def test_stepping_groups_in_turn_is_stepping_all_arms(groups):
+    """Each group stepped with its slice of the command: the same bits, ids and resets."""
+    from pg_node.sim.arm_task import arm_groups
+    whole = ArmTask(resolve_model('reacher2'), num_envs=7, seed=3, max_episode_steps=20)
+    parts = ArmTask(resolve_model('reacher2'), num_envs=7, seed=3, max_episode_steps=20,
+                    num_threads=2)
+    rng = np.random.default_rng(0)
+    try:
+        np.testing.assert_array_equal(whole.reset(), parts.reset())
+        for _ in range(45):                      # two auto-resets of every arm
+            act = rng.uniform(-1, 1, (7, 2))
+            want = whole.step(act)
+            got = [parts.step(act[sl], arms=sl) for sl in arm_groups(7, groups)]
+            for i, name in enumerate(('obs', 'reward', 'terminated', 'truncated')):
+                np.testing.assert_array_equal(np.concatenate([g[i] for g in got]), want[i],
+                                              err_msg=name)
+            for key, value in want[4].items():
+                np.testing.assert_array_equal(np.concatenate([g[4][key] for g in got]), value,
+                                              err_msg=key)
+        np.testing.assert_array_equal(whole.episode_id, parts.episode_id)
+        with pytest.raises(ValueError, match='expected'):
+            parts.step(np.zeros((7, 2)), arms=slice(0, 3))
+    finally:
+        whole.close()
+        parts.close()
+
+
+def test_arm_groups_cover_every_arm_once():
+    from pg_node.sim.arm_task import arm_groups
+    for n in (1, 2, 7, 64):
+        for g in range(1, n + 1):
+            sizes = [s.stop - s.start for s in arm_groups(n, g)]
+            assert sum(sizes) == n and max(sizes) - min(sizes) <= 1
+            assert [s.start for s in arm_groups(n, g)][0] == 0
+    with pytest.raises(ValueError, match='groups'):
+        arm_groups(3, 4)

@@ -36,9 +36,9 @@ def start_node(tmp_path, *params):
                PYTHONPATH=str(REPO), AMENT_PREFIX_PATH=os.environ.get(
                    'AMENT_PREFIX_PATH', str(Path(sys.executable).parent.parent)))
     args = [sys.executable, '-m', 'pg_node.ros.sim_node', '--ros-args']
-    # one arm unless the test says otherwise (the shipped config trains with 64); a later
-    # -p wins over an earlier one
-    for param in ('num_envs:=1',) + params:
+    # one arm and one message per step unless the test says otherwise (the shipped config
+    # trains with 64 in two groups); a later -p wins over an earlier one
+    for param in ('num_envs:=1', 'lock_step_groups:=1') + params:
         args += ['-p', param]
     return processes.start_logged(args, tmp_path / f'sim_node_{time.monotonic_ns()}.log', env)
 
@@ -59,8 +59,11 @@ class Client:
         self.joint_states, self.transitions, self.diagnostics, self.clocks = [], [], [], []
         self.node.create_subscription(JointState, '/joint_states',
                                       self.joint_states.append, 100)
+        # as deep as the groups of a lock-step simulator: each group's message counts
         self.node.create_subscription(Float64MultiArray, '/pg_node/transition',
-                                      self._on_transition, LATCHED)
+                                      self._on_transition,
+                                      QoSProfile(depth=10, reliability=LATCHED.reliability,
+                                                 durability=LATCHED.durability))
         self.node.create_subscription(DiagnosticArray, '/diagnostics',
                                       self.diagnostics.append, 10)
         self.node.create_subscription(Clock, '/clock', self.clocks.append, 100)
@@ -357,6 +360,58 @@ def test_a_late_target_subscriber_is_served_even_when_the_matched_event_is_lost(
     goals = node.task.target_pos()
     for i, target in enumerate(late):
         np.testing.assert_allclose([target.point.x, target.point.y], goals[i, :2])
+
+
+@pytest.mark.e2e
+@pytest.mark.slow
+def test_lock_step_groups_step_on_their_own_commands_and_equal_one_step_of_all(
+        tmp_path, client):
+    """
+    Three arms in two groups (arm 0; arms 1-2): each group's transition and command alone.
+
+    Group ``g``'s seq numbers are ``2k + g``; a command steps only its group, must have its
+    group's size, and answers only the group's current transition; after both groups have
+    stepped with their halves of a command, the arms are where one step of all of them with
+    the whole command puts them, to the bit.
+    """
+    proc = start_node(tmp_path, 'num_envs:=3', 'lock_step_groups:=2', 'lock_step_timeout:=5.0',
+                      'diagnostics_rate:=5.0')
+    ref = ArmTask(resolve_model('reacher2'), num_envs=3, seed=0)
+    try:
+        client.spin_until(lambda: len({t.seq for t in client.transitions}) >= 2)
+        first = {t.seq: t for t in client.transitions}
+        assert sorted(first) == [0, 1]
+        assert (first[0].arms, first[1].arms) == (slice(0, 1), slice(1, 3))
+        assert first[0].groups == first[1].groups == 2
+        np.testing.assert_array_equal(np.concatenate([first[0].obs, first[1].obs]),
+                                      ref.reset())
+        rng = np.random.default_rng(1)
+        current = {0: 0, 1: 1}
+        for k in range(1, 4):
+            act = rng.uniform(-1, 1, (3, 2))
+            got = {}
+            for g, arms in ((1, slice(1, 3)), (0, slice(0, 1))):     # any order
+                client.send(act[arms].ravel(), answers=current[g])
+                client.spin_until(lambda: client.transitions[-1].seq == 2 * k + g)
+                current[g] = 2 * k + g
+                got[g] = client.transitions[-1]
+                assert got[g].arms == arms
+            obs, reward = ref.step(act)[:2]
+            np.testing.assert_array_equal(np.concatenate([got[0].obs, got[1].obs]), obs)
+            np.testing.assert_array_equal(np.concatenate([got[0].reward, got[1].reward]),
+                                          reward)
+        client.send([0.0] * 4, answers=current[0])      # group 0 has one arm: 2 values
+        client.send([0.0] * 2, answers=current[0] - 2)  # an answer to its previous one
+        client.spin_for(0.5)
+        assert client.transitions[-1].seq == current[0]
+        client.spin_until(lambda: client.counters()['commands_dropped_size'] == '1'
+                          and client.counters()['commands_ignored'] == '1')
+        assert client.counters()['steps'] == '3'        # control steps: rounds of both
+    finally:
+        ref.close()
+        rc, log = stop_node(proc)
+    assert rc == 0, log
+    assert 'expected 2 (1 arms of group 0 x 2 actuators)' in log
 
 
 @pytest.mark.e2e

@@ -90,6 +90,19 @@ def test_graph_equals_inprocess_reference(run):
     assert summary['eval_returns'] == ref['eval_returns']
 
 
+@pytest.mark.parametrize('groups', [1, 3])
+def test_graph_equals_inprocess_reference_with_other_lock_step_groups(tmp_path, groups):
+    """One message per step for all arms, or three groups of 21-22 arms: exact too."""
+    steps = 20_480
+    res = train(tmp_path / 'run', '--total-steps', str(steps), f'lock_step_groups={groups}')
+    assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
+    summary = json.loads((tmp_path / 'run' / 'summary.json').read_text())
+    ref = train_inprocess(load_config(default_config(), [f'total_steps={steps}',
+                                                         f'lock_step_groups={groups}']), steps)
+    assert summary['policy_version'] == ref['policy_version']
+    assert summary['eval_returns'] == ref['eval_returns']
+
+
 def test_metrics_are_in_tensorboard_under_sb3_names(run):
     """``tensorboard --logdir <run>`` shows the curves, named as SB3 names them."""
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator

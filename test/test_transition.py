@@ -15,7 +15,7 @@ def _example(n=3, obs_dim=10, seed=0):
 
 
 def _assert_same(a, b):
-    assert a.seq == b.seq
+    assert (a.seq, a.first_arm, a.groups) == (b.seq, b.first_arm, b.groups)
     for name, _ in transition.FIELDS:
         x, y = getattr(a, name), getattr(b, name)
         np.testing.assert_array_equal(x, y, name)
@@ -46,6 +46,24 @@ def test_message_round_trip():
     _assert_same(transition.from_msg(msg), tr)
 
 
+def test_a_group_message_names_its_first_arm_and_the_groups():
+    """Group messages carry their first arm and G after seq; G = 1 keeps the plain layout."""
+    tr = _example(3, 10)
+    tr.first_arm, tr.groups = 32, 2
+    dims, offset, data = pack(tr)
+    assert offset == 3 and data[:3].tolist() == [12345, 32, 2]
+    back = unpack(dims, offset, data)
+    _assert_same(back, tr)
+    assert back.groups == 2 and back.arms == slice(32, 35)
+    assert transition.from_msg(transition.to_msg(tr)).first_arm == 32
+    assert pack(_example(3, 10))[1] == 1 and _example(3, 10).arms == slice(0, 3)
+    for i, bad, match in ((1, -1.0, '< 0'), (1, 0.5, 'whole'), (2, 0.0, 'groups 0 < 1')):
+        data_bad = data.copy()
+        data_bad[i] = bad
+        with pytest.raises(ValueError, match=match):
+            unpack(dims, offset, data_bad)
+
+
 def test_docstring_table_lists_every_field():
     for name, _ in transition.FIELDS:
         assert f'``{name}``' in transition.__doc__
@@ -71,6 +89,7 @@ def _bad_layouts():
     seq = data.copy()
     seq[0] = np.nan
     yield 'seq', dims, offset, seq
+    yield 'data_offset', dims, 2, data
 
 
 @pytest.mark.parametrize('match,dims,offset,data', list(_bad_layouts()))

@@ -113,8 +113,13 @@ SHARED_PARAMS: Dict[str, Param] = {
     'model': Param('reacher2',
                    'shipped arm model (reacher2, arm5_3d, arm7) or a path to an MJCF file',
                    validate=check_model),
-    'num_envs': Param(64, 'arms simulated side by side, all in one message per step', low=1),
+    'num_envs': Param(64, 'arms simulated side by side (one message per step and group)',
+                      low=1),
     'seed': Param(0, 'seed of the simulator, the policy initialisation and the sampling', low=0),
+    'lock_step_groups': Param(2, 'lock-step: the simulator steps its arms in this many groups, '
+                                 'each on its own command, so that one group is simulated '
+                                 'while the actor answers another (same computation); at '
+                                 'most num_envs', low=1),
     'hidden_sizes': Param([64, 64], 'hidden layer widths of the policy and value networks'),
     'activation': Param('tanh', 'hidden activation of both networks',
                         choices=('tanh', 'relu', 'elu')),
@@ -241,7 +246,7 @@ def defaults(section: str) -> Dict[str, Any]:
 
 
 #: The shared parameters a node reads, where it is not all of them.
-NODE_SHARED = {'sim_node': ('model', 'num_envs', 'seed')}
+NODE_SHARED = {'sim_node': ('model', 'num_envs', 'seed', 'lock_step_groups')}
 
 
 def params_for(section: str) -> Dict[str, Param]:

@@ -41,6 +41,14 @@ class RolloutArrays:
         return {f.name: getattr(self, f.name) for f in fields(self)}
 
 
+def concat_arms(parts) -> RolloutArrays:
+    """Join rollouts of consecutive groups of arms (same steps) into one, arm after arm."""
+    if len(parts) == 1:
+        return parts[0]
+    return RolloutArrays(**{f.name: np.concatenate([getattr(p, f.name) for p in parts], axis=1)
+                            for f in fields(RolloutArrays)})
+
+
 class RolloutBuffer:
     """
     Collect ``n_steps`` x ``num_envs`` transitions.

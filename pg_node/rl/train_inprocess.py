@@ -2,8 +2,9 @@
 A2C in one process, with the very classes the nodes wrap: the reference for the ROS graph.
 
 The simulator, actor, critic and learner steps are called in turn, as the graph runs them in
-lock-step synchronous mode; what differs is only the transport. Useful to tune
-hyperparameters, to compare the graph's learning against, and for profiling.
+lock-step synchronous mode; what differs is only the transport. The policy is sampled for
+the simulator's groups of arms in turn (``lock_step_groups``), as the actor answers them.
+Useful to tune hyperparameters, to compare the graph's learning against, and for profiling.
 """
 import time
 from typing import Callable, Dict, Optional
@@ -15,7 +16,7 @@ from pg_node.rl.evaluate import evaluate_policy
 from pg_node.rl.learner import Learner
 from pg_node.rl.rollout_buffer import RolloutBuffer
 from pg_node.rl.sampler import make_rng, NumpySampler
-from pg_node.sim.arm_task import ArmTask
+from pg_node.sim.arm_task import arm_groups, ArmTask
 import torch
 
 
@@ -36,6 +37,7 @@ def train_inprocess(cfg: Dict[str, Dict], total_steps: int,
     sampler = NumpySampler.from_config(task.obs_dim, task.act_dim, {**l_cfg, **a_cfg})
     sampler.load(*learner.weights())
     rng = make_rng(shared['seed'])
+    groups = arm_groups(task.num_envs, min(shared['lock_step_groups'], task.num_envs))
     lo, hi = task.spec.ctrl_low, task.spec.ctrl_high
     obs = task.reset()
     ep_step = task.episode_step.copy()
@@ -47,7 +49,9 @@ def train_inprocess(cfg: Dict[str, Dict], total_steps: int,
     try:
         while steps < total_steps:
             for _ in range(a_cfg['n_steps']):
-                act, logp = sampler.sample(obs, rng)
+                # the actor answers the simulator's groups of arms one after the other
+                parts = [sampler.sample(obs[arms], rng) for arms in groups]
+                act, logp = (np.concatenate(x) for x in zip(*parts))
                 buf.add_action(obs, act, logp, ep_step, ep_id, 0)
                 obs, rew, term, trunc, info = task.step(np.clip(act, lo, hi))
                 buf.add_outcome(rew, term, trunc, info['final_obs'])

@@ -17,13 +17,20 @@ keeps sampling with the newest weights it has.
 A transition re-sent by the simulator (same ``seq``) is ignored; one that skips a number (a
 restarted simulator, a world reset) discards the partial rollout, whose last command's
 outcome is unknown.
+
+A lock-step simulator that steps its arms in ``G`` groups (``lock_step_groups``) sends each
+group's transitions on their own (:mod:`pg_node.ros.transition`); the actor answers each
+group with a command for its arms, in the order they come, keeps one buffer per group and
+sends the rollout of all arms once every group has its ``n_steps``: the critic and learner
+see the same rollouts as with one group. A group that finishes first waits for the others
+(and in sync mode for the next weights) before acting again.
 """
 import time
 
 import numpy as np
 from pg_node.common.params import params_for
 from pg_node.common.paths import resolve_model
-from pg_node.rl.rollout_buffer import RolloutBuffer
+from pg_node.rl.rollout_buffer import concat_arms, RolloutBuffer
 from pg_node.rl.sampler import make_rng, NumpySampler
 from pg_node.ros import command
 from pg_node.ros import messages
@@ -31,8 +38,9 @@ from pg_node.ros import table_msg
 from pg_node.ros import transition
 from pg_node.ros.node_utils import Diagnostics, LATCHED, RateCounter, RELIABLE, run
 from pg_node.ros.parameters import declare_params
-from pg_node.sim.arm_task import ArmSpec
+from pg_node.sim.arm_task import arm_groups, ArmSpec
 from rclpy.node import Node
+from rclpy.qos import QoSProfile
 from std_msgs.msg import Float64MultiArray
 
 
@@ -50,11 +58,8 @@ class ActorNode(Node):
         self.policy = NumpySampler.from_config(self.obs_dim, self.act_dim, self.cfg)
         self.version = -1                      # no weights yet: do not act
         self.rng = make_rng(self.cfg['seed'] + 7919 * self.cfg['actor_id'])
-        self.buf = RolloutBuffer(self.cfg['n_steps'], self.cfg['num_envs'], self.obs_dim,
-                                 self.act_dim)
+        self.set_groups(1)
         self.buf_version = None
-        self.last_seq = -1
-        self.pending_tr = None                 # transition waiting for weights (sync mode)
         self.wait_for = None                   # version awaited in sync mode
         self.last_rollout = None
         self.last_rollout_time = 0.0
@@ -67,8 +72,12 @@ class ActorNode(Node):
         self.pub_cmd = self.create_publisher(Float64MultiArray, 'arm_controller/commands', 10)
         self.pub_rollout = self.create_publisher(Float64MultiArray, '/pg_node/rollout',
                                                  RELIABLE)
+        # one transition of each group of arms may wait here (depth 1 with one group: a
+        # real-time simulator's newest transition replaces one not yet answered)
         self.create_subscription(Float64MultiArray, 'pg_node/transition', self.on_transition,
-                                 LATCHED)
+                                 QoSProfile(depth=self.cfg['lock_step_groups'],
+                                            reliability=LATCHED.reliability,
+                                            durability=LATCHED.durability))
         self.create_subscription(Float64MultiArray, '/pg_node/policy_weights', self.on_weights,
                                  LATCHED)
         self.diag = Diagnostics(self, f'actor_node {self.cfg["actor_id"]}',
@@ -96,65 +105,98 @@ class ActorNode(Node):
             self.get_logger().warning(
                 f'policy version went back from {self.version} to {header["version"]} '
                 '(learner restarted): discarding the partial rollout')
-            self.buf.reset()
-            self.counters['rollouts_discarded'] += 1
+            self.discard_partial()
             self.wait_for = None
         self.version = header['version']
         self.counters['weights_received'] += 1
-        if self.pending_tr is not None and (self.wait_for is None
-                                            or self.version >= self.wait_for):
-            tr, self.pending_tr = self.pending_tr, None
+        if self.wait_for is not None and self.version >= self.wait_for:
             self.wait_for = None
-            self.act(tr)
+        self.act_pending()
 
     def on_transition(self, msg: Float64MultiArray):
         """Record the outcome of the last command and answer the new observation."""
         try:
             tr = transition.from_msg(msg)
-            if tr.obs.shape != (self.cfg['num_envs'], self.obs_dim):
-                raise ValueError(f'observations of shape {tr.obs.shape}, expected '
-                                 f'{(self.cfg["num_envs"], self.obs_dim)}')
+            if tr.obs.shape[1] != self.obs_dim:
+                raise ValueError(f'observations of size {tr.obs.shape[1]}, expected '
+                                 f'{self.obs_dim}')
+            if tr.groups != len(self.groups):
+                self.set_groups(tr.groups)
+            g = tr.seq % tr.groups
+            if tr.arms != self.groups[g]:
+                n = self.cfg['num_envs']
+                raise ValueError(
+                    f'arms {tr.arms.start}..{tr.arms.stop - 1} are not group {g} of '
+                    f'{tr.groups} of {n} arms (the simulator has another num_envs?)')
         except ValueError as exc:
             self.counters['transitions_dropped'] += 1
             self.get_logger().warning(f'dropped a transition: {exc}', throttle_duration_sec=1.0)
             return
-        if tr.seq == self.last_seq:
+        buf = self.bufs[g]
+        if tr.seq == self.last_seq[g]:
             self.counters['transitions_repeated'] += 1
-            if self.buf.pending or self.pending_tr is not None:
+            if buf.pending or g in self.pending:
                 return
             # a re-send of a transition we never answered (e.g. we just started): answer it
-        elif tr.seq != self.last_seq + 1 and self.buf.pos + self.buf.pending > 0:
-            self.counters['rollouts_discarded'] += 1
+        elif tr.seq != self.last_seq[g] + tr.groups and buf.pos + buf.pending > 0:
             self.get_logger().warning(
-                f'transition {tr.seq} after {self.last_seq}: discarding the partial rollout')
-            self.buf.reset()
-        self.last_seq = tr.seq
-        if self.buf.pending:
-            self.buf.add_outcome(tr.reward, tr.terminated, tr.truncated, tr.final_obs)
-            if self.buf.full:
+                f'transition {tr.seq} after {self.last_seq[g]}: discarding the partial rollout')
+            self.discard_partial()
+        self.last_seq[g] = tr.seq
+        if buf.pending:
+            buf.add_outcome(tr.reward, tr.terminated, tr.truncated, tr.final_obs)
+            if all(b.full for b in self.bufs):
                 self.send_rollout()
-        if self.version < 0 or self.wait_for is not None:
-            self.pending_tr = tr
-            return
-        self.act(tr)
+        self.pending[g] = tr
+        self.act_pending()
 
     # --- acting ---------------------------------------------------------------------------
 
-    def act(self, tr: transition.Transition):
-        """Sample and send the command for ``tr``'s observations."""
-        if self.buf.pos == 0 and not self.buf.pending:
-            self.buf_version = self.version
+    def set_groups(self, groups: int):
+        """Expect the simulator's arms in ``groups`` groups: one buffer each, all empty."""
+        groups_of = arm_groups(self.cfg['num_envs'], groups)     # ValueError: too many
+        if hasattr(self, 'bufs'):
+            self.discard_partial()
+        self.groups = groups_of
+        self.bufs = [RolloutBuffer(self.cfg['n_steps'], arms.stop - arms.start, self.obs_dim,
+                                   self.act_dim) for arms in self.groups]
+        self.last_seq = [-1] * groups
+        self.pending = {}                      # group -> transition not answered yet
+
+    def discard_partial(self):
+        """Drop the partial rollout of every group (its commands' outcomes are unknown)."""
+        if any(b.pos + b.pending for b in self.bufs):
+            self.counters['rollouts_discarded'] += 1
+        for b in self.bufs:
+            b.reset()
+
+    def act_pending(self):
+        """
+        Answer the waiting transitions in the order they came, as far as allowed.
+
+        Not before the first weights, nor in sync mode before the awaited version; a group
+        whose buffer is full waits until every group's is and the rollout is sent.
+        """
+        if self.version < 0 or self.wait_for is not None:
+            return
+        for g in [g for g in self.pending if not self.bufs[g].full]:
+            self.act(g, self.pending.pop(g))
+
+    def act(self, g: int, tr: transition.Transition):
+        """Sample and send the command for ``tr``'s observations (group ``g``)."""
+        if not any(b.pos or b.pending for b in self.bufs):
+            self.buf_version = self.version    # the first command of a rollout
         act, logp = self.policy.sample(tr.obs, self.rng)
         cmd = np.clip(act, self.spec.ctrl_low, self.spec.ctrl_high)
         # the simulator waits for the command: send it first, then keep the step
         self.pub_cmd.publish(command.to_msg(cmd, tr.seq))
-        self.buf.add_action(tr.obs, act, logp, tr.episode_step, tr.episode_id, tr.seq)
+        self.bufs[g].add_action(tr.obs, act, logp, tr.episode_step, tr.episode_id, tr.seq)
         self.counters['commands'] += 1
-        self.steps.add(self.cfg['num_envs'])
+        self.steps.add(tr.num_envs)
 
     def send_rollout(self):
         """Publish the full rollout; in sync mode, wait for the next policy version."""
-        ro = self.buf.finish()
+        ro = concat_arms([b.finish() for b in self.bufs])
         self.last_rollout = table_msg.to_msg(*messages.pack_rollout(
             ro, self.buf_version, self.cfg['actor_id'], self.rollout_seq))
         self.rollout_seq += 1

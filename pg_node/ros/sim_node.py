@@ -19,7 +19,9 @@ Topics published:
   message per arm and episode cost the lock-step loop about 7 ms every 50 steps for 64
   arms, the p99 of its round trip, when nobody listened);
 * ``/pg_node/transition`` (``std_msgs/Float64MultiArray``): every control step, the layout
-  of :mod:`pg_node.ros.transition`; reliable, transient-local, depth 1;
+  of :mod:`pg_node.ros.transition`; reliable, transient-local, depth ``lock_step_groups``
+  (one message per group: a subscriber needs that depth too, or it may keep only the
+  last group's message of a step);
 * ``/pg_node/markers`` (``visualization_msgs/MarkerArray``) at ``marker_rate`` Hz of wall
   time while it has a subscriber: three markers in ``frame_id`` for all arms, the links
   (``LINE_LIST``, ns ``links``), the fingertips and the targets (``SPHERE_LIST``, ns
@@ -49,7 +51,13 @@ Modes (parameter ``mode``):
 * ``lock_step`` (default): each accepted command is one control step, then a transition is
   published; with no command for ``lock_step_timeout`` s the last transition and joint
   state are re-sent (same ``seq`` and stamp) and the wait logged, so neither side hangs on
-  a lost message and a late ``/joint_states`` subscriber still sees the arm;
+  a lost message and a late ``/joint_states`` subscriber still sees the arm. With
+  ``lock_step_groups`` G > 1 the arms are stepped in G contiguous groups, each with its own
+  transition messages (:mod:`pg_node.ros.transition`: group ``g`` has the ``seq`` numbers
+  ``k * G + g``) and its own commands (``n_g x n_actuators`` values answering the group's
+  transition): the simulator steps one group while the actor answers another. Arms do not
+  interact, so this is the same computation as stepping them all at once; ``/clock`` and
+  ``/joint_states`` follow the last group;
 * ``real_time``: control steps at ``real_time_factor / dt`` Hz of wall time with the last
   command held, zero torque once it is older than ``command_timeout`` s.
 
@@ -82,7 +90,7 @@ from pg_node.ros import table_msg
 from pg_node.ros import transition
 from pg_node.ros.node_utils import run
 from pg_node.ros.parameters import declare_params
-from pg_node.sim.arm_task import ArmTask
+from pg_node.sim.arm_task import arm_groups, ArmTask
 from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -123,7 +131,6 @@ class SimNode(Node):
                             reward_control_weight=p['reward_control_weight'])
         self.params = p
         n, spec = self.task.num_envs, self.task.spec
-        self.n_cmd = n * self.task.act_dim
         self.joint_names = [f'arm{i}/{name}' for i in range(n) for name in spec.joint_names]
         self.offsets = self.grid_offsets(p['marker_spacing'])
         self.counters = {'steps': 0, 'commands_received': 0, 'commands_dropped_size': 0,
@@ -133,12 +140,19 @@ class SimNode(Node):
         self.paused = bool(p['start_paused'])
         self.held = np.zeros((n, self.task.act_dim))
         self.held_time = -math.inf
-        self.seq = -1
-        self.last_transition = None
+        # at most one group per arm; real time steps every arm on each tick: one group
+        self.groups = arm_groups(n, min(p['lock_step_groups'], n)
+                                 if self.mode == 'lock_step' else 1)
+        self.group_msgs = [0] * len(self.groups)       # messages each group has published
+        self.group_seq = [-1] * len(self.groups)       # seq of its current transition
+        self.seq = -1                                  # the latest seq of any group
+        self.last_transitions = [None] * len(self.groups)
         self.last_sent = time.monotonic()
         self._diag_steps, self._diag_time = 0, time.monotonic()
 
-        reliable_latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+        # one transition per group kept: a group's message must not push out another's
+        reliable_latched = QoSProfile(depth=len(self.groups),
+                                      reliability=ReliabilityPolicy.RELIABLE,
                                       durability=DurabilityPolicy.TRANSIENT_LOCAL)
         self.target_readers = 0
         targets_qos = QoSProfile(depth=n, reliability=ReliabilityPolicy.RELIABLE,
@@ -170,8 +184,7 @@ class SimNode(Node):
             self.on_parameter(name, p[name])
         self.create_timer(0.5, self.watch_target_readers)
 
-        obs = self.task.reset()
-        self.publish_state(self._reset_transition(obs))
+        self.publish_reset(self.task.reset())
         self.get_logger().info(
             f'{self.mode}: {n} x {p["model"]} ({self.task.act_dim} actuators, joints '
             f'{", ".join(spec.joint_names)}), dt {self.task.dt:g} s, seed {p["seed"]}')
@@ -210,12 +223,20 @@ class SimNode(Node):
         """Check, clip and hold a torque command; in lock-step, take one control step."""
         self.counters['commands_received'] += 1
         cmd = np.asarray(msg.data, dtype=np.float64)
-        if cmd.size != self.n_cmd:
+        g, answers = 0, None
+        if self.mode == 'lock_step':
+            # the group whose transition it answers (seq k * G + g); untagged: group 0
+            answers = command.transition_of(msg)
+            g = answers % len(self.groups) if answers is not None else 0
+        arms = self.groups[g]
+        n_arms = arms.stop - arms.start
+        if cmd.size != n_arms * self.task.act_dim:
             self.counters['commands_dropped_size'] += 1
+            group = f' of group {g}' if len(self.groups) > 1 else ''
             self.get_logger().warning(
-                f'dropped a command of {cmd.size} values, expected {self.n_cmd} '
-                f'({self.task.num_envs} arms x {self.task.act_dim} actuators)',
-                throttle_duration_sec=1.0)
+                f'dropped a command of {cmd.size} values, expected '
+                f'{n_arms * self.task.act_dim} ({n_arms} arms{group} x {self.task.act_dim} '
+                'actuators)', throttle_duration_sec=1.0)
             return
         if not np.all(np.isfinite(cmd)):
             self.counters['commands_dropped_nonfinite'] += 1
@@ -229,18 +250,16 @@ class SimNode(Node):
                 f'{ABSURD_COMMAND:g}): a bug upstream, not a torque to clip',
                 throttle_duration_sec=1.0)
             return
-        if self.mode == 'lock_step':
-            answers = command.transition_of(msg)
-            if answers != self.seq:
-                # lock-step takes one step per answer to its current transition: a command
-                # of another publisher, or a late duplicate, must not step it out of turn
-                self.counters['commands_ignored'] += 1
-                self.get_logger().warning(
-                    f'ignored a command for transition {answers} (lock-step, at transition '
-                    f'{self.seq}): only the answer to the current transition steps it',
-                    throttle_duration_sec=1.0)
-                return
-        cmd = cmd.reshape(self.task.num_envs, self.task.act_dim)
+        if self.mode == 'lock_step' and answers != self.group_seq[g]:
+            # lock-step takes one step per answer to its current transition: a command
+            # of another publisher, or a late duplicate, must not step it out of turn
+            self.counters['commands_ignored'] += 1
+            self.get_logger().warning(
+                f'ignored a command for transition {answers} (lock-step, at transition '
+                f'{self.group_seq[g]}): only the answer to the current transition steps it',
+                throttle_duration_sec=1.0)
+            return
+        cmd = cmd.reshape(n_arms, self.task.act_dim)
         clipped = np.clip(cmd, self.task.spec.ctrl_low, self.task.spec.ctrl_high)
         if not np.array_equal(clipped, cmd):
             self.counters['commands_clipped'] += 1
@@ -248,10 +267,10 @@ class SimNode(Node):
                 f'clipped a command to the control range [{self.task.spec.ctrl_low.min():g}, '
                 f'{self.task.spec.ctrl_high.max():g}] (largest value {np.abs(cmd).max():g})',
                 throttle_duration_sec=1.0)
-        self.held = clipped
+        self.held[arms] = clipped
         self.held_time = time.monotonic()
         if self.mode == 'lock_step' and not self.paused:
-            self.control_step(self.held)
+            self.step_group(g)
 
     def on_real_time_tick(self):
         """Take one control step with the held command, or zero torque if it is stale."""
@@ -263,59 +282,80 @@ class SimNode(Node):
 
     def on_lock_step_watch(self):
         """Re-send the last transition when no command came for ``lock_step_timeout``."""
-        if self.paused or self.last_transition is None:
+        if self.paused or self.last_transitions[0] is None:
             return
         waited = time.monotonic() - self.last_sent
         if waited >= self.params['lock_step_timeout']:
             self.counters['lock_step_timeouts'] += 1
             self.get_logger().info(
-                f'no command for {waited:.1f} s, re-sending transition {self.seq}',
-                throttle_duration_sec=10.0)
-            self.pub_transition.publish(self.last_transition)
+                f'no command for {waited:.1f} s, re-sending transition '
+                f'{", ".join(map(str, self.group_seq))}', throttle_duration_sec=10.0)
+            for msg in self.last_transitions:
+                self.pub_transition.publish(msg)
+                self.counters['transitions_resent'] += 1
             if self.pub_joints.get_subscription_count():
                 self.pub_joints.publish(self.joint_state_msg(sim_stamp(self.sim_time)))
-            self.counters['transitions_resent'] += 1
             self.last_sent = time.monotonic()
 
     # --- stepping and publishing ----------------------------------------------------------
 
     def control_step(self, act: np.ndarray):
-        """Step every arm once with ``act`` and publish the results."""
-        obs, reward, terminated, truncated, info = self.task.step(act)
-        self.counters['steps'] += 1
-        self.seq += 1
+        """Step every arm once with ``act`` (``(N, n_actuators)``), group by group."""
+        self.held = act
+        for g in range(len(self.groups)):
+            self.step_group(g)
+
+    def step_group(self, g: int):
+        """Step group ``g``'s arms once with their held command and publish the results."""
+        arms = self.groups[g]
+        obs, reward, terminated, truncated, info = self.task.step(self.held[arms], arms)
+        last = g == len(self.groups) - 1
+        if last:
+            self.counters['steps'] += 1      # a control step: every group has stepped
         tr = transition.Transition(
-            seq=self.seq, obs=obs, reward=reward, terminated=terminated, truncated=truncated,
-            final_obs=info['final_obs'], episode_id=info['episode_id'],
-            episode_step=info['episode_step'])
-        self.publish_state(tr)
+            seq=self.next_seq(g), obs=obs, reward=reward, terminated=terminated,
+            truncated=truncated, final_obs=info['final_obs'], episode_id=info['episode_id'],
+            episode_step=info['episode_step'], first_arm=arms.start,
+            groups=len(self.groups))
+        self.publish_state(g, tr, last)
 
-    def _reset_transition(self, obs: np.ndarray) -> transition.Transition:
-        """Return the transition announcing fresh episodes in every arm."""
-        self.seq += 1
-        n = self.task.num_envs
-        return transition.Transition(
-            seq=self.seq, obs=obs, reward=np.zeros(n), terminated=np.zeros(n, dtype=bool),
-            truncated=np.zeros(n, dtype=bool), final_obs=obs,
-            episode_id=self.task.episode_id.copy(), episode_step=self.task.episode_step.copy())
+    def next_seq(self, g: int) -> int:
+        """Return the seq of group ``g``'s next message: ``k * G + g`` for its ``k``-th."""
+        seq = self.group_msgs[g] * len(self.groups) + g
+        self.group_msgs[g] += 1
+        self.group_seq[g] = self.seq = seq
+        return seq
 
-    def publish_state(self, tr: transition.Transition):
+    def publish_reset(self, obs: np.ndarray):
+        """Publish the transitions announcing fresh episodes in every arm (``obs``)."""
+        for g, arms in enumerate(self.groups):
+            k = arms.stop - arms.start
+            tr = transition.Transition(
+                seq=self.next_seq(g), obs=obs[arms], reward=np.zeros(k),
+                terminated=np.zeros(k, dtype=bool), truncated=np.zeros(k, dtype=bool),
+                final_obs=obs[arms], episode_id=self.task.episode_id[arms].copy(),
+                episode_step=self.task.episode_step[arms].copy(), first_arm=arms.start,
+                groups=len(self.groups))
+            self.publish_state(g, tr, g == len(self.groups) - 1)
+
+    def publish_state(self, g: int, tr: transition.Transition, last: bool = True):
         """
-        Publish the transition ``tr``, then clock, joint states and new targets.
+        Publish group ``g``'s transition ``tr``, its new targets, and clock and joint states.
 
         The transition goes first: in lock-step it is what the actor waits for, so the
         other messages are built while the actor answers. ``/clock`` and ``/joint_states``
-        are built only when someone subscribes them (no subscriber sees the difference; in
-        training nobody does, the learner records joint states from its batches); so are
-        new targets (a subscriber that joins gets them all from :meth:`on_target_matched`).
+        go out once all groups have stepped (``last``), and only when someone subscribes
+        them (no subscriber sees the difference; in training nobody does, the learner
+        records joint states from its batches); so do new targets (a subscriber that
+        joins gets them all from :meth:`on_target_matched`).
         """
-        self.last_transition = transition.to_msg(tr)
-        self.pub_transition.publish(self.last_transition)
+        self.last_transitions[g] = transition.to_msg(tr)
+        self.pub_transition.publish(self.last_transitions[g])
         self.last_sent = time.monotonic()
         stamp = sim_stamp(self.sim_time)
-        if self.pub_clock.get_subscription_count():
+        if last and self.pub_clock.get_subscription_count():
             self.pub_clock.publish(Clock(clock=stamp))
-        if self.pub_joints.get_subscription_count():
+        if last and self.pub_joints.get_subscription_count():
             self.pub_joints.publish(self.joint_state_msg(stamp))
         readers = self.pub_target.get_subscription_count()
         if readers > self.target_readers:
@@ -323,7 +363,7 @@ class SimNode(Node):
         elif readers:
             new = np.flatnonzero(tr.episode_step == 0)
             if new.size:
-                self.publish_targets(new, stamp)
+                self.publish_targets(tr.first_arm + new, stamp)
         self.target_readers = readers
 
     def publish_targets(self, arms: np.ndarray, stamp: Time):
@@ -443,8 +483,7 @@ class SimNode(Node):
 
     def on_reset_world(self, request, response):
         """Start new episodes in every arm and publish them."""
-        obs = self.task.reset()
-        self.publish_state(self._reset_transition(obs))
+        self.publish_reset(self.task.reset())
         response.success = True
         response.message = f'new episodes {self.task.episode_id.tolist()}'
         return response

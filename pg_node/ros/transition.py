@@ -2,12 +2,17 @@
 Wire layout of the per-control-step transition message that ``sim_node`` publishes.
 
 One ``std_msgs/Float64MultiArray`` per control step carries all ``N`` arms
-(topic ``/pg_node/transition``). ``data`` is a header followed by an ``N x W`` row-major
-matrix, one row per arm:
+(topic ``/pg_node/transition``), or one per group of arms when a lock-step simulator steps
+its arms in ``G`` groups (``lock_step_groups``). ``data`` is a header followed by an
+``N x W`` row-major matrix, one row per arm of the message:
 
 * ``layout.data_offset = 1``: ``data[0]`` is ``seq``, the message's sequence number (0 for
   the first message, +1 for every new one: a control step or a world reset; a repeated
   ``seq`` is a re-send of the same transition after a lock-step timeout);
+* ``layout.data_offset = 3`` (a group of ``G > 1``): ``data[1]`` is the index of the
+  message's first arm and ``data[2]`` is ``G``. Group ``g``'s messages have the ``seq``
+  numbers ``k * G + g`` (``k``: its control steps and resets so far), so each group counts
+  up by ``G`` and ``seq % G`` names the group;
 * ``layout.dim[0]``: ``label='env'``, ``size=N``, ``stride=N*W``;
 * ``layout.dim[1:]``: one entry per field of a row, in row order, ``label`` = field name,
   ``size`` = its width, ``stride`` = its width too; ``W`` is the sum of the widths.
@@ -39,7 +44,8 @@ from dataclasses import dataclass
 import numpy as np
 from pg_node.ros import table_msg
 
-HEADER_SIZE = 1
+HEADER_SIZE = 1                 # seq
+GROUP_HEADER_SIZE = 3           # seq, first arm, number of groups
 ENV_LABEL = 'env'
 # field name -> width; None is the observation size
 FIELDS = (
@@ -67,11 +73,18 @@ class Transition:
     final_obs: np.ndarray
     episode_id: np.ndarray
     episode_step: np.ndarray
+    first_arm: int = 0
+    groups: int = 1
 
     @property
     def num_envs(self) -> int:
-        """Return the number of arms ``N``."""
+        """Return the number of arms ``N`` of the message."""
         return int(np.shape(self.obs)[0])
+
+    @property
+    def arms(self) -> slice:
+        """Return the simulator's arms the message holds."""
+        return slice(self.first_arm, self.first_arm + self.num_envs)
 
 
 def field_sizes(obs_dim: int):
@@ -97,7 +110,8 @@ def pack(tr: Transition):
             raise ValueError(f'field {name!r} has {col.shape[1]} values per env, '
                              f'expected {size}')
         fields[name] = col
-    return table_msg.pack([tr.seq], fields, rows_label=ENV_LABEL)
+    header = [tr.seq, tr.first_arm, tr.groups] if tr.groups > 1 else [tr.seq]
+    return table_msg.pack(header, fields, rows_label=ENV_LABEL)
 
 
 def unpack(dims, data_offset: int, data) -> Transition:
@@ -111,15 +125,19 @@ def unpack(dims, data_offset: int, data) -> Transition:
     dims = [(str(label), int(size), int(stride)) for label, size, stride in dims]
     obs_dim = dims[1][1] if len(dims) > 1 and dims[1][0] == 'obs' else None
     widths = {name: obs_dim if size is None else size for name, size in FIELDS}
-    header, table = table_msg.unpack(dims, data_offset, data, HEADER_SIZE, widths,
+    header_size = GROUP_HEADER_SIZE if data_offset == GROUP_HEADER_SIZE else HEADER_SIZE
+    header, table = table_msg.unpack(dims, data_offset, data, header_size, widths,
                                      rows_label=ENV_LABEL)
     if dims[0][1] < 1:
         raise ValueError('a transition needs at least one env (dim size 0)')
-    seq = header[0]
-    if not np.isfinite(seq) or seq != round(seq):
-        raise ValueError('seq must be a whole number')
+    if not np.all(np.isfinite(header)) or np.any(header != np.round(header)):
+        raise ValueError('seq, first arm and groups must be whole numbers')
+    seq, first_arm, groups = (int(v) for v in header) if header_size > 1 else (
+        int(header[0]), 0, 1)
+    if first_arm < 0 or groups < 1:
+        raise ValueError(f'first arm {first_arm} < 0 or groups {groups} < 1')
     fields = table_msg.check_fields(table, BOOL_FIELDS, INT_FIELDS)
-    return Transition(seq=int(seq), **fields)
+    return Transition(seq=seq, first_arm=first_arm, groups=groups, **fields)
 
 
 def to_msg(tr: Transition):

@@ -61,7 +61,7 @@ post-step ``xpos`` that Reacher-v5's reward reads, so rollout is not used.
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 import os
-from typing import Optional
+from typing import List, Optional
 
 import mujoco
 import numpy as np
@@ -199,6 +199,19 @@ class ArmSpec:
         )
 
 
+def arm_groups(num_envs: int, groups: int) -> List[slice]:
+    """
+    Split ``num_envs`` arms into ``groups`` contiguous slices of (nearly) equal size.
+
+    >>> arm_groups(64, 2), arm_groups(5, 2)
+    ([slice(0, 32, None), slice(32, 64, None)], [slice(0, 2, None), slice(2, 5, None)])
+    """
+    if not 1 <= groups <= num_envs:
+        raise ValueError(f'{groups} groups of {num_envs} arms: need 1 <= groups <= arms')
+    bounds = [num_envs * g // groups for g in range(groups + 1)]
+    return [slice(a, b) for a, b in zip(bounds[:-1], bounds[1:])]
+
+
 class ArmTask:
     """
     ``num_envs`` copies of a reaching task on one MuJoCo arm model, stepped together.
@@ -328,9 +341,9 @@ class ArmTask:
                 d.qvel[s.target_dof_adr] = 0.0
         mujoco.mj_forward(m, d)
 
-    def _gather(self, name: str) -> np.ndarray:
-        """Return field ``name`` of every env's MjData stacked: ``(N, ...)``, a copy."""
-        return np.array(self._views[name])  # 2-5x faster than np.stack for these lists
+    def _gather(self, name: str, arms: slice = slice(None)) -> np.ndarray:
+        """Return field ``name`` of the envs ``arms`` stacked: ``(n, ...)``, a copy."""
+        return np.array(self._views[name][arms])  # 2-5x faster than np.stack for these lists
 
     def fingertip_pos(self) -> np.ndarray:
         """Return the fingertips' world positions ``(N, 3)`` as the last step left them."""
@@ -365,76 +378,90 @@ class ArmTask:
         """Return the observations ``(N, obs_dim)`` of the current states."""
         return self._observe()[0]
 
-    def _observe(self):
-        """Return the observations and the fingertip-minus-target vectors ``(N, 3)``."""
+    def _observe(self, arms: slice = slice(None)):
+        """Return the observations and the fingertip-minus-target vectors ``(n, 3)``."""
         s = self.spec
         k, nj = s.target_dim, self.n_joints
-        obs = np.empty((self.num_envs, self.obs_dim))
-        qpos = self._gather('qpos')
+        qpos = self._gather('qpos', arms)
+        obs = np.empty((len(qpos), self.obs_dim))
         q = qpos[:, s.qpos_adr]
-        obs[:, 2 * nj + k:3 * nj + k] = self._gather('qvel')[:, s.dof_adr]
-        obs[:, 2 * nj:2 * nj + k] = (self._gather('mocap_pos')[:, s.target_mocap]
+        obs[:, 2 * nj + k:3 * nj + k] = self._gather('qvel', arms)[:, s.dof_adr]
+        obs[:, 2 * nj:2 * nj + k] = (self._gather('mocap_pos', arms)[:, s.target_mocap]
                                      if s.target_mocap >= 0 else qpos[:, s.target_qpos_adr])
-        vec = (self._gather('site_xpos')[:, s.fingertip_site]
-               - self._gather('xpos')[:, s.target_body])
+        vec = (self._gather('site_xpos', arms)[:, s.fingertip_site]
+               - self._gather('xpos', arms)[:, s.target_body])
         obs[:, :nj] = np.cos(q)
         obs[:, nj:2 * nj] = np.sin(q)
         obs[:, 3 * nj + k:] = vec[:, :k]
         return obs, vec
 
-    def step(self, act):
-        """
-        Apply ``act (N, act_dim)`` for one control step; auto-reset ended episodes.
+    def _chunks_of(self, lo: int, hi: int):
+        """Return the envs ``lo..hi-1`` split into one range per stepping thread."""
+        if (lo, hi) == (0, self.num_envs):
+            return self._chunks
+        bounds = np.linspace(lo, hi, min(self.num_threads, hi - lo) + 1).astype(int)
+        return [range(a, b) for a, b in zip(bounds[:-1], bounds[1:])]
 
-        Return ``obs, reward, terminated, truncated, info`` with ``info`` holding
-        ``final_obs`` (the observation the action reached), ``episode_id`` and
+    def step(self, act, arms: Optional[slice] = None):
+        """
+        Apply ``act (n, act_dim)`` to the envs ``arms`` for one control step; auto-reset.
+
+        ``arms`` is a slice of the envs (default all, ``n = N``): a lock-step simulator that
+        steps its arms in groups steps each group when its command comes. The envs do not
+        interact, so stepping groups in turn is stepping them all, to the bit.
+
+        Return ``obs, reward, terminated, truncated, info`` of those envs, with ``info``
+        holding ``final_obs`` (the observation the action reached), ``episode_id`` and
         ``episode_step`` of the returned observation, ``final_episode_id`` (the episode
         the action was taken in), ``episode_return`` / ``episode_length`` (NaN / 0 where
         no episode ended) and the two reward terms ``reward_dist`` and ``reward_ctrl``.
         """
+        lo, hi, _ = (slice(None) if arms is None else arms).indices(self.num_envs)
+        sl = slice(lo, hi)
         act = np.asarray(act, dtype=np.float64)
-        if act.shape != (self.num_envs, self.act_dim):
+        if act.shape != (hi - lo, self.act_dim):
             raise ValueError(f'act has shape {act.shape}, expected '
-                             f'{(self.num_envs, self.act_dim)}')
+                             f'{(hi - lo, self.act_dim)}')
         m, n, datas, ctrl = self.model, self.frame_skip, self.datas, self._views['ctrl']
 
         def advance(envs):
             for i in envs:
-                ctrl[i][:] = act[i]
+                ctrl[i][:] = act[i - lo]
                 mujoco.mj_step(m, datas[i], nstep=n)
 
-        others = [self._pool.submit(advance, c) for c in self._chunks[1:]] if self._pool else ()
-        advance(self._chunks[0])
+        chunks = self._chunks_of(lo, hi)
+        others = [self._pool.submit(advance, c) for c in chunks[1:]] if self._pool else ()
+        advance(chunks[0])
         for job in others:
             job.result()
-        obs, vec = self._observe()
+        obs, vec = self._observe(sl)
         # reward from the post-step positions, in Reacher-v5's order of operations
         reward_dist = -np.sqrt(np.einsum('ij,ij->i', vec, vec))
         reward_dist *= self.reward_dist_weight
         reward_ctrl = -np.square(act).sum(axis=1) * self.reward_control_weight
         reward = reward_dist + reward_ctrl
-        self.episode_step += 1
-        self.episode_return += reward
-        terminated = np.zeros(self.num_envs, dtype=bool)
+        self.episode_step[sl] += 1
+        self.episode_return[sl] += reward
+        terminated = np.zeros(hi - lo, dtype=bool)
         if self.max_episode_steps is None:
-            truncated = np.zeros(self.num_envs, dtype=bool)
+            truncated = np.zeros(hi - lo, dtype=bool)
         else:
-            truncated = self.episode_step >= self.max_episode_steps
+            truncated = self.episode_step[sl] >= self.max_episode_steps
         done = terminated | truncated
         final_obs = obs.copy()
         info = {
             'final_obs': final_obs,
-            'final_episode_id': self.episode_id.copy(),
-            'episode_return': np.where(done, self.episode_return, np.nan),
-            'episode_length': np.where(done, self.episode_step, 0),
+            'final_episode_id': self.episode_id[sl].copy(),
+            'episode_return': np.where(done, self.episode_return[sl], np.nan),
+            'episode_length': np.where(done, self.episode_step[sl], 0),
             'reward_dist': reward_dist,
             'reward_ctrl': reward_ctrl,
         }
         for i in np.flatnonzero(done):
-            self.reset_env(int(i))
+            self.reset_env(lo + int(i))
         if done.any():
             obs = obs.copy()
-            obs[done] = self.observe()[done]
-        info['episode_id'] = self.episode_id.copy()
-        info['episode_step'] = self.episode_step.copy()
+            obs[done] = self._observe(sl)[0][done]
+        info['episode_id'] = self.episode_id[sl].copy()
+        info['episode_step'] = self.episode_step[sl].copy()
         return obs, reward, terminated, truncated, info

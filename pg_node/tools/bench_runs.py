@@ -174,7 +174,7 @@ def lock_step_latency(n: int, steps: int, warmup: int = 200, timeout: float = 60
         out = Path(tmp) / 'round_trips.npy'
         proc = subprocess.Popen(
             [sys.executable, '-m', 'pg_node.tools.latency_probe', str(out), '--ros-args',
-             '-p', f'num_envs:={n}', *ros_args],
+             '-p', f'num_envs:={n}', '-p', 'lock_step_groups:=1', *ros_args],
             cwd=REPO, env=child_env(domain), stdout=subprocess.DEVNULL,
             stderr=subprocess.DEVNULL, start_new_session=True)
         context = rclpy.Context()
