@@ -113,7 +113,8 @@ def through_node(n, seconds, domain_id):
 
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id), PYTHONPATH=str(REPO))
     proc = subprocess.Popen(
-        [sys.executable, '-m', 'pg_node.ros.sim_node', '--ros-args', '-p', f'num_envs:={n}'],
+        [sys.executable, '-m', 'pg_node.ros.sim_node', '--ros-args', '-p', f'num_envs:={n}',
+         '-p', 'lock_step_groups:=1'],                  # one transition per step
         env=env, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
         start_new_session=True)
     context = rclpy.Context()

@@ -284,7 +284,8 @@ def nodes(tmp_path_factory):
     newest = learner.save(run_dir / 'checkpoints')
     newest.write_bytes(newest.read_bytes()[:200])       # torn in the middle
     procs = {
-        'sim': start('sim_node', SIM, tmp / 'sim.log', f'num_envs:={N}'),
+        # one message per step: the commands below are for all arms (groups: test_sim_node)
+        'sim': start('sim_node', SIM, tmp / 'sim.log', f'num_envs:={N}', 'lock_step_groups:=1'),
         'actor': start('actor_node', ACTOR, tmp / 'actor.log', f'num_envs:={N}'),
         'critic': start('critic_node', CRITIC, tmp / 'critic.log', f'num_envs:={N}',
                         f'run_dir:={tmp / "critic_run"}'),

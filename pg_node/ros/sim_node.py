@@ -223,16 +223,17 @@ class SimNode(Node):
         """Check, clip and hold a torque command; in lock-step, take one control step."""
         self.counters['commands_received'] += 1
         cmd = np.asarray(msg.data, dtype=np.float64)
-        g, answers = 0, None
+        g, answers, arms = None, None, slice(0, self.task.num_envs)
         if self.mode == 'lock_step':
-            # the group whose transition it answers (seq k * G + g); untagged: group 0
+            # the group whose transition it answers (seq k * G + g); untagged: all arms
             answers = command.transition_of(msg)
-            g = answers % len(self.groups) if answers is not None else 0
-        arms = self.groups[g]
+            if answers is not None:
+                g = answers % len(self.groups)
+                arms = self.groups[g]
         n_arms = arms.stop - arms.start
         if cmd.size != n_arms * self.task.act_dim:
             self.counters['commands_dropped_size'] += 1
-            group = f' of group {g}' if len(self.groups) > 1 else ''
+            group = f' of group {g}' if g is not None and len(self.groups) > 1 else ''
             self.get_logger().warning(
                 f'dropped a command of {cmd.size} values, expected '
                 f'{n_arms * self.task.act_dim} ({n_arms} arms{group} x {self.task.act_dim} '
@@ -250,13 +251,14 @@ class SimNode(Node):
                 f'{ABSURD_COMMAND:g}): a bug upstream, not a torque to clip',
                 throttle_duration_sec=1.0)
             return
-        if self.mode == 'lock_step' and answers != self.group_seq[g]:
+        if self.mode == 'lock_step' and (g is None or answers != self.group_seq[g]):
             # lock-step takes one step per answer to its current transition: a command
             # of another publisher, or a late duplicate, must not step it out of turn
             self.counters['commands_ignored'] += 1
+            at = ', '.join(map(str, self.group_seq))
             self.get_logger().warning(
                 f'ignored a command for transition {answers} (lock-step, at transition '
-                f'{self.group_seq[g]}): only the answer to the current transition steps it',
+                f'{at}): only the answer to the current transition steps it',
                 throttle_duration_sec=1.0)
             return
         cmd = cmd.reshape(n_arms, self.task.act_dim)
