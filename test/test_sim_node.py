@@ -37,7 +37,7 @@ def start_node(tmp_path, *params):
                    'AMENT_PREFIX_PATH', str(Path(sys.executable).parent.parent)))
     args = [sys.executable, '-m', 'pg_node.ros.sim_node', '--ros-args']
     # one arm and one message per step unless the test says otherwise (the shipped config
-    # trains with 64 in two groups); a later -p wins over an earlier one
+    # trains with 64 arms); a later -p wins over an earlier one
     for param in ('num_envs:=1', 'lock_step_groups:=1') + params:
         args += ['-p', param]
     return processes.start_logged(args, tmp_path / f'sim_node_{time.monotonic_ns()}.log', env)

@@ -116,7 +116,7 @@ SHARED_PARAMS: Dict[str, Param] = {
     'num_envs': Param(64, 'arms simulated side by side (one message per step and group)',
                       low=1),
     'seed': Param(0, 'seed of the simulator, the policy initialisation and the sampling', low=0),
-    'lock_step_groups': Param(2, 'lock-step: the simulator steps its arms in this many groups, '
+    'lock_step_groups': Param(1, 'lock-step: the simulator steps its arms in this many groups, '
                                  'each on its own command, so that one group is simulated '
                                  'while the actor answers another (same computation); at '
                                  'most num_envs', low=1),
