@@ -77,6 +77,7 @@ Parameters: :data:`pg_node.common.params.SIM_PARAMS` (and the shared ``model``, 
 """
 import math
 import time
+from typing import Optional
 
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -143,9 +144,7 @@ class SimNode(Node):
         # at most one group per arm; real time steps every arm on each tick: one group
         self.groups = arm_groups(n, min(p['lock_step_groups'], n)
                                  if self.mode == 'lock_step' else 1)
-        self.group_msgs = [0] * len(self.groups)       # messages each group has published
         self.group_seq = [-1] * len(self.groups)       # seq of its current transition
-        self.seq = -1                                  # the latest seq of any group
         self.last_transitions = [None] * len(self.groups)
         self.last_sent = time.monotonic()
         self._diag_steps, self._diag_time = 0, time.monotonic()
@@ -314,30 +313,37 @@ class SimNode(Node):
         last = g == len(self.groups) - 1
         if last:
             self.counters['steps'] += 1      # a control step: every group has stepped
-        tr = transition.Transition(
+        self.publish_state(g, self.group_transition(g, obs, reward, terminated, truncated,
+                                                    info['final_obs']), last)
+
+    def group_transition(self, g: int, obs, reward, terminated, truncated,
+                         final_obs) -> transition.Transition:
+        """Return group ``g``'s next transition, numbered and tagged with its episodes."""
+        arms = self.groups[g]
+        return transition.Transition(
             seq=self.next_seq(g), obs=obs, reward=reward, terminated=terminated,
-            truncated=truncated, final_obs=info['final_obs'], episode_id=info['episode_id'],
-            episode_step=info['episode_step'], first_arm=arms.start,
+            truncated=truncated, final_obs=final_obs,
+            episode_id=self.task.episode_id[arms].copy(),
+            episode_step=self.task.episode_step[arms].copy(), first_arm=arms.start,
             groups=len(self.groups))
-        self.publish_state(g, tr, last)
 
     def next_seq(self, g: int) -> int:
         """Return the seq of group ``g``'s next message: ``k * G + g`` for its ``k``-th."""
-        seq = self.group_msgs[g] * len(self.groups) + g
-        self.group_msgs[g] += 1
-        self.group_seq[g] = self.seq = seq
+        seq = self.group_seq[g] + len(self.groups) if self.group_seq[g] >= 0 else g
+        self.group_seq[g] = seq
         return seq
+
+    @property
+    def seq(self) -> int:
+        """Return the latest seq any group published (-1 before the first)."""
+        return max(self.group_seq)
 
     def publish_reset(self, obs: np.ndarray):
         """Publish the transitions announcing fresh episodes in every arm (``obs``)."""
         for g, arms in enumerate(self.groups):
             k = arms.stop - arms.start
-            tr = transition.Transition(
-                seq=self.next_seq(g), obs=obs[arms], reward=np.zeros(k),
-                terminated=np.zeros(k, dtype=bool), truncated=np.zeros(k, dtype=bool),
-                final_obs=obs[arms], episode_id=self.task.episode_id[arms].copy(),
-                episode_step=self.task.episode_step[arms].copy(), first_arm=arms.start,
-                groups=len(self.groups))
+            no = np.zeros(k, dtype=bool)
+            tr = self.group_transition(g, obs[arms], np.zeros(k), no, no, obs[arms])
             self.publish_state(g, tr, g == len(self.groups) - 1)
 
     def publish_state(self, g: int, tr: transition.Transition, last: bool = True):
@@ -359,14 +365,10 @@ class SimNode(Node):
             self.pub_clock.publish(Clock(clock=stamp))
         if last and self.pub_joints.get_subscription_count():
             self.pub_joints.publish(self.joint_state_msg(stamp))
-        readers = self.pub_target.get_subscription_count()
-        if readers > self.target_readers:
-            self.publish_targets(np.arange(self.task.num_envs), stamp)
-        elif readers:
+        if not self.watch_target_readers(stamp) and self.target_readers:
             new = np.flatnonzero(tr.episode_step == 0)
             if new.size:
                 self.publish_targets(tr.first_arm + new, stamp)
-        self.target_readers = readers
 
     def publish_targets(self, arms: np.ndarray, stamp: Time):
         """Publish the current target of each of ``arms``, stamped ``stamp``."""
@@ -392,19 +394,22 @@ class SimNode(Node):
             self.publish_targets(np.arange(self.task.num_envs), sim_stamp(self.sim_time))
         self.target_readers = info.current_count
 
-    def watch_target_readers(self):
+    def watch_target_readers(self, stamp: Optional[Time] = None) -> bool:
         """
         Give new ``/target`` subscribers the current targets if no matched event did.
 
         A middleware need not report a match that happened before the executor listened for
         its events (rmw_zenoh did not, ros2/rmw_zenoh#586); every control step compares the
-        subscriber count too, and this timer does it while the simulation waits (paused, or
-        no command in lock-step).
+        subscriber count too, and a timer does it while the simulation waits (paused, or
+        no command in lock-step). Returns whether every target was published.
         """
         readers = self.pub_target.get_subscription_count()
-        if readers > self.target_readers:
-            self.publish_targets(np.arange(self.task.num_envs), sim_stamp(self.sim_time))
+        joined = readers > self.target_readers
+        if joined:
+            self.publish_targets(np.arange(self.task.num_envs),
+                                 stamp if stamp is not None else sim_stamp(self.sim_time))
         self.target_readers = readers
+        return joined
 
     def joint_state_msg(self, stamp: Time) -> JointState:
         """Return every arm's joint state as one ``JointState`` stamped ``stamp``."""
