@@ -147,6 +147,21 @@ def test_curves_time_to_a_return_is_the_first_point_that_reached_it():
     assert 'not reached (0/2)' in '\n'.join(bc.render({'curves': curves}, {}))
 
 
+def test_bench_runs_join_the_domain_ros_domain_id_sets(monkeypatch):
+    """
+    Keep a bench inside an isolated run (ROS_DOMAIN_ID set).
+
+    Its background graph takes the id after it; unset, ids come from the pid and differ run
+    by run.
+    """
+    from pg_node.tools.bench_runs import domain_id
+    monkeypatch.setenv('ROS_DOMAIN_ID', '42')
+    assert [domain_id(), domain_id(), domain_id(background=True)] == [42, 42, 43]
+    monkeypatch.delenv('ROS_DOMAIN_ID')
+    ids = [domain_id() for _ in range(3)]
+    assert all(1 <= i <= 99 for i in ids) and len(set(ids)) == 3
+
+
 def test_rejects_unknown_section():
     res = subprocess.run([sys.executable, '-m', 'pg_node', 'bench', '--only', 'nope'],
                          capture_output=True, text=True, cwd=REPO)

@@ -12,8 +12,9 @@ Each returns plain numbers (no tables, no plots; :mod:`pg_node.tools.bench` make
   fixed step counts and a training-return curve against wall-clock time.
 
 Every step count is in environment steps (one arm advanced by one control step). Node
-processes are started in their own session with a unique ``ROS_DOMAIN_ID`` and stopped with
-SIGINT, then SIGTERM, then SIGKILL.
+processes are started in their own session and stopped with SIGINT, then SIGTERM, then
+SIGKILL. Each run joins a domain of its own (:func:`domain_id`): ``ROS_DOMAIN_ID`` when it is
+set, as the tests do, so that a bench inside an isolated run stays inside it.
 """
 import importlib.util
 import json
@@ -31,8 +32,18 @@ from pg_node.tools.processes import child_env, REPO, stop
 _domain_counter = [0]
 
 
-def domain_id() -> int:
-    """Return a ROS domain id for one run, unique within this process (1..99)."""
+def domain_id(background: bool = False) -> int:
+    """
+    Return the ROS domain id of one run.
+
+    With ``ROS_DOMAIN_ID`` set, that id, and the id after it for a ``background`` graph that
+    runs beside another run (the tests' convention, ``test/domains.py``: a run set apart by
+    ``ROS_DOMAIN_ID`` must not hear, nor be heard by, a neighbour's graph; the runs of one
+    bench follow one another). Unset: an id unique within this process (1..99), from the pid.
+    """
+    given = os.environ.get('ROS_DOMAIN_ID', '').strip()
+    if given.isdigit():
+        return int(given) + int(background)
     _domain_counter[0] += 1
     return 1 + (os.getpid() * 7 + _domain_counter[0]) % 99
 

@@ -117,7 +117,8 @@ def _train_until(done: threading.Event):
         proc = subprocess.Popen(
             [sys.executable, '-m', 'pg_node', 'train', '--run-dir', str(Path(tmp) / 'run'),
              '--total-steps', '100000000', '--no-progress', '--eval-episodes', '1'],
-            cwd=REPO, env=child_env(br.domain_id()), stdout=subprocess.DEVNULL,
+            cwd=REPO, env=child_env(br.domain_id(background=True)),
+            stdout=subprocess.DEVNULL,
             stderr=subprocess.DEVNULL, stdin=subprocess.DEVNULL, start_new_session=True)
         done.wait()
         stop(proc)
