@@ -92,8 +92,8 @@ def generate_launch_description():
                                   'pg_node.yaml')
     args = [
         ('params_file', default_params, 'ROS 2 parameter file of all pg_node nodes'),
-        ('preset', '', "a parameter file of the package's config/ by name: a2c, ppo "
-                       '(replaces params_file)'),
+        ('preset', '', "a parameter file of the package's config/ by name: a2c, "
+                       'a2c_tuned, ppo (replaces params_file)'),
         ('run_dir', 'runs/latest', 'where checkpoints, the bag and progress go'),
         ('total_steps', '', 'environment steps to learn (empty: from params_file)'),
         ('seed', '', 'seed of simulator, policy and sampling (empty: from params_file)'),

@@ -46,7 +46,7 @@ def test_share_holds_package_xml_config_launch_models(install):
     share = install / 'share' / 'pg_node'
     assert (share / 'package.xml').is_file()
     assert (share / 'config' / 'pg_node.yaml').is_file()
-    for preset in ('a2c', 'ppo'):
+    for preset in ('a2c', 'a2c_tuned', 'ppo'):
         assert (share / 'config' / f'{preset}.yaml').is_file()
     assert (share / 'launch' / 'train.launch.py').is_file()
     models = {p.name for p in (share / 'models').glob('*.xml')}

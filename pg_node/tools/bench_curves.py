@@ -8,7 +8,8 @@ the default settings, the design's A2C, over the same seeds; the deterministic p
 evaluated at a quarter, half and all of the budget (full: 250k, 500k and 1M environment
 steps, 100 episodes, 3 seeds). The algorithm rows go in the same table: A2C (the ``gae`` runs
 above: the defaults), plain REINFORCE (total return, no advantage normalisation), PPO (the
-``config/ppo.yaml`` preset), NPG and TRPO (``algo=npg`` / ``algo=trpo``, defaults otherwise);
+``config/ppo.yaml`` preset), tuned A2C (``config/a2c_tuned.yaml``), NPG and TRPO
+(``algo=npg`` / ``algo=trpo``, defaults otherwise);
 SB3 A2C and PPO come from the ``learning`` section of the same invocation (not run twice),
 and Tianshou's published numbers are quoted with their source (:data:`TIANSHOU`).
 
@@ -28,6 +29,7 @@ ESTIMATORS = ('total_return', 'reward_to_go', 'constant_baseline', 'optimal_base
 ALGORITHMS = {
     'reinforce': ('plain REINFORCE (total return, no baseline, advantages not normalised)',
                   None, ('estimator=total_return', 'normalize_advantage=false')),
+    'a2c_tuned': ('A2C tuned (config/a2c_tuned.yaml)', 'a2c_tuned', ()),
     'ppo': ('PPO (config/ppo.yaml)', 'ppo', ()),
     'npg': ('NPG (algo=npg, defaults)', None, ('algo=npg',)),
     'trpo': ('TRPO (algo=trpo, defaults)', None, ('algo=trpo',)),

@@ -45,7 +45,7 @@ def parse_args(argv):
     parser.add_argument('overrides', nargs='*', metavar='key=value',
                         help='override any parameter (node.key=value for one node only)')
     parser.add_argument('--config', help='ROS 2 parameter file, or the name of a preset in the '
-                                         "package's config/: a2c, ppo (default: "
+                                         "package's config/: a2c, a2c_tuned, ppo (default: "
                                          "config/pg_node.yaml, the design's A2C)")
     parser.add_argument('--total-steps', type=int, help='environment steps to learn')
     parser.add_argument('--seed', type=int, help='seed of everything')
