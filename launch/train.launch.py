@@ -45,13 +45,21 @@ def _end_with(action, reason):
         target_action=action, on_exit=[EmitEvent(event=Shutdown(reason=reason))]))
 
 
+def _config_dir():
+    return os.path.join(get_package_share_directory('pg_node'), 'config')
+
+
+def _presets():
+    """Return the names of the parameter files in the package's ``config/``, sorted."""
+    return sorted(f[:-5] for f in os.listdir(_config_dir()) if f.endswith('.yaml'))
+
+
 def _preset_file(name):
     """Return the path of preset ``name`` (``config/<name>.yaml``), or say which exist."""
-    config = os.path.join(get_package_share_directory('pg_node'), 'config')
-    path = os.path.join(config, f'{name}.yaml')
+    path = os.path.join(_config_dir(), f'{name}.yaml')
     if os.path.basename(name) != name or not os.path.isfile(path):
-        known = sorted(f[:-5] for f in os.listdir(config) if f.endswith('.yaml'))
-        raise RuntimeError(f'preset {name!r} is not in {config} (presets: {", ".join(known)})')
+        raise RuntimeError(f'preset {name!r} is not in {_config_dir()} '
+                           f'(presets: {", ".join(_presets())})')
     return path
 
 
@@ -92,8 +100,9 @@ def generate_launch_description():
                                   'pg_node.yaml')
     args = [
         ('params_file', default_params, 'ROS 2 parameter file of all pg_node nodes'),
-        ('preset', '', "a parameter file of the package's config/ by name: a2c, "
-                       'a2c_tuned, ppo (replaces params_file)'),
+        ('preset', '', "a parameter file of the package's config/ by name: "
+                       f'{", ".join(p for p in _presets() if p != "pg_node")} '
+                       '(replaces params_file)'),
         ('run_dir', 'runs/latest', 'where checkpoints, the bag and progress go'),
         ('total_steps', '', 'environment steps to learn (empty: from params_file)'),
         ('seed', '', 'seed of simulator, policy and sampling (empty: from params_file)'),

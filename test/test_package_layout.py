@@ -182,6 +182,20 @@ def test_launch_takes_a_preset_by_name_or_its_file(monkeypatch):
             _bring_up(monkeypatch, preset=bad)
 
 
+def test_launch_preset_argument_lists_every_shipped_preset(monkeypatch):
+    import ament_index_python.packages
+    import runpy
+    from pg_node.common.paths import preset_names
+    for name, module in _fake_launch_modules().items():
+        monkeypatch.setitem(sys.modules, name, module)
+    monkeypatch.setattr(ament_index_python.packages, 'get_package_share_directory',
+                        lambda pkg: str(REPO))
+    ns = runpy.run_path(str(REPO / 'launch' / 'train.launch.py'))
+    (preset,) = [e for e in ns['generate_launch_description']().args[0]
+                 if type(e).__name__ == 'DeclareLaunchArgument' and e.args[0] == 'preset']
+    assert f'by name: {", ".join(preset_names())} (' in preset.kwargs['description']
+
+
 @pytest.mark.skipif(sys.prefix == sys.base_prefix, reason='runs in the venv that make creates')
 def test_make_installs_the_executables_into_the_venv(tmp_path):
     """``.venv/bin/sim_node`` runs without PYTHONPATH, from any directory (editable install)."""

@@ -117,3 +117,14 @@ def test_train_resolves_a_preset_name_to_the_shipped_file(monkeypatch):
     assert by_name == by_path and by_name['learner_node']['algo'] == 'ppo'
     default = resolve_config(parse_args(['--run-dir', 'r']))
     assert default['learner_node']['algo'] == 'a2c'
+
+
+def test_train_help_lists_every_shipped_preset(capsys):
+    """The ``--config`` help is built from ``config/``: a new preset file shows up in it."""
+    from pg_node.common.paths import preset_names
+    from pg_node.tools.train import parse_args
+    assert set(PRESETS) <= set(preset_names()) and 'pg_node' not in preset_names()
+    with pytest.raises(SystemExit):
+        parse_args(['--help'])
+    text = ' '.join(capsys.readouterr().out.split())
+    assert f"package's config/: {', '.join(preset_names())} (default:" in text

@@ -37,6 +37,16 @@ def presets() -> list:
     return sorted(p.stem for p in (share_dir() / 'config').glob('*.yaml'))
 
 
+def preset_names() -> list:
+    """
+    Return the presets a user picks by name: every shipped file but the defaults' own.
+
+    ``config/pg_node.yaml`` holds every node's defaults (what runs without ``--config``), so
+    the help texts list the others; ``--config pg_node`` still works.
+    """
+    return [name for name in presets() if name != PACKAGE_NAME]
+
+
 def config_file(name_or_path: str) -> Path:
     """
     Turn a parameter file's path or a preset's name into an existing file path.

@@ -31,6 +31,7 @@ import time
 from typing import Optional
 
 from pg_node.common.params import ConfigError, load_config, SHARED
+from pg_node.common.paths import preset_names
 from pg_node.tools.processes import (child_env, process_usage, shutting_down, signal_process,
                                      STOP_WAITS, terminate_as_interrupt)
 import yaml
@@ -45,8 +46,8 @@ def parse_args(argv):
     parser.add_argument('overrides', nargs='*', metavar='key=value',
                         help='override any parameter (node.key=value for one node only)')
     parser.add_argument('--config', help='ROS 2 parameter file, or the name of a preset in the '
-                                         "package's config/: a2c, a2c_tuned, ppo (default: "
-                                         "config/pg_node.yaml, the design's A2C)")
+                                         f"package's config/: {', '.join(preset_names())} "
+                                         "(default: config/pg_node.yaml, the design's A2C)")
     parser.add_argument('--total-steps', type=int, help='environment steps to learn')
     parser.add_argument('--seed', type=int, help='seed of everything')
     parser.add_argument('--run-dir', help='where the run writes everything '
