@@ -727,6 +727,35 @@ def test_sigterm_stops_each_node_cleanly_with_sigint_ignored(tmp_path):
 
 # --- a short soak ---------------------------------------------------------------------------
 
+def test_soak_sends_garbage_only_when_every_restarted_node_has_spoken_since():
+    """
+    The soak's ``garbage`` fault waits for every node's diagnostics after its newest start.
+
+    A learner killed just before would otherwise be sent its malformed batch while it is
+    still importing torch: the message reaches nobody and the drop counter stays at 0.
+    """
+    from diagnostic_msgs.msg import DiagnosticStatus
+    from pg_node.tools import soak
+
+    def diag(name):
+        return DiagnosticArray(status=[DiagnosticStatus(name=name)])
+
+    injector = type('Injector', (), {})()
+    injector.counters, injector.carried, injector.heard = {}, {}, {}
+    for name in ('sim_node: simulated arms', 'actor_node 0', 'critic_node', 'learner_node'):
+        soak.Injector.on_diag(injector, diag(name))
+    injector.heard_since = lambda node, since: soak.Injector.heard_since(injector, node, since)
+    started = time.monotonic() - 60.0
+    sup = type('Supervisor', (), {})()
+    sup.started_at = dict.fromkeys(soak.NODES, started)
+    assert soak.all_nodes_up(sup, injector)
+    sup.started_at['learner_node'] = time.monotonic() + 1e-3     # restarted after it spoke
+    assert not soak.all_nodes_up(sup, injector)
+    time.sleep(2e-3)
+    soak.Injector.on_diag(injector, diag('learner_node'))
+    assert soak.all_nodes_up(sup, injector)
+
+
 @pytest.mark.e2e
 @pytest.mark.slow
 def test_two_minute_soak_keeps_memory_flat_and_bags_readable(tmp_path):

@@ -168,6 +168,7 @@ class Injector:
         self.n_cmd = cfg[SHARED]['num_envs'] * nu
         self.counters = {}      # status name -> {counter: value}
         self.carried = {}       # status name -> {counter: sum over earlier processes}
+        self.heard = {}         # status name -> time of its newest diagnostics message
         self.node.create_subscription(DiagnosticArray, '/diagnostics', self.on_diag, 50)
         from std_msgs.msg import Float64
         self.batch_steps = (cfg['actor_node']['n_steps'] * cfg[SHARED]['num_envs']
@@ -211,6 +212,11 @@ class Injector:
                 if key in old and value < old[key]:    # a new process counts from 0 again
                     carried[key] = carried.get(key, 0.0) + old[key]
             self.counters[status.name] = values
+            self.heard[status.name] = time.monotonic()
+
+    def heard_since(self, node: str, since: float) -> bool:
+        """Whether a diagnostics status of ``node`` (its name's prefix) arrived after ``since``."""
+        return any(name.startswith(node) and t > since for name, t in self.heard.items())
 
     def total(self, key: str) -> float:
         """Return a counter summed over all nodes and all their processes."""
@@ -232,6 +238,17 @@ class Injector:
         msg.data = array.array('d', data)
         return msg
 
+    def wait_for_subscribers(self, pub, timeout: float = 15.0):
+        """
+        Spin until ``pub`` is matched with a subscriber (at most ``timeout`` seconds).
+
+        A node that a fault just killed may still be starting (importing torch takes seconds
+        on a loaded machine); a message published before it subscribed is lost unseen.
+        """
+        end = time.monotonic() + timeout
+        while pub.get_subscription_count() < 1 and time.monotonic() < end:
+            self.spin(0.05)
+
     def garbage(self) -> dict:
         """
         Publish malformed messages on every input topic; return how many of each were sent.
@@ -242,10 +259,12 @@ class Injector:
         the actor did see and drop.
         """
         sent = {}
+        self.wait_for_subscribers(self.pub_cmd)
         for data in ([1.0, 2.0, 3.0], [float('nan')] * self.n_cmd, [1e300] * self.n_cmd):
             self.pub_cmd.publish(self._msg(data))
         sent['commands'] = 3
         for kind, pub in (('rollouts', self.pub_rollout), ('batches', self.pub_batch)):
+            self.wait_for_subscribers(pub)
             pub.publish(self._msg([float('nan')] * 12, offset=5))
             sent[kind] = 1
         for kind, topic, n in (('transitions', self.ns + 'pg_node/transition', 5),
@@ -253,9 +272,7 @@ class Injector:
             # latched subscribers need a latched publisher
             pub = self.node.create_publisher(self.Msg, topic, self.latched)
             self.latched_pubs.append(pub)
-            end = time.monotonic() + 2.0
-            while pub.get_subscription_count() < 1 and time.monotonic() < end:
-                self.spin(0.05)
+            self.wait_for_subscribers(pub)
             for _ in range(n):
                 pub.publish(self._msg([0.0] * 7, offset=3))
                 self.spin(0.02)
@@ -271,6 +288,19 @@ class Injector:
         """Leave the graph."""
         self.node.destroy_node()
         self.rclpy.try_shutdown(context=self.ctx)
+
+
+def all_nodes_up(sup, injector) -> bool:
+    """
+    Whether every node has published diagnostics since its newest (re)start.
+
+    Malformed messages sent while a killed node is still starting would reach nobody: its
+    subscriptions do not exist yet, and the dead process's may still look matched in DDS
+    until its lease runs out.
+    """
+    return all(injector.heard_since(node, max(t for name, t in sup.started_at.items()
+                                              if name.startswith(node)))
+               for node in NODES)
 
 
 class MemoryLog:
@@ -375,6 +405,9 @@ def run_soak(args) -> dict:
                          'env_steps_at_fault': steps, 'recovered_after_s': None}
                 action, _, name = kind.partition(' ')
                 if action == 'garbage':
+                    if not all_nodes_up(sup, injector):
+                        next_fault = now + 1.0     # a restarted node is not up yet: soon
+                        continue
                     n = injector.garbage()
                     for k, v in n.items():
                         garbage_sent[k] = garbage_sent.get(k, 0) + v

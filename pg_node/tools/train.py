@@ -157,6 +157,7 @@ class Supervisor:
         self.unfinished_bags = []   # bags of learners that died without closing them
         self.max_restarts = max_restarts
         self.procs = {}
+        self.started_at = {}        # name -> time.monotonic() of its newest start
         self.restarts = dict.fromkeys(commands, 0)
         self.next_start = {}
         self.samples = {}           # (name, pid) -> the newest process_usage of that process
@@ -180,6 +181,7 @@ class Supervisor:
         self.procs[name] = subprocess.Popen(cmd, stdout=log,
                                             stderr=subprocess.STDOUT, env=self.env,
                                             start_new_session=True)
+        self.started_at[name] = time.monotonic()
         log.close()
 
     def start_all(self):
