@@ -14,6 +14,7 @@ import signal
 import subprocess
 import sys
 import time
+from types import SimpleNamespace
 
 from diagnostic_msgs.msg import DiagnosticArray
 from domains import ros_domains
@@ -740,19 +741,16 @@ def test_soak_sends_garbage_only_when_every_restarted_node_has_spoken_since():
     def diag(name):
         return DiagnosticArray(status=[DiagnosticStatus(name=name)])
 
-    injector = type('Injector', (), {})()
+    injector = soak.Injector.__new__(soak.Injector)     # its diagnostics book-keeping only
     injector.counters, injector.carried, injector.heard = {}, {}, {}
     for name in ('sim_node: simulated arms', 'actor_node 0', 'critic_node', 'learner_node'):
-        soak.Injector.on_diag(injector, diag(name))
-    injector.heard_since = lambda node, since: soak.Injector.heard_since(injector, node, since)
-    started = time.monotonic() - 60.0
-    sup = type('Supervisor', (), {})()
-    sup.started_at = dict.fromkeys(soak.NODES, started)
+        injector.on_diag(diag(name))
+    sup = SimpleNamespace(started_at=dict.fromkeys(soak.NODES, time.monotonic() - 60.0))
     assert soak.all_nodes_up(sup, injector)
     sup.started_at['learner_node'] = time.monotonic() + 1e-3     # restarted after it spoke
     assert not soak.all_nodes_up(sup, injector)
     time.sleep(2e-3)
-    soak.Injector.on_diag(injector, diag('learner_node'))
+    injector.on_diag(diag('learner_node'))
     assert soak.all_nodes_up(sup, injector)
 
 
