@@ -43,12 +43,13 @@ import sys
 import tempfile
 import time
 import traceback
-from typing import Dict, List
+from typing import Dict, List, Sequence
 
 import numpy as np
 from pg_node.tools import bench_curves
 from pg_node.tools import bench_tax
 from pg_node.tools.bench_curves import eval_time_at, reached
+from pg_node.tools.bench_pool import JOBS_NOTE
 from pg_node.tools.processes import terminate_as_interrupt
 
 SECTIONS = ('throughput', 'latency', 'tax', 'variance', 'curves', 'learning', 'profile')
@@ -231,46 +232,72 @@ def run_latency(b: Dict, log) -> Dict:
     return out
 
 
-def run_learning(b: Dict, learners: List[str], log, progress=None) -> Dict:
+def learning_run(key: str, steps: int, seed: int, points: Sequence[int],
+                 eval_episodes: int) -> Dict:
+    """Train one learner (a key of :data:`LEARNERS`) once; evaluations at ``points``."""
+    from pg_node.tools import bench_runs as br
+    if key == 'pg_node_graph':
+        with tempfile.TemporaryDirectory() as tmp:  # bag and checkpoints: gone
+            return br.graph_learning(Path(tmp) / 'run', steps, seed, points)
+    if key == 'pg_node_inprocess':
+        return br.inprocess_learning(steps, seed, points, eval_episodes)
+    algo = 'a2c' if 'a2c' in key else 'ppo'
+    env_id = 'Reacher-v5' if key.endswith('_v5') else 'pg_node/Reacher2-v0'
+    return br.sb3_learning(algo, env_id, steps, seed, points, eval_episodes)
+
+
+def run_learning(b: Dict, learners: List[str], log, progress=None, jobs: int = 1) -> Dict:
     """
     Train every learner over the seeds; evaluations at fixed points and curves.
 
-    ``progress(partial)`` is called after every run with the results so far.
+    ``progress(partial)`` is called after every run with the results so far. With ``jobs``
+    > 1 the graph's runs go first, alone, then the in-process ones (pg_node, SB3) that many
+    at a time (:mod:`pg_node.tools.bench_pool`).
     """
     from pg_node.tools import bench_runs as br
+    from pg_node.tools.bench_pool import run_all
     steps, seeds = b['learning_steps'], list(range(b['seeds']))
     points = sorted({steps // 4, steps // 2, steps})
-    runs = {}
+    runs, specs = {}, []
     for spec in learners:
         key, _, n_seeds = spec.partition(':')
         runs[key] = []
         if key == 'pg_node_graph' and not br.graph_available():
             runs[key] = NOT_AVAILABLE
             continue
-        for seed in (range(int(n_seeds)) if n_seeds else seeds):
-            log(f'learning: {LEARNER_NAMES[key]}, seed {seed}, {steps:,} steps')
-            try:
-                if key == 'pg_node_graph':
-                    with tempfile.TemporaryDirectory() as tmp:  # bag and checkpoints: gone
-                        res = br.graph_learning(Path(tmp) / 'run', steps, seed, points)
-                elif key == 'pg_node_inprocess':
-                    res = br.inprocess_learning(steps, seed, points, b['eval_episodes'])
-                else:
-                    algo = 'a2c' if 'a2c' in key else 'ppo'
-                    env_id = 'Reacher-v5' if key.endswith('_v5') else 'pg_node/Reacher2-v0'
-                    res = br.sb3_learning(algo, env_id, steps, seed, points,
-                                          b['eval_episodes'])
-            except Exception as exc:  # noqa: B902 - reported in the table
-                log(traceback.format_exc())
-                res = {'error': str(exc).splitlines()[0]}
-            res['seed'] = seed
-            runs[key].append(res)
-            if progress is not None:
-                progress({'steps': steps, 'seeds': seeds, 'points': points, 'runs': runs,
-                          'eval_episodes': b['eval_episodes'], 'load': load_average(),
-                          'partial': True})
-    return {'steps': steps, 'seeds': seeds, 'points': points, 'runs': runs,
-            'eval_episodes': b['eval_episodes']}
+        specs += [(key, seed) for seed in (range(int(n_seeds)) if n_seeds else seeds)]
+
+    def report(partial=True):
+        return {'steps': steps, 'seeds': seeds, 'points': points, 'runs': runs,
+                'eval_episodes': b['eval_episodes'], 'jobs': int(jobs),
+                **({'load': load_average(), 'partial': True} if partial else {})}
+
+    def before(i):
+        key, seed = specs[i]
+        log(f'learning: {LEARNER_NAMES[key]}, seed {seed}, {steps:,} steps')
+
+    def done(i, res):
+        key, seed = specs[i]
+        res['seed'] = seed
+        runs[key].append(res)
+        runs[key].sort(key=lambda r: r['seed'])
+        if jobs > 1 and key != 'pg_node_graph':
+            log(f'learning: {LEARNER_NAMES[key]}, seed {seed}: '
+                + (res.get('error') or f'{res["evals"].get(steps, float("nan")):.2f} at '
+                   f'{steps:,}'))
+        if progress is not None:
+            progress(report())
+
+    alone = [k for k, (key, _) in enumerate(specs) if jobs <= 1 or key == 'pg_node_graph']
+    pooled = [k for k in range(len(specs)) if k not in alone]
+    task = [(learning_run, (key, steps, seed, points, b['eval_episodes']))
+            for key, seed in specs]
+    if pooled:
+        log(f"learning: {len(pooled)} in-process runs after the graph's, {jobs} at a time")
+    run_all([task[k] for k in alone], 1, lambda j, res: done(alone[j], res),
+            lambda j: before(alone[j]))
+    run_all([task[k] for k in pooled], jobs, lambda j, res: done(pooled[j], res))
+    return report(partial=False)
 
 
 def run_profile(b: Dict, log) -> Dict:
@@ -486,7 +513,9 @@ def render_markdown(results: Dict, command: str, plots: Dict[str, str]) -> str:
                 f'action) over {learn["eval_episodes"]} episodes, mean and std over seeds of '
                 'the per-seed mean. The training graph reports only its final evaluation, so '
                 'its earlier columns are empty. SB3 runs use 8 environments and the library '
-                'defaults for every hyperparameter; pg_node its `config/` defaults (64 arms).', '']
+                'defaults for every hyperparameter; pg_node its `config/` defaults (64 arms).'
+                + (JOBS_NOTE.format(jobs=learn['jobs'], runs="runs other than the graph's")
+                   if learn.get('jobs', 1) > 1 else ''), '']
         rows = []
         for key, row in summ.items():
             if 'evals' not in row:
@@ -709,12 +738,19 @@ def parse_args(argv):
     parser.add_argument('--graph-steps', type=int,
                         help='env steps of the graph throughput run (default: 200,000)')
     parser.add_argument('--variance-batches', type=int, help='lab batches (default: 200)')
+    parser.add_argument('--jobs', type=int, default=1,
+                        help='learning runs of the curves and learning sections that train at '
+                             "once, each in its own process (default: 1). The graph's runs "
+                             "still run alone; pg_node's evaluations are the same, wall-clock "
+                             'columns then count a neighbour (the report says so)')
     args = parser.parse_args(argv)
     only = [s.strip() for s in args.only.split(',') if s.strip()]
     bad = [s for s in only if s not in SECTIONS]
     if bad or not only:
         parser.error(f'--only takes {", ".join(SECTIONS)}; got {args.only!r}')
     args.only = only
+    if args.jobs < 1:
+        parser.error(f'--jobs must be at least 1; got {args.jobs}')
     args.learners = [s.strip() for s in args.learners.split(',') if s.strip()]
     bad = [s for s in args.learners if s.partition(':')[0] not in LEARNERS
            or not (s.partition(':')[2] or '1').isdigit()]
@@ -778,24 +814,35 @@ def main(argv=None) -> int:
         'throughput': lambda: run_throughput(budgets, log),
         'latency': lambda: run_latency(budgets, log),
         'tax': lambda: bench_tax.run_tax(budgets, log),
-        'learning': lambda: run_learning(budgets, args.learners, log, learning_progress),
+        'learning': lambda: run_learning(budgets, args.learners, log, learning_progress,
+                                         args.jobs),
         'variance': lambda: run_variance(budgets, log),
         'curves': lambda: bench_curves.run_curves(
-            budgets, log, lambda partial: (results.update(curves=partial), write_report())),
+            budgets, log, lambda partial: (results.update(curves=partial), write_report()),
+            jobs=args.jobs),
         'profile': lambda: run_profile(budgets, log),
     }
-    with terminate_as_interrupt():  # kill/timeout stop the children as Ctrl-C does
-        for section in SECTIONS:
-            if section not in args.only:
-                continue
-            try:
-                res = runners[section]()
-                res['load'] = load_average()
-                results[section] = res
-            except Exception as exc:  # noqa: B902 - the report says which section failed
-                log(traceback.format_exc())
-                results['errors'].append(f'{section}: {exc}'.splitlines()[0])
-            write_report()
+    try:
+        with terminate_as_interrupt():  # kill/timeout stop the children as Ctrl-C does
+            for section in SECTIONS:
+                if section not in args.only:
+                    continue
+                try:
+                    res = runners[section]()
+                    res['load'] = load_average()
+                    results[section] = res
+                except Exception as exc:  # noqa: B902 - the report says which section failed
+                    log(traceback.format_exc())
+                    results['errors'].append(f'{section}: {exc}'.splitlines()[0])
+                write_report()
+    except KeyboardInterrupt as exc:
+        # the runs that finished are in the results already (each section saves as it
+        # goes): keep them, say where, and exit as an interrupted program does
+        results['interrupted'] = str(exc) or 'SIGINT'
+        write_report()
+        print(f'bench: interrupted ({results["interrupted"]}); the runs that finished are in '
+              f'{out_dir / args.report} and {json_path}', file=sys.stderr)
+        return 130
     results['complete'] = True
     plots = write_report()
     report = out_dir / args.report

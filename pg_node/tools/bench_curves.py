@@ -18,7 +18,6 @@ The report's text says only what the numbers compute: each estimator's rank by v
 correlation between the two.
 """
 import time
-import traceback
 from typing import Callable, Dict, List, Optional, Sequence
 
 import numpy as np
@@ -107,33 +106,57 @@ def curve_run(preset: Optional[str], overrides: Sequence[str], steps: int, seed:
 
 def run_curves(b: Dict, log: Callable[[str], None],
                progress: Optional[Callable[[Dict], None]] = None,
-               progress_every: float = 30.0) -> Dict:
+               progress_every: float = 30.0, jobs: int = 1) -> Dict:
     """
     Train every row over the seeds; ``progress(partial)`` after a run, ``progress_every`` s apart.
 
     ``b`` holds :data:`BUDGETS`' keys (one value each). A failed run is kept as its error.
+    ``jobs`` > 1 trains that many runs at a time, each in a process of its own
+    (:mod:`pg_node.tools.bench_pool`); the evaluations are the same, the clocks then count a
+    neighbour. Interrupted, it hands the runs that finished to ``progress`` and re-raises.
     """
+    from pg_node.tools.bench_pool import run_all
     steps, seeds = b['curve_steps'], list(range(b['curve_seeds']))
     points = points_of(steps)
-    out = {'steps': steps, 'seeds': seeds, 'points': points,
-           'eval_episodes': b['curve_eval_episodes'], 'runs': {}}
-    last = time.monotonic()
-    for key, spec in configurations().items():
-        out['runs'][key] = []
-        for seed in seeds:
-            log(f'curves: {spec["name"]}, seed {seed}, {steps:,} steps')
-            try:
-                res = curve_run(spec['preset'], spec['overrides'], steps, seed, points,
-                                b['curve_eval_episodes'])
-            except Exception as exc:  # noqa: B902 - reported in the table
-                log(traceback.format_exc())
-                res = {'error': str(exc).splitlines()[0]}
-            res['seed'] = seed
-            out['runs'][key].append(res)
-            if progress is not None and time.monotonic() - last >= progress_every:
-                progress(dict(out, partial=True))   # a report of the runs so far
-                last = time.monotonic()
-    return out
+    out = {'steps': steps, 'seeds': seeds, 'points': points, 'jobs': int(jobs),
+           'eval_episodes': b['curve_eval_episodes'],
+           'runs': {key: [] for key in configurations()}}
+    specs = [(key, spec, seed) for key, spec in configurations().items() for seed in seeds]
+    tasks = [(curve_run, (spec['preset'], spec['overrides'], steps, seed, points,
+                          b['curve_eval_episodes'])) for _, spec, seed in specs]
+    last = [time.monotonic()]
+
+    def so_far():
+        # the rows that have a finished run, in the table's order
+        return dict(out, runs={k: v for k, v in out['runs'].items() if v})
+
+    if jobs > 1:
+        log(f'curves: {len(tasks)} runs of {steps:,} steps, {jobs} at a time')
+
+    def before(i):
+        log(f'curves: {specs[i][1]["name"]}, seed {specs[i][2]}, {steps:,} steps')
+
+    def done(i, res):
+        key, spec, seed = specs[i]
+        res['seed'] = seed
+        runs = out['runs'][key]
+        runs.append(res)
+        runs.sort(key=lambda r: r['seed'])
+        if jobs > 1:
+            finished = sum(len(r) for r in out['runs'].values())
+            what = res.get('error') or f'{res["evals"][points[-1]]:.2f} at {points[-1]:,}'
+            log(f'curves: {spec["name"]}, seed {seed}: {what} ({finished}/{len(tasks)})')
+        if progress is not None and time.monotonic() - last[0] >= progress_every:
+            progress(dict(so_far(), partial=True))   # a report of the runs so far
+            last[0] = time.monotonic()
+
+    try:
+        run_all(tasks, jobs, done, before)
+    except KeyboardInterrupt:
+        if progress is not None:
+            progress(dict(so_far(), partial=True))
+        raise
+    return so_far()
 
 
 # --- summary -------------------------------------------------------------------------------
@@ -272,6 +295,7 @@ def render(results: Dict, plots: Dict[str, str]) -> List[str]:
     curves = results.get('curves')
     if not curves:
         return []
+    from pg_node.tools.bench_pool import JOBS_NOTE
     points, final = curves['points'], curves['points'][-1]
     rows = summarize(curves, results.get('learning'), results.get('variance'))
     rk = ranks(rows, final)
@@ -285,7 +309,9 @@ def render(results: Dict, plots: Dict[str, str]) -> List[str]:
            'reached it (an upper bound), mean over the seeds that did (k/n). '
            "Variance / REINFORCE: the estimator lab's row of the same name (section 4, exact "
            'V, gamma = 1); ranks: 1 = lowest variance, 1 = best final evaluation. '
-           f'Load average {curves.get("load", "?")}.', '']
+           f'Load average {curves.get("load", "?")}.'
+           + (JOBS_NOTE.format(jobs=curves['jobs'], runs='runs')
+              if curves.get('jobs', 1) > 1 else ''), '']
     header = (['row'] + [f'eval @ {p:,}' for p in points]
               + [f'time to {th:g}' for th in TIME_THRESHOLDS]
               + ['wall s', 'env steps/s', 'variance / REINFORCE', 'variance rank',
