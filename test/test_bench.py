@@ -71,6 +71,15 @@ def test_markdown_marks_missing_graph():
     assert '| SB3 A2C |' in text
 
 
+def test_partial_report_while_a_learner_has_no_finished_run():
+    # the graph's runs went first and reached -6; SB3 A2C's runs had not finished (a
+    # partial report written between runs: an invocation died on this, 7e0c30c)
+    res = fake_results()
+    res['learning']['runs']['sb3_a2c'] = []
+    text = bench.render_markdown(res, 'python -m pg_node bench', {})
+    assert '| pg_node A2C, ROS graph |' in text and '| SB3 A2C |' not in text
+
+
 def fake_curves(order):
     """Curves results in which the estimators' final evaluations follow ``order`` (best first)."""
     from pg_node.tools import bench_curves as bc

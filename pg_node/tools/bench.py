@@ -268,7 +268,8 @@ def run_learning(b: Dict, learners: List[str], log, progress=None, jobs: int = 1
         specs += [(key, seed) for seed in (range(int(n_seeds)) if n_seeds else seeds)]
 
     def report(partial=True):
-        return {'steps': steps, 'seeds': seeds, 'points': points, 'runs': runs,
+        return {'steps': steps, 'seeds': seeds, 'points': points,
+                'runs': {k: v for k, v in runs.items() if v},     # those that have finished
                 'eval_episodes': b['eval_episodes'], 'jobs': int(jobs),
                 **({'load': load_average(), 'partial': True} if partial else {})}
 
@@ -347,6 +348,8 @@ def learning_summary(learning: Dict) -> Dict[str, Dict]:
     for key, runs in learning['runs'].items():
         if isinstance(runs, str):
             out[key] = {'note': runs}
+            continue
+        if not runs:        # a partial report: this learner's runs have not finished yet
             continue
         ok = [r for r in runs if 'error' not in r]
         row = {'seeds_ok': len(ok), 'seeds': len(runs), 'evals': {}, 'train_return': {}}
