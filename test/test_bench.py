@@ -80,6 +80,18 @@ def test_partial_report_while_a_learner_has_no_finished_run():
     assert '| pg_node A2C, ROS graph |' in text and '| SB3 A2C |' not in text
 
 
+def test_results_are_saved_before_the_report_is_rendered(tmp_path, monkeypatch):
+    def broken(*args):
+        raise RuntimeError('a bug in the report')
+
+    monkeypatch.setattr(bench, 'render_markdown', broken)
+    with pytest.raises(RuntimeError, match='a bug in the report'):
+        bench.main(['--quick', '--only', 'variance', '--variance-batches', '2',
+                    '--out', str(tmp_path)])
+    saved = json.loads((tmp_path / 'bench_results.json').read_text())
+    assert len(saved['variance']['rows']) == 11
+
+
 def fake_curves(order):
     """Curves results in which the estimators' final evaluations follow ``order`` (best first)."""
     from pg_node.tools import bench_curves as bc

@@ -803,9 +803,9 @@ def main(argv=None) -> int:
     def write_report():
         results['load_end'] = load_average()
         results['elapsed_seconds'] = time.perf_counter() - start
+        save()      # first: the numbers outlive a bug in the plots or the report
         plots = make_plots(results, out_dir / 'bench_plots')
         (out_dir / args.report).write_text(render_markdown(results, command, plots))
-        save()
         return plots
 
     def learning_progress(partial):
