@@ -86,8 +86,11 @@ def test_ctrl_c_keeps_the_finished_runs_in_one_line_and_leaves_no_worker(tmp_pat
     mark = uuid.uuid4().hex
     cmd = [sys.executable, '-m', 'pg_node', 'bench', '--quick', '--only', 'curves',
            '--jobs', '2', '--out', str(tmp_path)]
+    # as from a terminal: a test run started with '&' by a non-interactive shell hands its
+    # children SIGINT ignored, which Python (and so the bench) then keeps
     proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True,
-                            cwd=REPO, env=bench_env(mark), start_new_session=True)
+                            cwd=REPO, env=bench_env(mark), start_new_session=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     lines = []
     try:
         for line in proc.stderr:
@@ -99,7 +102,8 @@ def test_ctrl_c_keeps_the_finished_runs_in_one_line_and_leaves_no_worker(tmp_pat
         rc = proc.wait(timeout=60)
     finally:
         if proc.poll() is None:
-            proc.kill()
+            os.killpg(proc.pid, signal.SIGKILL)     # the bench and its workers
+            proc.wait()
     assert rc == 130, ''.join(lines) + rest
     assert 'Traceback' not in rest and 'KeyboardInterrupt' not in rest, rest
     assert [x for x in rest.splitlines() if x.startswith('bench: interrupted')], rest
