@@ -49,7 +49,7 @@ import numpy as np
 from pg_node.tools import bench_curves
 from pg_node.tools import bench_tax
 from pg_node.tools.bench_curves import eval_time_at, reached
-from pg_node.tools.bench_pool import JOBS_NOTE
+from pg_node.tools.bench_pool import JOBS_NOTE, run_all
 from pg_node.tools.processes import terminate_as_interrupt
 
 SECTIONS = ('throughput', 'latency', 'tax', 'variance', 'curves', 'learning', 'profile')
@@ -255,7 +255,6 @@ def run_learning(b: Dict, learners: List[str], log, progress=None, jobs: int = 1
     at a time (:mod:`pg_node.tools.bench_pool`).
     """
     from pg_node.tools import bench_runs as br
-    from pg_node.tools.bench_pool import run_all
     steps, seeds = b['learning_steps'], list(range(b['seeds']))
     points = sorted({steps // 4, steps // 2, steps})
     runs, specs = {}, []

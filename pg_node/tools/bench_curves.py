@@ -21,6 +21,7 @@ import time
 from typing import Callable, Dict, List, Optional, Sequence
 
 import numpy as np
+from pg_node.tools.bench_pool import JOBS_NOTE, run_all
 
 ESTIMATORS = ('total_return', 'reward_to_go', 'constant_baseline', 'optimal_baseline',
               'time_baseline', 'value_baseline', 'td_residual', 'gae')
@@ -115,7 +116,6 @@ def run_curves(b: Dict, log: Callable[[str], None],
     (:mod:`pg_node.tools.bench_pool`); the evaluations are the same, the clocks then count a
     neighbour. Interrupted, it hands the runs that finished to ``progress`` and re-raises.
     """
-    from pg_node.tools.bench_pool import run_all
     steps, seeds = b['curve_steps'], list(range(b['curve_seeds']))
     points = points_of(steps)
     out = {'steps': steps, 'seeds': seeds, 'points': points, 'jobs': int(jobs),
@@ -295,7 +295,6 @@ def render(results: Dict, plots: Dict[str, str]) -> List[str]:
     curves = results.get('curves')
     if not curves:
         return []
-    from pg_node.tools.bench_pool import JOBS_NOTE
     points, final = curves['points'], curves['points'][-1]
     rows = summarize(curves, results.get('learning'), results.get('variance'))
     rk = ranks(rows, final)
