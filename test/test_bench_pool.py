@@ -86,8 +86,8 @@ def test_ctrl_c_keeps_the_finished_runs_in_one_line_and_leaves_no_worker(tmp_pat
     mark = uuid.uuid4().hex
     cmd = [sys.executable, '-m', 'pg_node', 'bench', '--quick', '--only', 'curves',
            '--jobs', '2', '--out', str(tmp_path)]
-    # as from a terminal: a test run started with '&' by a non-interactive shell hands its
-    # children SIGINT ignored, which Python (and so the bench) then keeps
+    # as from a terminal, whatever this test run inherited: the workers must not see the
+    # group's SIGINT through an inherited SIG_IGN but by ignoring it themselves
     proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True,
                             cwd=REPO, env=bench_env(mark), start_new_session=True,
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))

@@ -803,19 +803,25 @@ def test_two_minute_soak_keeps_memory_flat_and_bags_readable(tmp_path):
 
 @pytest.mark.e2e
 @pytest.mark.slow
-@pytest.mark.parametrize('sig', [signal.SIGTERM, signal.SIGHUP], ids=['SIGTERM', 'SIGHUP'])
+@pytest.mark.parametrize('sig', [signal.SIGTERM, signal.SIGHUP, signal.SIGINT],
+                         ids=['SIGTERM', 'SIGHUP', 'SIGINT-inherited-ignored'])
 def test_signal_to_train_alone_stops_every_node(tmp_path, sig):
     """
     ``kill``/``timeout`` signal the bring-up alone, not the nodes' sessions: it stops them.
 
     Before this was handled, a SIGTERM killed ``train`` at once and left its four nodes
-    running (each in a session of its own), busy with nobody to stop them.
+    running (each in a session of its own), busy with nobody to stop them. The SIGINT case
+    starts ``train`` as ``train &`` in a script does, with SIGINT ignored, which Python
+    keeps: a ``kill -INT`` was lost on it while the nodes (rclpy) take SIGINT in any case.
     """
     run_dir = tmp_path / 'run'
     cmd = [sys.executable, '-m', 'pg_node', 'train', '--run-dir', str(run_dir),
            '--no-progress', '--total-steps', '10000000', '--eval-episodes', '2']
+    as_if_started_with_amp = (lambda: signal.signal(signal.SIGINT, signal.SIG_IGN)) \
+        if sig == signal.SIGINT else None
     proc = subprocess.Popen(cmd, env=env(GRAPH), cwd=REPO, stdout=subprocess.PIPE,
-                            stderr=subprocess.STDOUT, text=True, start_new_session=True)
+                            stderr=subprocess.STDOUT, text=True, start_new_session=True,
+                            preexec_fn=as_if_started_with_amp)
     try:
         wait_for_progress(proc, run_dir, time.monotonic() + 240)
         assert len(node_pids(run_dir)) == 4
@@ -827,7 +833,8 @@ def test_signal_to_train_alone_stops_every_node(tmp_path, sig):
         for pid in node_pids(run_dir):         # do not leave them behind if the test fails
             os.kill(pid, signal.SIGKILL)
     assert proc.returncode == 0, text[-3000:]
-    assert f'interrupted by signal {sig.name}: stopping the nodes' in text
+    said = 'interrupted' if sig == signal.SIGINT else f'interrupted by signal {sig.name}'
+    assert f'{said}: stopping the nodes' in text
     assert node_pids(run_dir) == []
     summary = json.loads((run_dir / 'summary.json').read_text())
     assert summary['interrupted'] and 0 < summary['total_steps'] < 10_000_000

@@ -48,16 +48,24 @@ def _interrupt(signum, frame):
     raise KeyboardInterrupt(f'signal {signal.Signals(signum).name}')
 
 
-def terminate_as_interrupt():
+@contextlib.contextmanager
+def terminate_as_interrupt() -> Iterator[None]:
     """
-    Turn SIGTERM and SIGHUP into KeyboardInterrupt inside the block.
+    Turn SIGINT, SIGTERM and SIGHUP into KeyboardInterrupt inside the block.
 
-    A supervisor (``train``, ``soak``, ``bench``) starts its nodes in sessions of their own,
-    so a signal sent to the supervisor alone (``timeout``, ``kill``, a closed terminal) does
-    not reach them: without this it dies at once and leaves them running. With it the
-    signal takes the Ctrl-C path, which stops the nodes.
+    A supervisor (``train``, ``soak``, ``bench``, ``play``) starts its nodes in sessions of
+    their own, so a signal sent to the supervisor alone (``timeout``, ``kill``, a closed
+    terminal) does not reach them: without this it dies at once and leaves them running.
+    With it the signal takes the Ctrl-C path, which stops the nodes.
+
+    SIGINT gets Python's own Ctrl-C handler even when the supervisor inherited it ignored
+    (started with ``&`` by a non-interactive shell, which Python leaves as it is): a
+    ``kill -INT`` then stops it as it stops the nodes, which take SIGINT in any case (rclpy
+    installs its handler), and as ``ros2 launch`` expects of what it starts.
     """
-    return signals_handled((signal.SIGTERM, signal.SIGHUP), _interrupt)
+    with signals_handled((signal.SIGINT,), signal.default_int_handler), \
+            signals_handled((signal.SIGTERM, signal.SIGHUP), _interrupt):
+        yield
 
 
 def shutting_down():
