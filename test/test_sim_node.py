@@ -185,10 +185,13 @@ def test_joint_states_commands_rejections_and_clean_shutdown(tmp_path, client):
         client.send([0.5, 0.5, 0.5])                # wrong size
         client.send([0.5, float('nan'), 0.0, 0.0])  # non-finite
         client.send([0.0, float('inf'), 0.0, 0.0])
+        # bytes that are no Float64MultiArray (the node subscribes raw and decodes itself)
+        client.commands.publish(b'\x00\x01\x00\x00\x07\x00\x00\x00not a message')
         client.spin_until(lambda: client.diagnostics and int(
-            client.counters()['commands_dropped_nonfinite']) >= 2)
+            client.counters()['commands_dropped_nonfinite']) >= 2 and int(
+            client.counters()['commands_dropped_size']) >= 2)
         counters = client.counters()
-        assert counters['commands_dropped_size'] == '1'
+        assert counters['commands_dropped_size'] == '2'
         assert counters['commands_dropped_nonfinite'] == '2'
         assert counters['steps'] == '1'
         assert client.diagnostics[-1].status[0].level == DiagnosticStatus.WARN
@@ -205,6 +208,7 @@ def test_joint_states_commands_rejections_and_clean_shutdown(tmp_path, client):
         rc, log = stop_node(proc)
     assert rc == 0, log
     assert 'dropped a command of 3 values' in log and 'non-finite' in log
+    assert 'dropped a command: not a serialised Float64MultiArray' in log
     assert 'Traceback' not in log
 
 

@@ -1,6 +1,6 @@
 """Transition message layout: round trips, documentation and refusal of bad layouts."""
 import numpy as np
-from pg_node.ros import transition
+from pg_node.ros import table_msg, transition
 from pg_node.ros.transition import pack, Transition, unpack
 import pytest
 
@@ -107,3 +107,81 @@ def test_pack_refuses_wrong_field_sizes():
     tr.obs = tr.obs[0]
     with pytest.raises(ValueError, match='obs'):
         pack(tr)
+
+
+def _group_example():
+    tr = _example(5, 10, seed=1)
+    tr.first_arm, tr.groups = 5, 2
+    return tr
+
+
+@pytest.mark.parametrize('make', [lambda: _example(4, 10), lambda: _example(64, 10),
+                                  _group_example])
+def test_serialised_bytes_are_the_message_rclpy_reads_and_writes(make):
+    """to_cdr/from_cdr (the lock-step path, no message objects) speak rclpy's CDR."""
+    from rclpy.serialization import deserialize_message, serialize_message
+    from std_msgs.msg import Float64MultiArray
+    tr = make()
+    ref = transition.to_msg(tr)
+    got = deserialize_message(transition.to_cdr(tr), Float64MultiArray)
+    assert [(d.label, d.size, d.stride) for d in got.layout.dim] == \
+        [(d.label, d.size, d.stride) for d in ref.layout.dim]
+    assert got.layout.data_offset == ref.layout.data_offset
+    assert got.data.tobytes() == ref.data.tobytes()
+    _assert_same(transition.from_cdr(bytes(serialize_message(ref))), tr)
+    _assert_same(transition.from_cdr(transition.to_cdr(tr)), tr)   # a known layout now
+
+
+def test_serialised_decoding_checks_every_message_not_only_the_first():
+    """A remembered layout skips the layout checks only; values and new layouts are checked."""
+    transition._known_layouts.clear()
+    tr = _example(3, 10)
+    _assert_same(transition.from_cdr(transition.to_cdr(tr)), tr)
+    assert len(transition._known_layouts) == 1
+    for field, index, value, match in (('reward', 1, np.nan, "'reward' holds non-finite"),
+                                       ('obs', (0, 2), 1e300, "'obs' holds absurd")):
+        bad = _example(3, 10)
+        getattr(bad, field)[index] = value
+        with pytest.raises(ValueError, match=match):
+            transition.from_cdr(transition.to_cdr(bad))
+    # the same length with another label: not the remembered layout, so checked in full
+    dims, offset, data = pack(tr)
+    dims[1] = ('obz',) + tuple(dims[1][1:])
+    raw = table_msg.to_cdr(dims, offset, data)
+    assert len(raw) == len(transition.to_cdr(tr))
+    with pytest.raises(ValueError, match='field labels'):
+        transition.from_cdr(raw)
+    for junk in (b'', b'\x00\x01\x00\x00', transition.to_cdr(tr)[:-5], b'xyz' * 40):
+        with pytest.raises(ValueError, match='not a serialised Float64MultiArray'):
+            transition.from_cdr(junk)
+    _assert_same(transition.from_cdr(transition.to_cdr(tr)), tr)
+
+
+@pytest.mark.parametrize('seed', range(40))
+def test_checking_a_table_at_once_agrees_with_checking_it_field_by_field(seed):
+    """check_fields' one-pass check of a Table returns or refuses exactly as the slow one."""
+    rng = np.random.default_rng(seed)
+    tr = _example(int(rng.integers(1, 9)), 10, seed)
+    dims, offset, data = pack(tr)
+    if seed % 4:                         # three in four get a value that breaks a rule
+        data = data.copy()
+        at = int(rng.integers(1, data.size))
+        data[at] = rng.choice([np.nan, np.inf, -np.inf, 2.0, -1.0, 0.5, 1e7, -1e7, 2.0**60])
+    widths = {name: 10 if size is None else size for name, size in transition.FIELDS}
+    _, table = table_msg.unpack(dims, offset, data, 1, widths, rows_label='env')
+    assert isinstance(table, table_msg.Table)
+    results = []
+    for fields in (table, dict(table)):   # one pass, then field by field
+        try:
+            results.append(table_msg.check_fields(fields, transition.BOOL_FIELDS,
+                                                  transition.INT_FIELDS))
+        except ValueError as exc:
+            results.append(str(exc))
+    fast, slow = results
+    if isinstance(slow, str):
+        assert fast == slow
+    else:
+        assert list(fast) == list(slow)
+        for name in slow:
+            np.testing.assert_array_equal(fast[name], slow[name])
+            assert fast[name].dtype == slow[name].dtype and fast[name].shape == slow[name].shape

@@ -99,6 +99,7 @@ def _interface_file(name: str, suffix: str):
     return None
 
 
+@functools.lru_cache(maxsize=None)
 def _jazzy_typestore():
     from rosbags.typesys import get_typestore, Stores
     return get_typestore(Stores.ROS2_JAZZY)

@@ -77,7 +77,8 @@ class ActorNode(Node):
         self.create_subscription(Float64MultiArray, 'pg_node/transition', self.on_transition,
                                  QoSProfile(depth=self.cfg['lock_step_groups'],
                                             reliability=LATCHED.reliability,
-                                            durability=LATCHED.durability))
+                                            durability=LATCHED.durability),
+                                 raw=True)
         self.create_subscription(Float64MultiArray, '/pg_node/policy_weights', self.on_weights,
                                  LATCHED)
         self.diag = Diagnostics(self, f'actor_node {self.cfg["actor_id"]}',
@@ -113,10 +114,16 @@ class ActorNode(Node):
             self.wait_for = None
         self.act_pending()
 
-    def on_transition(self, msg: Float64MultiArray):
-        """Record the outcome of the last command and answer the new observation."""
+    def on_transition(self, msg):
+        """
+        Record the outcome of the last command and answer the new observation.
+
+        ``msg``: the subscription's serialised bytes (``raw=True``, decoded straight into
+        numpy by :func:`pg_node.ros.transition.from_cdr`) or a ``Float64MultiArray``.
+        """
         try:
-            tr = transition.from_msg(msg)
+            tr = (transition.from_cdr(msg) if isinstance(msg, bytes)
+                  else transition.from_msg(msg))
             if tr.obs.shape[1] != self.obs_dim:
                 raise ValueError(f'observations of size {tr.obs.shape[1]}, expected '
                                  f'{self.obs_dim}')
@@ -189,7 +196,7 @@ class ActorNode(Node):
         act, logp = self.policy.sample(tr.obs, self.rng)
         cmd = np.clip(act, self.spec.ctrl_low, self.spec.ctrl_high)
         # the simulator waits for the command: send it first, then keep the step
-        self.pub_cmd.publish(command.to_msg(cmd, tr.seq))
+        self.pub_cmd.publish(command.to_cdr(cmd, tr.seq))
         self.bufs[g].add_action(tr.obs, act, logp, tr.episode_step, tr.episode_id, tr.seq)
         self.counters['commands'] += 1
         self.steps.add(tr.num_envs)

@@ -12,6 +12,7 @@ from typing import Optional
 
 import numpy as np
 from pg_node.bag.ros_types import float64_field
+from pg_node.ros import table_msg
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
 TAG = 'transition'
@@ -34,6 +35,21 @@ def to_msg(act: np.ndarray, seq: Optional[int] = None) -> Float64MultiArray:
     msg.layout.dim = dims
     msg.data = float64_field(act)
     return msg if seq is None else tag(msg, seq)
+
+
+def to_cdr(act: np.ndarray, seq: int) -> bytes:
+    """
+    Return :func:`to_msg`'s tagged command serialised, for ``publish`` (the actor's path).
+
+    >>> msg = table_msg.from_cdr(to_cdr(np.arange(6.0).reshape(2, 3), seq=7))
+    >>> [(d.label, d.size, d.stride) for d in msg.layout.dim], transition_of(msg)
+    ([('arm', 2, 6), ('actuator', 3, 3), ('transition 7', 1, 1)], 7)
+    >>> msg.data.tolist()
+    [0.0, 1.0, 2.0, 3.0, 4.0, 5.0]
+    """
+    n, a = act.shape
+    return table_msg.to_cdr([('arm', n, n * a), ('actuator', a, a), (f'{TAG} {int(seq)}', 1, 1)],
+                            0, act)
 
 
 def tag(msg: Float64MultiArray, seq: int) -> Float64MultiArray:

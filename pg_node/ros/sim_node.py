@@ -166,7 +166,7 @@ class SimNode(Node):
         self.pub_markers = self.create_publisher(MarkerArray, 'pg_node/markers', 1)
         self.pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self.create_subscription(Float64MultiArray, 'arm_controller/commands',
-                                 self.on_command, 10)
+                                 self.on_command, 10, raw=True)
         self.create_service(Trigger, '~/reset_world', self.on_reset_world)
         self.create_service(SetBool, '~/set_pause', self.on_set_pause)
         self.create_service(Trigger, '~/step_simulation', self.on_step_simulation)
@@ -218,9 +218,22 @@ class SimNode(Node):
 
     # --- commands -------------------------------------------------------------------------
 
-    def on_command(self, msg: Float64MultiArray):
-        """Check, clip and hold a torque command; in lock-step, take one control step."""
+    def on_command(self, msg):
+        """
+        Check, clip and hold a torque command; in lock-step, take one control step.
+
+        ``msg``: the subscription's serialised bytes (``raw=True``: decoded straight into
+        numpy, :func:`pg_node.ros.table_msg.from_cdr`) or a ``Float64MultiArray``.
+        """
         self.counters['commands_received'] += 1
+        if isinstance(msg, bytes):
+            try:
+                msg = table_msg.from_cdr(msg)
+            except ValueError as exc:
+                self.counters['commands_dropped_size'] += 1
+                self.get_logger().warning(f'dropped a command: {exc}',
+                                          throttle_duration_sec=1.0)
+                return
         cmd = np.asarray(msg.data, dtype=np.float64)
         g, answers, arms = None, None, slice(0, self.task.num_envs)
         if self.mode == 'lock_step':
@@ -357,7 +370,7 @@ class SimNode(Node):
         records joint states from its batches); so do new targets (a subscriber that
         joins gets them all from :meth:`on_target_matched`).
         """
-        self.last_transitions[g] = transition.to_msg(tr)
+        self.last_transitions[g] = transition.to_cdr(tr)   # bytes: publish sends them as is
         self.pub_transition.publish(self.last_transitions[g])
         self.last_sent = time.monotonic()
         stamp = sim_stamp(self.sim_time)

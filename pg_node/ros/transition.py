@@ -37,9 +37,11 @@ previous message's ``episode_id`` named for that arm. A message whose ``episode_
 0 without ``terminated``/``truncated`` comes from a start or world reset (an episode cut
 short by a reset has no final transition). Flags are 0.0/1.0 and ids/counters are
 whole numbers (exact in float64 up to 2**53). The functions here are pure numpy; the two
-``*_msg`` helpers import ``std_msgs`` lazily.
+``*_msg`` helpers import ``std_msgs`` lazily, the two ``*_cdr`` ones work on the serialised
+bytes (what the simulator publishes and the actor takes, :mod:`pg_node.ros.table_msg`).
 """
 from dataclasses import dataclass
+import math
 
 import numpy as np
 from pg_node.ros import table_msg
@@ -130,14 +132,51 @@ def unpack(dims, data_offset: int, data) -> Transition:
                                      rows_label=ENV_LABEL)
     if dims[0][1] < 1:
         raise ValueError('a transition needs at least one env (dim size 0)')
-    if not np.all(np.isfinite(header)) or np.any(header != np.round(header)):
+    values = header.tolist()
+    if not all(math.isfinite(v) and v == round(v) for v in values):
         raise ValueError('seq, first arm and groups must be whole numbers')
-    seq, first_arm, groups = (int(v) for v in header) if header_size > 1 else (
-        int(header[0]), 0, 1)
+    seq, first_arm, groups = (int(v) for v in values) if header_size > 1 else (
+        int(values[0]), 0, 1)
     if first_arm < 0 or groups < 1:
         raise ValueError(f'first arm {first_arm} < 0 or groups {groups} < 1')
     fields = table_msg.check_fields(table, BOOL_FIELDS, INT_FIELDS)
     return Transition(seq=seq, first_arm=first_arm, groups=groups, **fields)
+
+
+def to_cdr(tr: Transition) -> bytes:
+    """Return ``tr`` serialised: the bytes of :func:`to_msg`'s message, for ``publish``."""
+    return table_msg.to_cdr(*pack(tr))
+
+
+#: layouts met before: bytes length -> (bytes before the data, dims, data_offset, dtype)
+_known_layouts = {}
+
+
+def from_cdr(raw: bytes) -> Transition:
+    """
+    Return the :class:`Transition` in serialised bytes (a ``raw=True`` subscription's).
+
+    The same checks as :func:`from_msg`. A simulator sends one layout for a whole run, so
+    the bytes before the data of a layout that passed once are remembered: a message that
+    starts with them has that layout, and only its values are decoded and checked.
+    """
+    known = _known_layouts.get(len(raw))
+    if known is not None and raw.startswith(known[0]):
+        prefix, dims, data_offset, dtype = known
+        # a copy: CDR puts the doubles 4 bytes off an 8-byte boundary, and numpy is several
+        # times slower on unaligned arrays
+        data = np.frombuffer(raw, dtype, offset=len(prefix)).astype(np.float64)
+        return unpack(dims, data_offset, data)
+    dims, data_offset, data = table_msg.from_msg(table_msg.from_cdr(raw))
+    tr = unpack(dims, data_offset, data)
+    # remember it if the data are the last 8 * n bytes, as rclpy and rosbags write them
+    dtype = np.dtype('<f8' if raw[1:2] == b'\x01' else '>f8')
+    at = len(raw) - 8 * data.size
+    if at > 0 and np.array_equal(np.frombuffer(raw, dtype, offset=at), data):
+        if len(_known_layouts) >= 16:
+            _known_layouts.clear()
+        _known_layouts[len(raw)] = (raw[:at], [tuple(d) for d in dims], data_offset, dtype)
+    return tr
 
 
 def to_msg(tr: Transition):
