@@ -145,6 +145,30 @@ def test_weights_round_trip_and_layout_mismatch():
         load_flat_state(other, layout2, bad)
 
 
+def test_weights_table_is_the_generic_table_of_one_row_per_tensor():
+    """pack_weights' shortcut (the vector is the row) builds what table_msg.pack builds."""
+    pol = GaussianPolicy(10, 2)
+    layout, vec = flatten_state(pol)
+    assert [name for name, _ in layout] == list(pol.state_dict())
+    np.testing.assert_array_equal(
+        vec, np.concatenate([v.double().reshape(-1).numpy() for v in pol.state_dict().values()]))
+    fields, pos = {}, 0
+    for name, shape in layout:
+        n = int(np.prod(shape))
+        fields[f'{name}[{"x".join(map(str, shape))}]'] = vec[pos:pos + n][None]
+        pos += n
+    dims, offset, data = messages.pack_weights(layout, vec, 5, 1000)
+    ref = table_msg.pack((5, 1000), fields)
+    assert (dims, offset) == (ref[0], ref[1])
+    np.testing.assert_array_equal(data, ref[2])
+    with pytest.raises(ValueError, match='layout needs'):
+        messages.pack_weights(layout, vec[:-1], 5, 1000)
+    for broken, match in (([dims[0], ('w',) + dims[1][1:]] + dims[2:], 'name\\[shape\\]'),
+                          ([dims[0], ('log_std[3]',) + dims[1][1:]] + dims[2:], 'does not hold')):
+        with pytest.raises(ValueError, match=match):
+            messages.unpack_weights(broken, offset, data)
+
+
 def test_checkpoints_are_atomic_and_corrupt_ones_skipped(tmp_path):
     for v in (1, 2, 3):
         save_checkpoint(tmp_path, v, {'x': v}, keep=2)

@@ -23,6 +23,7 @@ order, each labelled ``name[shape]`` (e.g. ``mu.weight[2x64]``) with its element
 width.
 """
 from dataclasses import dataclass
+import functools
 import re
 from typing import Dict, List, Tuple
 
@@ -128,27 +129,44 @@ _LABEL = re.compile(r'^(.+)\[([0-9x]*)\]$')
 
 def pack_weights(layout: List[Tuple[str, tuple]], vec, version: int, env_steps: int):
     """Return the packed ``/pg_node/policy_weights`` table of a flattened state."""
-    fields, pos = {}, 0
-    for name, shape in layout:
-        n = int(np.prod(shape))
-        fields[f'{name}[{"x".join(str(d) for d in shape)}]'] = np.asarray(vec[pos:pos + n])[None]
-        pos += n
-    return table_msg.pack((version, env_steps), fields)
+    vec = np.asarray(vec, dtype=np.float64).reshape(-1)
+    dims = _weights_dims(tuple((str(name), tuple(int(d) for d in shape))
+                               for name, shape in layout))
+    if dims[0][2] != vec.size:
+        raise ValueError(f'weights vector has {vec.size} values, layout needs {dims[0][2]}')
+    # one row: the table is the vector itself (what table_msg.pack makes of these fields)
+    return list(dims), len(WEIGHTS_HEADER), np.concatenate([(version, env_steps), vec])
+
+
+@functools.lru_cache(maxsize=8)
+def _weights_dims(layout: tuple) -> tuple:
+    """Return the dims of a weights table of ``layout``: a rows dim, then ``name[shape]``."""
+    fields = tuple((f'{name}[{"x".join(str(d) for d in shape)}]', int(np.prod(shape)))
+                   for name, shape in layout)
+    width = sum(n for _, n in fields)
+    return ((table_msg.ROWS_LABEL, 1, width),) + tuple((label, n, n) for label, n in fields)
 
 
 def unpack_weights(dims, offset, data):
     """Return ``(header, layout, vector)`` of a weights message."""
     widths = {str(d[0]): None for d in dims[1:]}
     head, table = table_msg.unpack(dims, offset, data, len(WEIGHTS_HEADER), widths)
-    layout, parts = [], []
-    for label, block in table.items():
+    layout = _weights_layout(tuple((label, block.shape[1]) for label, block in table.items()),
+                             table.matrix.shape[0])
+    vec = table.matrix[0].copy() if layout else np.zeros(0)    # the one row, in field order
+    return _header(WEIGHTS_HEADER, head), list(layout), vec
+
+
+@functools.lru_cache(maxsize=8)
+def _weights_layout(fields: tuple, rows: int) -> tuple:
+    """Return ``((name, shape), ...)`` of weights fields ``((label, width), ...)``."""
+    layout = []
+    for label, width in fields:
         m = _LABEL.match(label)
         if m is None:
             raise ValueError(f'weights field {label!r} is not of the form name[shape]')
         shape = tuple(int(d) for d in m.group(2).split('x')) if m.group(2) else ()
-        if int(np.prod(shape)) != block.shape[1] or block.shape[0] != 1:
+        if int(np.prod(shape)) != width or rows != 1:
             raise ValueError(f'weights field {label!r} does not hold {shape} values')
         layout.append((m.group(1), shape))
-        parts.append(block[0])
-    vec = np.concatenate(parts) if parts else np.zeros(0)
-    return _header(WEIGHTS_HEADER, head), layout, vec
+    return tuple(layout)
