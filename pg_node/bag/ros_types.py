@@ -100,7 +100,8 @@ def _interface_file(name: str, suffix: str):
 
 
 @functools.lru_cache(maxsize=None)
-def _jazzy_typestore():
+def jazzy_typestore():
+    """Return the ``rosbags`` type store of ROS 2 Jazzy (one, shared: it is read-only here)."""
     from rosbags.typesys import get_typestore, Stores
     return get_typestore(Stores.ROS2_JAZZY)
 
@@ -145,7 +146,7 @@ def message_definition(name: str):
             return 'ros2msg', full_text(name)
         except KeyError:
             pass
-    store = _jazzy_typestore()
+    store = jazzy_typestore()
     if name not in store.types:
         raise KeyError(f'message type {name} is neither installed nor in the rosbags store')
     text, _ = store.generate_msgdef(name, ros_version=2)
@@ -170,7 +171,7 @@ def type_hash(name: str) -> str:
         except (ValueError, KeyError, OSError):
             pass
     try:
-        store = _jazzy_typestore()
+        store = jazzy_typestore()
         if name in store.types:
             return store.hash_rihs01(name)
     except Exception:  # noqa: B902 - a type the store cannot hash: rosbag2 allows ''

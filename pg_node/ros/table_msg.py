@@ -24,7 +24,7 @@ import functools
 from typing import Dict, Mapping, Optional, Sequence, Tuple
 
 import numpy as np
-from pg_node.bag.ros_types import _jazzy_typestore, float64_field
+from pg_node.bag.ros_types import float64_field, jazzy_typestore
 
 ROWS_LABEL = 'rows'
 #: Largest magnitude a real value on pg_node's wire may have (observations, actions,
@@ -122,7 +122,7 @@ def check_fields(table: Mapping[str, np.ndarray], bool_fields=(), int_fields=()
 
     A :class:`Table` (what :func:`unpack` returns) is checked in one pass over its
     ``matrix`` first: every column within its field's bounds, and the bool and int columns
-    whole. A good message passes that and only needs typing (a 64-arm transition: 51 -> 20
+    whole. A good message passes that and only needs typing (a 64-arm transition: 51 -> 35-40
     us); one that fails it is checked field by field, which names the culprit (and lets
     a whole number beyond 2**53 through, as it always did).
     """
@@ -213,7 +213,7 @@ def to_cdr(dims, data_offset: int, data) -> bytes:
     What rclpy's ``serialize_message(to_msg(...))`` returns, built without the message
     object; ``Publisher.publish`` sends ``bytes`` as they are.
     """
-    store = _jazzy_typestore()
+    store = jazzy_typestore()
     dim_t = store.types['std_msgs/msg/MultiArrayDimension']
     msg = store.types[FLOAT64_MULTI_ARRAY](
         layout=store.types['std_msgs/msg/MultiArrayLayout'](
@@ -233,7 +233,7 @@ def from_cdr(raw: bytes):
     not such a message (truncated, another type's, an unknown encoding).
     """
     try:
-        return _jazzy_typestore().deserialize_cdr(raw, FLOAT64_MULTI_ARRAY)
+        return jazzy_typestore().deserialize_cdr(raw, FLOAT64_MULTI_ARRAY)
     except Exception as exc:  # noqa: B902 - rosbags raises struct.error, IndexError, ...
         raise ValueError(f'not a serialised Float64MultiArray ({len(raw)} bytes): '
                          f'{type(exc).__name__}: {exc}') from None
