@@ -175,7 +175,7 @@ def from_cdr(raw: bytes) -> Transition:
     if at > 0 and np.array_equal(np.frombuffer(raw, dtype, offset=at), data):
         if len(_known_layouts) >= 16:
             _known_layouts.clear()
-        _known_layouts[len(raw)] = (raw[:at], [tuple(d) for d in dims], data_offset, dtype)
+        _known_layouts[len(raw)] = (raw[:at], dims, data_offset, dtype)
     return tr
 
 
