@@ -2,7 +2,8 @@
 sim_node with lock-step round-trip timing, for the benchmarks.
 
 ``python -m pg_node.tools.latency_probe OUT.npy --ros-args -p num_envs:=64`` runs the real
-:class:`~pg_node.ros.sim_node.SimNode` (same parameters, topics and code path) and measures, in
+:class:`~pg_node.ros.sim_node.SimNode` (same parameters, topics, code path and executor loop,
+:func:`pg_node.ros.node_utils.run`) and measures, in
 its own process and clock, the time from just before it publishes a transition to the
 moment the command answering it arrives in ``on_command``: serialisation, DDS both ways,
 the client's work and the executor's dispatch. On shutdown (Ctrl-C / SIGINT) it writes the
@@ -14,9 +15,8 @@ import time
 
 import numpy as np
 from pg_node.common.paths import default_config
+from pg_node.ros.node_utils import run
 from pg_node.ros.sim_node import SimNode
-import rclpy
-from rclpy.executors import ExternalShutdownException
 
 
 class _TimedPublisher:
@@ -65,20 +65,13 @@ def main(argv=None) -> int:
             ros_args.append('--ros-args')
         at = ros_args.index('--ros-args') + 1
         ros_args[at:at] = ['--params-file', str(config)]
-    rclpy.init(args=ros_args)
-    node = None
-    try:
-        node = TimedSimNode()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            np.save(out, np.asarray(node.round_trips, dtype=np.int64))
-            node.task.close()
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+
+    def save(node):
+        np.save(out, np.asarray(node.round_trips, dtype=np.int64))
+        node.task.close()
+
+    # sim_node's own loop and executor (node_utils.run), so the round trip is training's
+    return run(TimedSimNode, ros_args, cleanup=save)
 
 
 if __name__ == '__main__':
