@@ -134,6 +134,13 @@ SHARED_PARAMS: Dict[str, Param] = {
     'run_dir': Param('runs/latest', 'where checkpoints, the bag and progress files go'),
 }
 
+#: the training-side nodes (critic, learner) yield the cores to the lock-step loop's
+NICE = Param(10, "CPU niceness (0-19) of all the node's threads, as `nice -n` gives a "
+                 'process: its work after each hand-over (fitting V; writing the bag, logs and '
+                 'checkpoints) then gives way to the simulator and the actor, which wait on '
+                 'each other every control step; the hand-over itself runs while those two '
+                 'wait. Never lowered below what the node was started with', low=0, high=19)
+
 ACTOR_PARAMS: Dict[str, Param] = {
     'n_steps': Param(8, 'control steps per arm in one rollout (rollout = n_steps x num_envs)',
                      low=1),
@@ -164,6 +171,7 @@ CRITIC_PARAMS: Dict[str, Param] = {
     'vf_optimizer': Param('adam', 'optimiser of the value network', choices=('rmsprop', 'adam')),
     'vf_max_grad_norm': Param(0.5, 'gradient clipping of V (0: none)', low=0.0, live=True),
     'checkpoint_every': Param(100, 'batches between checkpoints of V', low=1, live=True),
+    'nice': NICE,
 }
 
 LEARNER_PARAMS: Dict[str, Param] = {
@@ -189,6 +197,7 @@ LEARNER_PARAMS: Dict[str, Param] = {
                             '(episode summaries are written for all arms)', low=0),
     'bag_split_episodes': Param(2000, 'episode summaries per bag file before a split', low=1),
     'exit_when_done': Param(True, 'stop the learner once total_steps are learned', live=True),
+    'nice': NICE,
 }
 
 SIM_PARAMS: Dict[str, Param] = {

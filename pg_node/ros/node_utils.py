@@ -90,6 +90,35 @@ def make_executor(context=None):
     raise ConfigError(f'PG_NODE_EXECUTOR={name!r}: choose one of {", ".join(EXECUTORS)}')
 
 
+def take_nice(nice: int) -> Optional[str]:
+    """
+    Give every thread of this process the niceness ``nice``; return why not, or None.
+
+    What ``renice -n <nice> -p <pid>`` does to a running process, thread by thread (on
+    Linux a thread has its own niceness; threads started later inherit their creator's).
+    A thread already nicer than ``nice`` keeps its own: lowering it back needs
+    CAP_SYS_NICE.
+    """
+    try:
+        for tid in sorted(int(t) for t in os.listdir('/proc/self/task')):
+            if os.getpriority(os.PRIO_PROCESS, tid) < nice:
+                os.setpriority(os.PRIO_PROCESS, tid, nice)
+    except (OSError, AttributeError) as exc:
+        return getattr(exc, 'strerror', None) or str(exc)
+    return None
+
+
+def _apply_nice(node: Node) -> None:
+    """Take the node's ``nice`` parameter, if it has one; say what happened."""
+    if not node.has_parameter('nice'):
+        return
+    nice = node.get_parameter('nice').value
+    refused = take_nice(nice) if nice else None
+    if refused is not None:
+        node.get_logger().warning(f'nice {nice}: the system refused ({refused}); running at '
+                                  'the niceness it was started with')
+
+
 def run(make_node: Callable[[], Node], args=None,
         cleanup: Optional[Callable[[Node], None]] = None) -> int:
     """
@@ -130,6 +159,7 @@ def run(make_node: Callable[[], Node], args=None,
         node = make_node()
         executor = make_executor()
         executor.add_node(node)
+        _apply_nice(node)                 # after the executor: its threads exist now
         while rclpy.ok():
             executor.spin_once(timeout_sec=0.5)
     except (KeyboardInterrupt, ExternalShutdownException):
