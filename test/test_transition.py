@@ -132,6 +132,22 @@ def test_serialised_bytes_are_the_message_rclpy_reads_and_writes(make):
     _assert_same(transition.from_cdr(transition.to_cdr(tr)), tr)   # a known layout now
 
 
+def test_remembered_layout_gives_the_codecs_bytes():
+    """to_cdr's remembered layouts: the bytes rosbags' codec writes, for each layout its own."""
+    table_msg._known_prefixes.clear()
+    a, b = _example(64, 10, seed=2), _example(64, 10, seed=3)
+    b.seq = 12346
+    for tr in (a, b, _group_example(), a, _example(4, 10)):
+        assert transition.to_cdr(tr) == table_msg.to_cdr(*pack(tr))
+    assert len(table_msg._known_prefixes) == 3
+    # the same sizes under another label: its own bytes, not the remembered ones
+    dims, offset, data = pack(a)
+    dims[1] = ('obz',) + tuple(dims[1][1:])
+    raw = table_msg.to_cdr(dims, offset, data, remember=True)
+    assert raw == table_msg.to_cdr(dims, offset, data) != transition.to_cdr(a)
+    assert table_msg.from_cdr(raw).layout.dim[1].label == 'obz'
+
+
 def test_serialised_decoding_checks_every_message_not_only_the_first():
     """A remembered layout skips the layout checks only; values and new layouts are checked."""
     transition._known_layouts.clear()

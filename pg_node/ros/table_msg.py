@@ -206,13 +206,35 @@ def to_msg(dims, data_offset: int, data):
 FLOAT64_MULTI_ARRAY = 'std_msgs/msg/Float64MultiArray'
 
 
-def to_cdr(dims, data_offset: int, data) -> bytes:
+#: layouts serialised before (``to_cdr(..., remember=True)``): (dims, data_offset, length)
+#: -> the bytes before the data
+_known_prefixes: Dict[tuple, bytes] = {}
+
+
+def to_cdr(dims, data_offset: int, data, remember: bool = False) -> bytes:
     """
     Return a packed table as the serialised ``std_msgs/Float64MultiArray`` (CDR, little endian).
 
     What rclpy's ``serialize_message(to_msg(...))`` returns, built without the message
-    object; ``Publisher.publish`` sends ``bytes`` as they are.
+    object; ``Publisher.publish`` sends ``bytes`` as they are. With ``remember`` (a sender
+    whose layout stays the same message after message: the simulator's transitions), the
+    bytes before the data of a layout serialised once are kept, and the next message of
+    that layout is those bytes and the data's (the same bytes; a 64-arm transition's
+    ``to_cdr`` 44 -> 26 us with its packing, timeit best of 7).
     """
+    if remember:
+        flat = np.ascontiguousarray(data, dtype='<f8').reshape(-1)
+        key = (tuple(map(tuple, dims)), int(data_offset), flat.size)
+        prefix = _known_prefixes.get(key)
+        if prefix is not None:
+            return prefix + flat.tobytes()
+        raw = to_cdr(dims, data_offset, flat)
+        at = len(raw) - 8 * flat.size
+        if raw[at:] == flat.tobytes():     # the data are the last bytes, as CDR puts them
+            if len(_known_prefixes) >= 16:
+                _known_prefixes.clear()
+            _known_prefixes[key] = raw[:at]
+        return raw
     store = jazzy_typestore()
     dim_t = store.types['std_msgs/msg/MultiArrayDimension']
     msg = store.types[FLOAT64_MULTI_ARRAY](

@@ -145,7 +145,7 @@ def unpack(dims, data_offset: int, data) -> Transition:
 
 def to_cdr(tr: Transition) -> bytes:
     """Return ``tr`` serialised: the bytes of :func:`to_msg`'s message, for ``publish``."""
-    return table_msg.to_cdr(*pack(tr))
+    return table_msg.to_cdr(*pack(tr), remember=True)
 
 
 #: layouts met before: bytes length -> (bytes before the data, dims, data_offset, dtype)
