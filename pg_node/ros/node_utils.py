@@ -101,8 +101,11 @@ def take_nice(nice: int) -> Optional[str]:
     """
     try:
         for tid in sorted(int(t) for t in os.listdir('/proc/self/task')):
-            if os.getpriority(os.PRIO_PROCESS, tid) < nice:
-                os.setpriority(os.PRIO_PROCESS, tid, nice)
+            try:
+                if os.getpriority(os.PRIO_PROCESS, tid) < nice:
+                    os.setpriority(os.PRIO_PROCESS, tid, nice)
+            except ProcessLookupError:
+                continue                   # the thread ended meanwhile
     except (OSError, AttributeError) as exc:
         return getattr(exc, 'strerror', None) or str(exc)
     return None
@@ -113,8 +116,12 @@ def _apply_nice(node: Node) -> None:
     if not node.has_parameter('nice'):
         return
     nice = node.get_parameter('nice').value
-    refused = take_nice(nice) if nice else None
-    if refused is not None:
+    if not nice:
+        return
+    refused = take_nice(nice)
+    if refused is None:
+        node.get_logger().info(f'running at CPU niceness {nice} (parameter nice)')
+    else:
         node.get_logger().warning(f'nice {nice}: the system refused ({refused}); running at '
                                   'the niceness it was started with')
 

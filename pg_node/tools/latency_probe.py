@@ -2,11 +2,11 @@
 sim_node with lock-step round-trip timing, for the benchmarks.
 
 ``python -m pg_node.tools.latency_probe OUT.npy --ros-args -p num_envs:=64`` runs the real
-:class:`~pg_node.ros.sim_node.SimNode` (same parameters, topics, code path and executor loop,
-:func:`pg_node.ros.node_utils.run`) and measures, in
-its own process and clock, the time from just before it publishes a transition to the
-moment the command answering it arrives in ``on_command``: serialisation, DDS both ways,
-the client's work and the executor's dispatch. On shutdown (Ctrl-C / SIGINT) it writes the
+:class:`~pg_node.ros.sim_node.SimNode` (same parameters, topics, code path, and executor
+loop: :func:`pg_node.ros.node_utils.run`) and measures, in its own process and clock, the
+time from just before it publishes a transition to the moment the command answering it
+arrives in ``on_command``: serialisation, DDS both ways, the client's work and the
+executor's dispatch. On shutdown (Ctrl-C / SIGINT) it writes the
 round trips in nanoseconds to ``OUT.npy``. A transition re-sent after a lock-step timeout
 restarts the clock, so a lost message shows up as one long round trip, not as a gap.
 """
