@@ -1,4 +1,5 @@
 """The critic and the learner give way to the lock-step loop: their ``nice`` parameter."""
+import json
 import os
 from pathlib import Path
 import subprocess
@@ -26,7 +27,7 @@ def thread_nices(pid) -> dict:
 def test_take_nice_renices_every_thread_and_never_lowers():
     """Threads started before and after take the niceness; a lower one later changes nothing."""
     code = (
-        'import threading, time, json, os\n'
+        'import threading, json, os\n'
         'from pg_node.ros.node_utils import take_nice\n'
         'from test_nice import thread_nices\n'
         'stop = threading.Event()\n'
@@ -43,7 +44,6 @@ def test_take_nice_renices_every_thread_and_never_lowers():
     out = subprocess.run([sys.executable, '-c', code], env=env, capture_output=True, text=True,
                          timeout=60)
     assert out.returncode == 0, out.stderr
-    import json
     first, second, raised, kept = json.loads(out.stdout)
     assert first is None and second is None
     # main, the thread started before, the one after, and whatever the imports started
@@ -52,7 +52,7 @@ def test_take_nice_renices_every_thread_and_never_lowers():
 
 
 def node_nices(node: str, run_dir: Path, ros_args=()) -> set:
-    """Start ``node``; return the set of its threads' niceness once it has renounced CPU."""
+    """Start ``node``; return the set of its threads' niceness once it has reniced itself."""
     proc = subprocess.Popen(
         [sys.executable, '-m', f'pg_node.ros.{node}', '--ros-args',
          '-p', f'run_dir:={run_dir}',

@@ -134,7 +134,7 @@ SHARED_PARAMS: Dict[str, Param] = {
     'run_dir': Param('runs/latest', 'where checkpoints, the bag and progress files go'),
 }
 
-#: the training-side nodes (critic, learner) yield the cores to the lock-step loop's
+#: the training-side nodes (critic, learner) yield the cores to the lock-step loop
 NICE = Param(10, "CPU niceness (0-19) of all the node's threads, as `nice -n` gives a "
                  'process: its work after each hand-over (fitting V; writing the bag, logs and '
                  'checkpoints) then gives way to the simulator and the actor, which wait on '
