@@ -206,6 +206,9 @@ def to_msg(dims, data_offset: int, data):
 FLOAT64_MULTI_ARRAY = 'std_msgs/msg/Float64MultiArray'
 
 
+#: How many layouts a remembering encoder or decoder keeps (a node sends or receives one or
+#: two; more means they change, and the memory starts again)
+REMEMBERED_LAYOUTS = 16
 #: layouts serialised before (``to_cdr(..., remember=True)``): (dims, data_offset, length)
 #: -> the bytes before the data
 _known_prefixes: Dict[tuple, bytes] = {}
@@ -231,7 +234,7 @@ def to_cdr(dims, data_offset: int, data, remember: bool = False) -> bytes:
         raw = to_cdr(dims, data_offset, flat)
         at = len(raw) - 8 * flat.size
         if raw[at:] == flat.tobytes():     # the data are the last bytes, as CDR puts them
-            if len(_known_prefixes) >= 16:
+            if len(_known_prefixes) >= REMEMBERED_LAYOUTS:
                 _known_prefixes.clear()
             _known_prefixes[key] = raw[:at]
         return raw

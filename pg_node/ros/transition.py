@@ -173,7 +173,7 @@ def from_cdr(raw: bytes) -> Transition:
     dtype = np.dtype('<f8' if raw[1:2] == b'\x01' else '>f8')
     at = len(raw) - 8 * data.size
     if at > 0 and np.array_equal(np.frombuffer(raw, dtype, offset=at), data):
-        if len(_known_layouts) >= 16:
+        if len(_known_layouts) >= table_msg.REMEMBERED_LAYOUTS:
             _known_layouts.clear()
         _known_layouts[len(raw)] = (raw[:at], dims, data_offset, dtype)
     return tr
