@@ -242,5 +242,13 @@ def test_quick_bench_writes_every_table(tmp_path):
     assert all(r['graph'] > 0 and r['inprocess'] > 0 for r in tax['scaling']), tax['scaling']
     for key in ('idle', 'training'):
         assert tax['latency'][key]['round_trips'] >= 100, tax['latency']
+    # the graph run's own round trips: 64 control steps (and the start of the rollout the
+    # stop cut), the first 16 left out, every 8th the wait for new weights (far longer than
+    # an answer within a rollout)
+    inside, ends = tax['latency']['rollout'], tax['latency']['boundary']
+    assert ends['round_trips'] >= 6 and inside['round_trips'] >= 42, tax['latency']
+    assert abs(inside['round_trips'] - 7 * ends['round_trips']) < 8, tax['latency']
+    assert ends['median_ms'] > 2 * inside['median_ms'], tax['latency']
+    assert 'in the training graph' in text and "at a rollout's end (hand-over)" in text
     for name in ('throughput', 'latency', 'learning', 'variance', 'curves'):
         assert (tmp_path / 'bench_plots' / f'{name}.png').stat().st_size > 1000

@@ -242,6 +242,62 @@ def test_lock_step_through_the_node_equals_the_task_in_process(tmp_path, client)
 
 
 @pytest.mark.e2e
+def test_lock_step_round_trips_in_the_diagnostics_and_the_log(tmp_path, client):
+    """
+    Every accepted answer's round trip is kept, and it is the interval it claims to be.
+
+    The client holds some answers back 40 ms. With the client's own clock only: the sim's
+    round trip k (transition k published -> its answer arrived) is at least the client's
+    hold (the answer left after ``sent[k]``, the transition was published before the client
+    had it, ``got[k]``) and at most ``got[k + 1] - sent[k - 1]``.
+    """
+    log = tmp_path / 'trips.npy'
+    proc = start_node(tmp_path, f'round_trip_log:={log}', 'diagnostics_rate:=5.0',
+                      'lock_step_timeout:=5.0')
+    got, sent = [], []
+    try:
+        client.wait_ready()
+        got.append(time.perf_counter_ns())
+        for k in range(12):
+            if k % 2:
+                time.sleep(0.04)
+            if k == 5:
+                client.send([0.3, 0.3], answers=None)   # not an answer: no round trip
+            sent.append(time.perf_counter_ns())
+            client.step([0.1, -0.1])
+            got.append(time.perf_counter_ns())
+        client.spin_for(0.5)                              # the last window's diagnostics
+    finally:
+        rc, text = stop_node(proc)
+    assert rc == 0, text
+    assert '12 lock-step round trips written to' in text
+    trips = np.load(log)
+    assert trips.dtype == np.int64 and trips.size == 12
+    for k in range(1, 12):
+        assert sent[k] - got[k] <= trips[k] <= got[k + 1] - sent[k - 1], k
+        assert trips[k] >= 40e6 if k % 2 else True
+    windows = [{kv.key: kv.value for kv in d.status[0].values} for d in client.diagnostics]
+    assert sum(int(w['round_trips']) for w in windows) == 12
+    for w in windows:
+        if int(w['round_trips']):
+            assert 0 < float(w['round_trip_ms_median']) <= float(w['round_trip_ms_p99'])
+        else:
+            assert w['round_trip_ms_median'] == w['round_trip_ms_p99'] == '-'
+
+
+@pytest.mark.e2e
+def test_a_round_trip_log_in_a_missing_directory_is_refused_at_start(tmp_path):
+    proc = start_node(tmp_path, f'round_trip_log:={tmp_path}/no/such/dir/trips.npy')
+    rc = proc.wait(timeout=60)
+    _, text = stop_node(proc)
+    assert rc == 2, text
+    missing = tmp_path / 'no' / 'such' / 'dir'
+    assert text.strip().splitlines()[-1] == (
+        f"configuration error: parameter 'sim_node.round_trip_log': '{missing}/trips.npy' "
+        f"is not allowed: no directory '{missing}' to write it in")
+
+
+@pytest.mark.e2e
 def test_lock_step_steps_only_on_the_answer_to_its_transition(tmp_path, client):
     """A second publisher of valid commands cannot step a lock-step simulator out of turn."""
     proc = start_node(tmp_path, 'lock_step_timeout:=5.0')

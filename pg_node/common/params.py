@@ -14,6 +14,7 @@ node shares (the arm model, the number of arms, the seed, the network shape).
 """
 from dataclasses import dataclass
 import math
+from pathlib import Path
 from typing import Any, Callable, Dict, Optional, Sequence
 
 from pg_node.common.paths import check_model
@@ -200,6 +201,13 @@ LEARNER_PARAMS: Dict[str, Param] = {
     'nice': NICE,
 }
 
+
+def _writable_file(path: str) -> None:
+    """Refuse a file name whose directory does not exist (the file is written at the end)."""
+    if path and not Path(path).expanduser().parent.is_dir():
+        raise ValueError(f'no directory {str(Path(path).expanduser().parent)!r} to write it in')
+
+
 SIM_PARAMS: Dict[str, Param] = {
     'frame_skip': Param(2, 'physics steps per control step', low=1),
     'max_episode_steps': Param(50, 'control steps after which an episode is truncated', low=1),
@@ -221,6 +229,10 @@ SIM_PARAMS: Dict[str, Param] = {
                             low=0.0, live=True),
     'frame_id': Param('world', 'frame of the markers', live=True),
     'diagnostics_rate': Param(1.0, 'diagnostics rate in Hz of wall time', **POSITIVE, live=True),
+    'round_trip_log': Param('', 'lock_step: a .npy file to write every round trip to when the '
+                                'node stops (ns from just before a transition is published to '
+                                'the arrival of the command that answers it); empty: the round '
+                                'trips show only in the diagnostics', validate=_writable_file),
 }
 
 #: policy_node: a trained policy run in real time (not part of the training graph, so not in

@@ -29,7 +29,9 @@ Topics published:
   grid with ``marker_spacing`` between arms (frame ``arm<i>`` is ``frame_id`` shifted so);
 * ``/diagnostics`` (``diagnostic_msgs/DiagnosticArray``) at ``diagnostics_rate`` Hz: mode,
   paused, steps, simulated time, steps per second, commands received / dropped (wrong size,
-  non-finite, absurd) / clipped / ignored, lock-step timeouts.
+  non-finite, absurd) / clipped / ignored, lock-step timeouts; in lock-step also the round
+  trips since the last diagnostics (a transition published -> the command answering it
+  received): how many, median and p99 in ms (``round_trip_log`` keeps every one in a file).
 
 Subscribed: ``/arm_controller/commands`` (``std_msgs/Float64MultiArray``, as ros2_control's
 forward_command_controller): ``num_envs * n_actuators`` values, arm-major (arm 0's
@@ -77,7 +79,10 @@ Parameters: :data:`pg_node.common.params.SIM_PARAMS` (and the shared ``model``, 
 ``seed``) list them with their defaults, descriptions and allowed values; the shipped
 ``config/pg_node.yaml`` holds the same defaults, as a file to copy and edit.
 """
+import array
+import collections
 import math
+from pathlib import Path
 import time
 from typing import Optional
 
@@ -149,6 +154,10 @@ class SimNode(Node):
         self.group_seq = [-1] * len(self.groups)       # seq of its current transition
         self.last_transitions = [None] * len(self.groups)
         self.last_sent = time.monotonic()
+        # lock-step round trips (ns): each group's transition out -> the answer in
+        self.sent_ns = [None] * len(self.groups)
+        self.trips = collections.deque(maxlen=100_000)     # since the last diagnostics
+        self.trip_log = array.array('q') if p['round_trip_log'] else None
         self._diag_steps, self._diag_time = 0, time.monotonic()
 
         # one transition per group kept: a group's message must not push out another's
@@ -227,6 +236,7 @@ class SimNode(Node):
         ``msg``: the subscription's serialised bytes (``raw=True``: decoded straight into
         numpy, :func:`pg_node.ros.table_msg.from_cdr`) or a ``Float64MultiArray``.
         """
+        arrived = time.perf_counter_ns()
         self.counters['commands_received'] += 1
         if isinstance(msg, bytes):
             try:
@@ -275,6 +285,11 @@ class SimNode(Node):
                 f'{at}): only the answer to the current transition steps it',
                 throttle_duration_sec=1.0)
             return
+        if g is not None and self.sent_ns[g] is not None:
+            self.trips.append(arrived - self.sent_ns[g])
+            if self.trip_log is not None:
+                self.trip_log.append(arrived - self.sent_ns[g])
+            self.sent_ns[g] = None
         cmd = cmd.reshape(n_arms, self.task.act_dim)
         clipped = np.clip(cmd, self.task.spec.ctrl_low, self.task.spec.ctrl_high)
         if not np.array_equal(clipped, cmd):
@@ -306,7 +321,8 @@ class SimNode(Node):
             self.get_logger().info(
                 f'no command for {waited:.1f} s, re-sending transition '
                 f'{", ".join(map(str, self.group_seq))}', throttle_duration_sec=10.0)
-            for msg in self.last_transitions:
+            for g, msg in enumerate(self.last_transitions):
+                self.sent_ns[g] = time.perf_counter_ns()       # its round trip starts again
                 self.pub_transition.publish(msg)
                 self.counters['transitions_resent'] += 1
             if self.pub_joints.get_subscription_count():
@@ -373,6 +389,7 @@ class SimNode(Node):
         joins gets them all from :meth:`on_target_matched`).
         """
         self.last_transitions[g] = transition.to_cdr(tr)   # bytes: publish sends them as is
+        self.sent_ns[g] = time.perf_counter_ns()
         self.pub_transition.publish(self.last_transitions[g])
         self.last_sent = time.monotonic()
         stamp = sim_stamp(self.sim_time)
@@ -495,6 +512,14 @@ class SimNode(Node):
         values = dict(self.counters, mode=self.mode, paused=self.paused,
                       sim_time=round(self.sim_time, 6), steps_per_second=round(rate, 1),
                       num_envs=self.task.num_envs)
+        if self.mode == 'lock_step':
+            # the round trips since the last diagnostics (none while paused or waiting)
+            ms = np.asarray(self.trips, dtype=np.float64) / 1e6
+            self.trips.clear()
+            values['round_trips'] = ms.size
+            values['round_trip_ms_median'] = round(float(np.median(ms)), 3) if ms.size else '-'
+            values['round_trip_ms_p99'] = (round(float(np.percentile(ms, 99)), 3)
+                                           if ms.size else '-')
         status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
         msg = DiagnosticArray()
         msg.header.stamp = self.get_clock().now().to_msg()
@@ -528,10 +553,23 @@ class SimNode(Node):
         response.message = f'stepped to seq {self.seq}'
         return response
 
+    def close(self):
+        """Stop the stepping threads; write the round trips if ``round_trip_log`` asks."""
+        self.task.close()
+        path = self.params['round_trip_log']
+        if self.trip_log is None:
+            return
+        try:
+            np.save(Path(path).expanduser(), np.frombuffer(self.trip_log, dtype=np.int64))
+        except OSError as exc:
+            self.get_logger().error(f'could not write the round trips to {path}: {exc}')
+            return
+        self.get_logger().info(f'{len(self.trip_log)} lock-step round trips written to {path}')
+
 
 def main(args=None):
     """Run sim_node until Ctrl-C or an external shutdown."""
-    return run(SimNode, args, cleanup=lambda node: node.task.close())
+    return run(SimNode, args, cleanup=lambda node: node.close())
 
 
 if __name__ == '__main__':

@@ -12,16 +12,21 @@ Three tables, from one invocation:
 * **scaling**: graph and in-process for 16, 64 and 256 arms per simulator and 1 and 2
   simulator/actor pairs. Two pairs of N arms are compared with one process of 2N arms (the
   in-process reference has one actor): the same work per update, not the same computation;
-* **round trip under load**: sim_node's lock-step round trip for 64 arms
-  (:func:`pg_node.tools.bench_runs.lock_step_latency`) measured with no training running
-  and again while a training graph runs in another DDS domain on the same two cores.
+* **round trip**: sim_node's lock-step round trip for 64 arms, inside the training graph
+  (the ratio's graph runs log every one, sim_node's ``round_trip_log``: within a rollout the
+  actor answers at once; at a rollout's end the answer waits for the critic, the learner and
+  the new weights) and with a client that answers at once
+  (:func:`pg_node.tools.bench_runs.lock_step_latency`), with no training running and while
+  a training graph runs in another DDS domain on the same two cores.
 """
 from pathlib import Path
 import statistics
 import tempfile
 import threading
 import traceback
-from typing import Callable, Dict, List, Sequence
+from typing import Callable, Dict, List, Sequence, Tuple
+
+import numpy as np
 
 #: budgets: full run, and --quick
 BUDGETS = {'tax_steps': (200_000, 4_096), 'tax_repeats': (5, 1),
@@ -31,6 +36,9 @@ BUDGETS = {'tax_steps': (200_000, 4_096), 'tax_repeats': (5, 1),
 SCALING = ((16, 1), (16, 2), (64, 1), (64, 2), (256, 1), (256, 2))
 NODES = ('sim_node', 'actor_node', 'critic_node', 'learner_node')
 LATENCY_LABELS = {'idle': 'no training running', 'training': 'a training graph runs'}
+TRAINING_LABELS = {'rollout': 'within a rollout', 'boundary': "at a rollout's end (hand-over)"}
+#: the ratio's graph runs: default n_steps (a rollout's end is every n_steps-th round trip)
+N_STEPS = 8
 
 
 def inprocess_rate(steps: int, overrides: Sequence[str] = ()) -> float:
@@ -49,12 +57,52 @@ def inprocess_rate(steps: int, overrides: Sequence[str] = ()) -> float:
     return (s1 - s0) / (t1 - t0)
 
 
-def graph_run(steps: int, overrides: Sequence[str] = ()) -> Dict:
-    """Train through the graph; return ``summary.json`` (steps/s and per-node usage)."""
+def graph_run(steps: int, overrides: Sequence[str] = (), round_trips: bool = False) -> Dict:
+    """
+    Train through the graph; return ``summary.json`` (steps/s and per-node usage).
+
+    With ``round_trips``, sim_node logs its lock-step round trips (``round_trip_log``) and
+    the summary gets them as ``round_trips_ns``.
+    """
     from pg_node.tools import bench_runs as br
     with tempfile.TemporaryDirectory() as tmp:
-        return br.run_graph(Path(tmp) / 'run', steps, 0,
-                            [*overrides, '--eval-episodes', '1'])
+        log = Path(tmp) / 'round_trips.npy'
+        extra = [f'sim_node.round_trip_log={log}'] if round_trips else []
+        summary = br.run_graph(Path(tmp) / 'run', steps, 0,
+                               [*overrides, *extra, '--eval-episodes', '1'])
+        if round_trips:
+            summary['round_trips_ns'] = np.load(log)
+        return summary
+
+
+def split_round_trips(trips_ns: np.ndarray, n_steps: int, skip_rollouts: int = 2
+                      ) -> Tuple[np.ndarray, np.ndarray]:
+    """
+    Return a training's lock-step round trips in ms: ``(within rollouts, at rollout ends)``.
+
+    One actor answers every transition at once except after the last step of a rollout,
+    when it waits for the next weights: every ``n_steps``-th round trip is that wait. Which
+    phase it is follows from the data (the phase whose median is largest), as the sim does
+    not know where the actor's rollouts start. The first ``skip_rollouts`` rollouts (start-up)
+    are left out.
+
+    >>> trips = np.array([1, 1, 9, 1, 1, 9, 1, 1, 9, 2, 1, 8]) * 1_000_000
+    >>> inside, ends = split_round_trips(trips, 3, skip_rollouts=1)
+    >>> inside.tolist(), ends.tolist()
+    ([1.0, 1.0, 1.0, 1.0, 2.0, 1.0], [9.0, 9.0, 8.0])
+    """
+    ms = np.asarray(trips_ns, dtype=np.float64)[skip_rollouts * n_steps:] / 1e6
+    phase = np.arange(ms.size) % n_steps
+    end = max(range(min(n_steps, ms.size)), key=lambda k: np.median(ms[phase == k]))
+    return ms[phase != end], ms[phase == end]
+
+
+def trip_stats(ms: np.ndarray) -> Dict:
+    """Return count, median, p99 and max of round trips in ms (``None`` for none)."""
+    if ms.size == 0:
+        return {'round_trips': 0, 'median_ms': None, 'p99_ms': None, 'max_ms': None}
+    return {'round_trips': int(ms.size), 'median_ms': float(np.median(ms)),
+            'p99_ms': float(np.percentile(ms, 99)), 'max_ms': float(ms.max())}
 
 
 def run_tax(b: Dict, log: Callable[[str], None]) -> Dict:
@@ -62,16 +110,22 @@ def run_tax(b: Dict, log: Callable[[str], None]) -> Dict:
     from pg_node.tools import bench_runs as br
     out = {'steps': b['tax_steps'], 'pairs': [], 'nodes': {}, 'scaling': [], 'latency': {}}
     steps = b['tax_steps']
+    inside, ends = [], []
     for k in range(b['tax_repeats']):
         log(f'tax: in-process and graph, 64 arms, {steps:,} steps ({k + 1}/{b["tax_repeats"]})')
         ip = inprocess_rate(steps)
-        summary = graph_run(steps)
+        summary = graph_run(steps, round_trips=True)
         out['pairs'].append({'inprocess': ip, 'graph': summary['steps_per_second']})
+        part = split_round_trips(summary['round_trips_ns'], N_STEPS)
+        inside.append(part[0])
+        ends.append(part[1])
         trained = summary['session_steps']
         for name, usage in summary.get('nodes', {}).items():
             out['nodes'].setdefault(name, []).append({
                 'peak_rss_mb': usage['peak_rss_mb'],
                 'cpu_per_100k': usage['cpu_seconds_training'] / trained * 1e5})
+    out['latency']['rollout'] = trip_stats(np.concatenate(inside))
+    out['latency']['boundary'] = trip_stats(np.concatenate(ends))
     for arms, pairs in SCALING[:b['tax_scaling_rows']]:
         log(f'tax: scaling, {pairs} x {arms} arms')
         row = {'arms': arms, 'pairs': pairs}
@@ -179,12 +233,23 @@ def render_tax(res: Dict, table: Callable[[List[str], List[List[str]]], str]) ->
                    and r.get('inprocess') else r.get('error', '—')]
                   for r in res['scaling']]), '']
     lat = res['latency']
-    out += ['Lock-step round trip of sim_node with 64 arms (transition published to its '
-            'answer received; the client answers at once), with no training running and while a '
-            'training graph runs in another DDS domain on the same cores.', '',
-            table(['while', 'round trips', 'median ms', 'p99 ms', 'max ms'],
-                  [[label, _fmt(lat[key].get('round_trips')),
-                    _fmt(lat[key].get('median_ms'), '.3f'), _fmt(lat[key].get('p99_ms'), '.3f'),
-                    _fmt(lat[key].get('max_ms'), '.2f')]
-                   for key, label in LATENCY_LABELS.items() if key in lat]), '']
+
+    def rows(labels):
+        return [[label, _fmt(lat[key].get('round_trips')),
+                 _fmt(lat[key].get('median_ms'), '.3f'), _fmt(lat[key].get('p99_ms'), '.3f'),
+                 _fmt(lat[key].get('max_ms'), '.2f')]
+                for key, label in labels.items() if key in lat]
+    head = ['', 'round trips', 'median ms', 'p99 ms', 'max ms']
+    if 'rollout' in lat:
+        out += ["Lock-step round trip inside the training: sim_node's own, in the graph runs "
+                'of the first table (a transition published to the command answering it '
+                'received; every round trip of the runs after their first two rollouts, '
+                'pooled). Within a rollout the actor answers at once; after the last step of '
+                'a rollout the answer waits for the critic, the learner and the new weights '
+                '(the hand-over).', '',
+                table(['in the training graph', *head[1:]], rows(TRAINING_LABELS)), '']
+    out += ['Lock-step round trip of sim_node with 64 arms and a client that answers at once '
+            '(no actor, no learning), with no training running and while a training graph '
+            'runs in another DDS domain on the same two cores.', '',
+            table(['while', *head[1:]], rows(LATENCY_LABELS)), '']
     return out
