@@ -34,6 +34,7 @@ setup(
             'learner_node = pg_node.ros.learner_node:main',
             'replay_node = pg_node.ros.replay_node:main',
             'policy_node = pg_node.ros.policy_node:main',
+            'sim_and_actor = pg_node.ros.sim_and_actor:main',
         ],
     },
 )

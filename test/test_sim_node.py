@@ -1,6 +1,7 @@
 """sim_node as a real process over DDS: joint states, commands, lock-step, services."""
 import os
 from pathlib import Path
+import signal
 import sys
 import time
 
@@ -523,3 +524,44 @@ def test_real_time_mode_runs_on_its_own_and_drops_to_zero_torque(tmp_path, clien
     finally:
         rc, log = stop_node(proc)
     assert rc == 0, log
+
+
+def _sim_and_actor(tmp_path, *params):
+    env = dict(os.environ, ROS_DOMAIN_ID=str(DOMAIN_ID), PYTHONUNBUFFERED='1',
+               PYTHONPATH=str(REPO), AMENT_PREFIX_PATH=os.environ.get(
+                   'AMENT_PREFIX_PATH', str(Path(sys.executable).parent.parent)))
+    args = [sys.executable, '-m', 'pg_node.ros.sim_and_actor', '--ros-args']
+    for param in ('num_envs:=2',) + params:
+        args += ['-p', param]
+    return processes.start_logged(args, tmp_path / 'sim_and_actor.log', env)
+
+
+@pytest.mark.e2e
+@pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM])
+def test_sim_and_actor_share_a_process_and_both_stop_cleanly(tmp_path, client, sig):
+    """Both nodes up in one process (the actor's subscription matches); a signal stops both."""
+    log = tmp_path / 'trips.npy'
+    proc = _sim_and_actor(tmp_path, f'round_trip_log:={log}')
+    try:
+        # the actor subscribes the transitions; without weights it does not answer
+        client.wait_ready()
+        client.spin_until(lambda: client.node.count_subscribers('/pg_node/transition') >= 2)
+        assert proc.poll() is None
+        os.killpg(proc.pid, sig)
+        assert proc.wait(timeout=20) == 0
+    finally:
+        _, text = stop_node(proc)
+    assert '[sim_node]: lock_step: 2 x reacher2' in text
+    assert '[actor_node]: actor 0: 2 arms' in text
+    assert '0 lock-step round trips written to' in text and np.load(log).size == 0
+    assert 'Traceback' not in text
+
+
+@pytest.mark.e2e
+def test_sim_and_actor_refuses_a_bad_actor_parameter_in_one_line(tmp_path):
+    proc = _sim_and_actor(tmp_path, 'n_steps:=0')
+    assert proc.wait(timeout=60) == 2
+    _, text = stop_node(proc)
+    assert text.strip().splitlines()[-1].startswith(
+        "configuration error: parameter 'actor_node.n_steps': 0 is not allowed"), text
+    assert 'Traceback' not in text

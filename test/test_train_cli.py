@@ -114,3 +114,22 @@ def test_resume_says_so_and_counts_this_session_only(runs):
     assert summary['session_training_seconds'] == pytest.approx(
         rows[-1]['wall_seconds'] - rows[0]['wall_seconds'], abs=1e-6)
     assert '2048 steps learned in this session (6144 in all): ' in out
+
+
+@pytest.mark.parametrize('pairs', [1, 2])
+def test_compose_runs_each_simulator_and_its_actor_as_one_process(tmp_path, pairs):
+    """``--compose``: one process per pair, the same ROS arguments, the seeds by its name."""
+    from pg_node.common.params import load_config
+    from pg_node.tools.train import node_commands, sim_seeds
+    cfg = load_config(None, [f'num_actors={pairs}', 'seed=5', 'num_envs=16'])
+    params = tmp_path / 'params.yaml'
+    apart, together = node_commands(params, cfg), node_commands(params, cfg, compose=True)
+    tags = [''] if pairs == 1 else [f'_{i}' for i in range(pairs)]
+    assert set(together) == {'critic_node', 'learner_node',
+                             *(f'sim_and_actor{t}' for t in tags)}
+    for t in tags:
+        sim, both = apart[f'sim_node{t}'], together[f'sim_and_actor{t}']
+        assert both[:3] == [sys.executable, '-m', 'pg_node.ros.sim_and_actor']
+        assert both[3:] == sim[3:] == apart[f'actor_node{t}'][3:]   # the namespace, if any
+    assert list(sim_seeds(cfg, compose=True).values()) == list(sim_seeds(cfg).values())
+    assert set(sim_seeds(cfg, compose=True)) == {f'sim_and_actor{t}' for t in tags}

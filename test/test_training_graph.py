@@ -103,6 +103,20 @@ def test_graph_equals_inprocess_reference_with_other_lock_step_groups(tmp_path, 
     assert summary['eval_returns'] == ref['eval_returns']
 
 
+def test_graph_equals_inprocess_reference_with_each_pair_in_one_process(tmp_path):
+    """``train --compose``: the simulator and the actor share a process, the same computation."""
+    steps = 20_480
+    res = train(tmp_path / 'run', '--total-steps', str(steps), '--compose')
+    assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
+    summary = json.loads((tmp_path / 'run' / 'summary.json').read_text())
+    assert set(summary['nodes']) == {'sim_and_actor', 'critic_node', 'learner_node'}
+    log = (tmp_path / 'run' / 'logs' / 'sim_and_actor.log').read_text()
+    assert '[sim_node]: lock_step: 64 x reacher2' in log and '[actor_node]: actor 0' in log
+    ref = train_inprocess(load_config(default_config(), [f'total_steps={steps}']), steps)
+    assert summary['policy_version'] == ref['policy_version']
+    assert summary['eval_returns'] == ref['eval_returns']
+
+
 def test_metrics_are_in_tensorboard_under_sb3_names(run):
     """``tensorboard --logdir <run>`` shows the curves, named as SB3 names them."""
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator

@@ -6,7 +6,7 @@ Kept apart from the math: only nodes import this module.
 import os
 import sys
 import time
-from typing import Callable, Dict, Optional
+from typing import Callable, Dict, List, Optional, Union
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from pg_node.common.params import ConfigError
@@ -126,10 +126,13 @@ def _apply_nice(node: Node) -> None:
                                   'the niceness it was started with')
 
 
-def run(make_node: Callable[[], Node], args=None,
-        cleanup: Optional[Callable[[Node], None]] = None) -> int:
+def run(make_node: Callable[[], Union[Node, List[Node]]], args=None,
+        cleanup: Optional[Callable[[Union[Node, List[Node]]], None]] = None) -> int:
     """
     Init rclpy, spin the node until Ctrl-C / shutdown, clean up; return an exit code.
+
+    ``make_node`` may return a list of nodes: they share the process and its executor
+    (composition); ``cleanup`` gets what ``make_node`` returned.
 
     The node style of ``ros2/demos``' talker; a bad configuration is reported in one line
     (exit code 2) instead of a traceback, also a ``--params-file`` that is no valid YAML
@@ -165,8 +168,10 @@ def run(make_node: Callable[[], Node], args=None,
     try:
         node = make_node()
         executor = make_executor()
-        executor.add_node(node)
-        _apply_nice(node)                 # after the executor: its threads exist now
+        for each in _nodes(node):
+            executor.add_node(each)
+        for each in _nodes(node):
+            _apply_nice(each)             # after the executor: its threads exist now
         while rclpy.ok():
             executor.spin_once(timeout_sec=0.5)
     except (KeyboardInterrupt, ExternalShutdownException):
@@ -186,6 +191,11 @@ def run(make_node: Callable[[], Node], args=None,
         if node is not None:
             if cleanup is not None:
                 cleanup(node)
-            node.destroy_node()
+            for each in _nodes(node):
+                each.destroy_node()
         rclpy.try_shutdown()
     return code
+
+
+def _nodes(node: Union[Node, List[Node]]) -> List[Node]:
+    return node if isinstance(node, list) else [node]

@@ -56,6 +56,9 @@ def parse_args(argv):
     parser.add_argument('--max-restarts', type=int, default=3,
                         help='restarts allowed per node (default: %(default)s)')
     parser.add_argument('--no-progress', action='store_true', help='no progress bar')
+    parser.add_argument('--compose', action='store_true',
+                        help='run each simulator and its actor in one process '
+                             '(pg_node.ros.sim_and_actor): a faster lock-step exchange')
     return parser.parse_args(argv)
 
 
@@ -84,34 +87,37 @@ def write_params(cfg: dict, path: Path):
                     + yaml.safe_dump(sections, sort_keys=False))
 
 
-def node_commands(params: Path, cfg: dict) -> dict:
+def node_commands(params: Path, cfg: dict, compose: bool = False) -> dict:
     """
     Return ``{process name: command}`` for the whole graph.
 
     With ``num_actors`` > 1 each simulator/actor pair runs in its own namespace ``/arm<i>``
     (its topics become ``/arm<i>/pg_node/transition``...), actor ``i`` gets ``actor_id`` i,
     and simulator ``i`` seeds its arms from ``seed + i * num_envs`` so that no two arms of
-    the run draw the same episodes.
+    the run draw the same episodes. With ``compose`` each pair is one process,
+    ``sim_and_actor`` (``sim_and_actor_<i>``), holding both nodes.
     """
     base = [sys.executable, '-m']
     ros = ['--ros-args', '--params-file', str(params)]
     n = cfg[SHARED]['num_actors']
     cmds = {'critic_node': base + ['pg_node.ros.critic_node'] + ros,
             'learner_node': base + ['pg_node.ros.learner_node'] + ros}
+    pair = [('sim_and_actor', 'pg_node.ros.sim_and_actor')] if compose else [
+        ('sim_node', 'pg_node.ros.sim_node'), ('actor_node', 'pg_node.ros.actor_node')]
     if n == 1:
-        cmds['sim_node'] = base + ['pg_node.ros.sim_node'] + ros
-        cmds['actor_node'] = base + ['pg_node.ros.actor_node'] + ros
+        for name, module in pair:
+            cmds[name] = base + [module] + ros
         return cmds
     for i in range(n):
         # a later parameter file wins, and only a node's full name reaches one namespace
-        pair = params.with_name(f'params_arm{i}.yaml')
-        pair.write_text(yaml.safe_dump({
+        ns_file = params.with_name(f'params_arm{i}.yaml')
+        ns_file.write_text(yaml.safe_dump({
             f'/arm{i}/sim_node': {'ros__parameters': {
                 'seed': sim_seeds(cfg)[f'sim_node_{i}']}},
             f'/arm{i}/actor_node': {'ros__parameters': {'actor_id': i}}}))
-        extra = ['--params-file', str(pair), '-r', f'__ns:=/arm{i}']
-        cmds[f'sim_node_{i}'] = base + ['pg_node.ros.sim_node'] + ros + extra
-        cmds[f'actor_node_{i}'] = base + ['pg_node.ros.actor_node'] + ros + extra
+        extra = ['--params-file', str(ns_file), '-r', f'__ns:=/arm{i}']
+        for name, module in pair:
+            cmds[f'{name}_{i}'] = base + [module] + ros + extra
     return cmds
 
 
@@ -137,12 +143,13 @@ def make_bags_whole(bags) -> list:
     return lines
 
 
-def sim_seeds(cfg: dict) -> dict:
-    """Return each simulator's seed by its name in :func:`node_commands`."""
+def sim_seeds(cfg: dict, compose: bool = False) -> dict:
+    """Return each simulator's seed by the name of its process in :func:`node_commands`."""
     n, seed, arms = cfg[SHARED]['num_actors'], cfg[SHARED]['seed'], cfg[SHARED]['num_envs']
+    name = 'sim_and_actor' if compose else 'sim_node'
     if n == 1:
-        return {'sim_node': seed}
-    return {f'sim_node_{i}': seed + i * arms for i in range(n)}
+        return {name: seed}
+    return {f'{name}_{i}': seed + i * arms for i in range(n)}
 
 
 class Supervisor:
@@ -513,8 +520,8 @@ def main(argv=None) -> int:
     if start is not None:
         print(f"resumed from policy version {start['version']} ({start['env_steps']} steps "
               f"learned, {start['checkpoint']})", flush=True)
-    sup = Supervisor(run_dir, node_commands(params, cfg), args.max_restarts, total,
-                     sim_seeds(cfg))
+    sup = Supervisor(run_dir, node_commands(params, cfg, args.compose), args.max_restarts,
+                     total, sim_seeds(cfg, args.compose))
     view = ProgressView(run_dir / 'progress.csv', total, start, bar=not args.no_progress)
     t0 = view.t0
     state = 'running'
