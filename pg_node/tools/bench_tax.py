@@ -4,9 +4,10 @@ The ``tax`` section of ``python -m pg_node bench``: what the ROS graph costs aga
 Three tables, from one invocation:
 
 * **graph vs in-process**: the default A2C (64 arms, 8-step rollouts, lock-step, sync)
-  trained in-process (:func:`pg_node.rl.train_inprocess.train_inprocess`) and through the
-  four nodes (``python -m pg_node train``), alternately, ``tax_repeats`` times each; the
-  median of each and their ratio. Both clocks start at the first update.
+  trained in-process (:func:`pg_node.rl.train_inprocess.train_inprocess`), through the
+  four nodes (``python -m pg_node train``) and through the four nodes with the simulator
+  and the actor in one process (``train --compose``), in turn, ``tax_repeats`` times each;
+  the median of each and the ratios. All clocks start at the first update.
 * **per node**: each node's peak resident memory and CPU seconds per 100k training steps
   (``summary.json``'s ``nodes``, read from ``/proc`` by the supervisor) in those graph runs;
 * **scaling**: graph and in-process for 16, 64 and 256 arms per simulator and 1 and 2
@@ -34,9 +35,12 @@ BUDGETS = {'tax_steps': (200_000, 4_096), 'tax_repeats': (5, 1),
            'tax_latency_steps': (5_000, 300)}
 #: scaling rows: (arms per simulator, simulator/actor pairs)
 SCALING = ((16, 1), (16, 2), (64, 1), (64, 2), (256, 1), (256, 2))
-NODES = ('sim_node', 'actor_node', 'critic_node', 'learner_node')
+NODES = ('sim_node', 'actor_node', 'critic_node', 'learner_node', 'sim_and_actor')
 LATENCY_LABELS = {'idle': 'no training running', 'training': 'a training graph runs'}
-TRAINING_LABELS = {'rollout': 'within a rollout', 'boundary': "at a rollout's end (hand-over)"}
+TRAINING_LABELS = {'rollout': 'within a rollout',
+                   'boundary': "at a rollout's end (hand-over)",
+                   'composed_rollout': 'within a rollout, simulator and actor in one process',
+                   'composed_boundary': "at a rollout's end, simulator and actor in one process"}
 #: the ratio's graph runs: default n_steps (a rollout's end is every n_steps-th round trip)
 N_STEPS = 8
 
@@ -110,22 +114,28 @@ def run_tax(b: Dict, log: Callable[[str], None]) -> Dict:
     from pg_node.tools import bench_runs as br
     out = {'steps': b['tax_steps'], 'pairs': [], 'nodes': {}, 'scaling': [], 'latency': {}}
     steps = b['tax_steps']
-    inside, ends = [], []
+    trips = {'rollout': [], 'boundary': [], 'composed_rollout': [], 'composed_boundary': []}
     for k in range(b['tax_repeats']):
-        log(f'tax: in-process and graph, 64 arms, {steps:,} steps ({k + 1}/{b["tax_repeats"]})')
+        log(f'tax: in-process, graph and graph composed, 64 arms, {steps:,} steps '
+            f'({k + 1}/{b["tax_repeats"]})')
         ip = inprocess_rate(steps)
         summary = graph_run(steps, round_trips=True)
-        out['pairs'].append({'inprocess': ip, 'graph': summary['steps_per_second']})
-        part = split_round_trips(summary['round_trips_ns'], N_STEPS)
-        inside.append(part[0])
-        ends.append(part[1])
-        trained = summary['session_steps']
-        for name, usage in summary.get('nodes', {}).items():
-            out['nodes'].setdefault(name, []).append({
-                'peak_rss_mb': usage['peak_rss_mb'],
-                'cpu_per_100k': usage['cpu_seconds_training'] / trained * 1e5})
-    out['latency']['rollout'] = trip_stats(np.concatenate(inside))
-    out['latency']['boundary'] = trip_stats(np.concatenate(ends))
+        composed = graph_run(steps, ['--compose'], round_trips=True)
+        out['pairs'].append({'inprocess': ip, 'graph': summary['steps_per_second'],
+                             'composed': composed['steps_per_second']})
+        for prefix, run in (('', summary), ('composed_', composed)):
+            part = split_round_trips(run['round_trips_ns'], N_STEPS)
+            trips[f'{prefix}rollout'].append(part[0])
+            trips[f'{prefix}boundary'].append(part[1])
+            trained = run['session_steps']
+            for name, usage in run.get('nodes', {}).items():
+                if prefix and name != 'sim_and_actor':
+                    continue          # the critic and the learner: from the default graph
+                out['nodes'].setdefault(name, []).append({
+                    'peak_rss_mb': usage['peak_rss_mb'],
+                    'cpu_per_100k': usage['cpu_seconds_training'] / trained * 1e5})
+    for key, parts in trips.items():
+        out['latency'][key] = trip_stats(np.concatenate(parts))
     for arms, pairs in SCALING[:b['tax_scaling_rows']]:
         log(f'tax: scaling, {pairs} x {arms} arms')
         row = {'arms': arms, 'pairs': pairs}
@@ -178,9 +188,9 @@ def _train_until(done: threading.Event):
         stop(proc)
 
 
-def tax_ratio(pairs: Sequence[Dict]) -> float:
+def tax_ratio(pairs: Sequence[Dict], key: str = 'graph') -> float:
     """
-    Return the median over runs of graph / in-process steps/s, each run's own ratio.
+    Return the median over runs of graph (``key``) / in-process steps/s, each run's own ratio.
 
     Not the ratio of the two medians: a run's in-process and graph trainings come a minute
     apart, so their ratio is free of the drift between runs that moves both medians.
@@ -189,7 +199,7 @@ def tax_ratio(pairs: Sequence[Dict]) -> float:
     ...            {'inprocess': 30, 'graph': 18}])
     0.6
     """
-    return statistics.median(p['graph'] / p['inprocess'] for p in pairs)
+    return statistics.median(p[key] / p['inprocess'] for p in pairs)
 
 
 def _fmt(x, spec=',.0f'):
@@ -199,23 +209,31 @@ def _fmt(x, spec=',.0f'):
 def render_tax(res: Dict, table: Callable[[List[str], List[List[str]]], str]) -> List[str]:
     """Return the section's markdown lines."""
     pairs = res['pairs']
-    ip = statistics.median(p['inprocess'] for p in pairs)
-    gr = statistics.median(p['graph'] for p in pairs)
-    ratio = tax_ratio(pairs)
+    keys = ['graph', 'composed'] if all('composed' in p for p in pairs) else ['graph']
+    ratio_head = ['run', 'in-process steps/s', 'graph steps/s', 'graph / in-process',
+                  'graph, composed, steps/s', 'composed / in-process'][:2 + 2 * len(keys)]
+    ratio_rows = [[str(k + 1), _fmt(p['inprocess'])]
+                  + [x for key in keys
+                     for x in (_fmt(p[key]), _fmt(p[key] / p['inprocess'], '.3f'))]
+                  for k, p in enumerate(pairs)]
+    ratio_rows.append(
+        ['**median**', f"**{_fmt(statistics.median(p['inprocess'] for p in pairs))}**"]
+        + [f'**{x}**' for key in keys for x in (_fmt(statistics.median(p[key] for p in pairs)),
+                                                _fmt(tax_ratio(pairs, key), '.3f'))])
     out = ['## The ROS tax: the graph against the same computation in one process', '',
            f'Default settings (64 arms, 8-step rollouts, A2C, lock-step, sync), '
-           f'{res["steps"]:,} steps per run, in-process and graph alternately, '
-           f'{len(pairs)} times; steps/s from the first update to the last (both). The '
-           'ratio is read within each run (its two trainings are a minute apart; the machine '
+           f'{res["steps"]:,} steps per run, in-process and graph in turn, '
+           f'{len(pairs)} times; steps/s from the first update to the last (all). The '
+           'ratio is read within each run (its trainings are a minute apart; the machine '
            'drifts more than that between runs), and its median is the figure. '
-           f'Load average {res.get("load", "?")}.', '',
-           table(['run', 'in-process steps/s', 'graph steps/s', 'graph / in-process'],
-                 [[str(k + 1), _fmt(p['inprocess']), _fmt(p['graph']),
-                   _fmt(p['graph'] / p['inprocess'], '.3f')] for k, p in enumerate(pairs)]
-                 + [['**median**', f'**{_fmt(ip)}**', f'**{_fmt(gr)}**',
-                     f'**{_fmt(ratio, ".3f")}**']]), '',
+           + ('"Composed" is the same graph started with `train --compose`: each simulator '
+              'and its actor in one process (`sim_and_actor`), the critic and the learner '
+              'in their own. ' if 'composed' in keys else '')
+           + f'Load average {res.get("load", "?")}.', '',
+           table(ratio_head, ratio_rows), '',
            "Each node in those graph runs: peak resident memory (the kernel's high-water "
-           'mark) and CPU seconds per 100k training steps (median over the runs).', '',
+           'mark) and CPU seconds per 100k training steps (median over the runs; '
+           '`sim_and_actor`: the process of both in the composed runs).', '',
            table(['node', 'imports torch', 'peak memory MB', 'CPU s per 100k steps'],
                  [[name, 'yes' if name in ('critic_node', 'learner_node') else 'no',
                    _fmt(statistics.median(u['peak_rss_mb'] for u in res['nodes'][name])),
@@ -246,7 +264,8 @@ def render_tax(res: Dict, table: Callable[[List[str], List[List[str]]], str]) ->
                 'received; every round trip of the runs after their first two rollouts, '
                 'pooled). Within a rollout the actor answers at once; after the last step of '
                 'a rollout the answer waits for the critic, the learner and the new weights '
-                '(the hand-over).', '',
+                '(the hand-over). "Composed": the runs with the simulator and the actor in '
+                'one process.', '',
                 table(['in the training graph', *head[1:]], rows(TRAINING_LABELS)), '']
     out += ['Lock-step round trip of sim_node with 64 arms and a client that answers at once '
             '(no actor, no learning), with no training running and while a training graph '
