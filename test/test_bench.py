@@ -237,7 +237,7 @@ def test_quick_bench_writes_every_table(tmp_path):
     assert '## The ROS tax: the graph against the same computation in one process' in text
     tax = data['tax']
     assert len(tax['pairs']) == 1 and all(v > 0 for v in tax['pairs'][0].values())
-    assert set(tax['pairs'][0]) == {'inprocess', 'graph', 'composed'}
+    assert set(tax['pairs'][0]) == {'inprocess', 'graph', 'separate'}
     assert set(tax['nodes']) == {'sim_node', 'actor_node', 'critic_node', 'learner_node',
                                  'sim_and_actor'}
     assert [(r['arms'], r['pairs']) for r in tax['scaling']] == [(16, 1), (16, 2)]
@@ -247,12 +247,12 @@ def test_quick_bench_writes_every_table(tmp_path):
     # the graph run's own round trips: 64 control steps (and the start of the rollout the
     # stop cut), the first 16 left out, every 8th the wait for new weights (far longer than
     # an answer within a rollout)
-    for prefix in ('', 'composed_'):
+    for prefix in ('', 'separate_'):
         inside, ends = tax['latency'][f'{prefix}rollout'], tax['latency'][f'{prefix}boundary']
         assert ends['round_trips'] >= 6 and inside['round_trips'] >= 42, tax['latency']
         assert abs(inside['round_trips'] - 7 * ends['round_trips']) < 8, tax['latency']
         assert ends['median_ms'] > 2 * inside['median_ms'], tax['latency']
-    assert 'sim_and_actor' in tax['nodes'] and '| composed / in-process |' in text
+    assert 'sim_and_actor' in tax['nodes'] and '| separate / in-process |' in text
     assert 'in the training graph' in text and "at a rollout's end (hand-over)" in text
     for name in ('throughput', 'latency', 'learning', 'variance', 'curves'):
         assert (tmp_path / 'bench_plots' / f'{name}.png').stat().st_size > 1000

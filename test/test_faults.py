@@ -488,9 +488,9 @@ def wait_for_progress(proc, run_dir, deadline, min_steps=0.0):
         time.sleep(0.2)
 
 
-def node_pids(run_dir, node=r'.*_node'):
+def node_pids(run_dir, node=r'.*_node|sim_and_actor'):
     """Return the pids of a run's node processes (all, or ``node``), named by its run dir."""
-    out = subprocess.run(['pgrep', '-f', f'pg_node[.]ros[.]{node} .*{run_dir}'],
+    out = subprocess.run(['pgrep', '-f', f'pg_node[.]ros[.]({node}) .*{run_dir}'],
                          capture_output=True, text=True).stdout.split()
     return [int(p) for p in out]
 
@@ -510,7 +510,8 @@ def test_sigkill_of_each_node_mid_run(tmp_path):
     long and truncated.
     """
     run_dir = tmp_path / 'run'
-    cmd = [sys.executable, '-m', 'pg_node', 'train', '--run-dir', str(run_dir),
+    # --separate: each node a process of its own, so that each can be killed alone
+    cmd = [sys.executable, '-m', 'pg_node', 'train', '--run-dir', str(run_dir), '--separate',
            '--no-progress', '--total-steps', str(KILL_STEPS), '--eval-episodes', '10']
     proc = subprocess.Popen(cmd, env=env(GRAPH), cwd=REPO, stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True, start_new_session=True)
@@ -627,7 +628,7 @@ def test_sigterm_sigint_and_sigkill_of_each_node_mid_run(tmp_path):
     """
     run_dir = tmp_path / 'run'
     total = STOP_EVERY * (len(STOPS) + 2)
-    cmd = [sys.executable, '-m', 'pg_node', 'train', '--run-dir', str(run_dir),
+    cmd = [sys.executable, '-m', 'pg_node', 'train', '--run-dir', str(run_dir), '--separate',
            '--no-progress', '--total-steps', str(total), '--eval-episodes', '10',
            '--max-restarts', str(len(SIGNALS))]
     proc = subprocess.Popen(cmd, env=env(GRAPH), cwd=REPO, stdout=subprocess.PIPE,
@@ -824,7 +825,8 @@ def test_signal_to_train_alone_stops_every_node(tmp_path, sig):
                             preexec_fn=as_if_started_with_amp)
     try:
         wait_for_progress(proc, run_dir, time.monotonic() + 240)
-        assert len(node_pids(run_dir)) == 4
+        # train's default: the simulator and the actor in one process, sim_and_actor
+        assert len(node_pids(run_dir)) == 3
         os.kill(proc.pid, sig)                 # the bring-up only, as timeout(1) does
         text = proc.communicate(timeout=120)[0]
     finally:

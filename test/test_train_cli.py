@@ -85,17 +85,17 @@ def test_summary_reports_each_nodes_memory_and_cpu(runs):
     """Peak memory and CPU seconds of every node; the nodes that only act hold no torch."""
     _, out, summary, _, _ = runs
     nodes = summary['nodes']
-    assert set(nodes) == {'sim_node', 'actor_node', 'critic_node', 'learner_node'}
+    # train's default: the simulator and the actor in one process (--separate: two)
+    assert set(nodes) == {'sim_and_actor', 'critic_node', 'learner_node'}
     for name, u in nodes.items():
         # a 4096-step run trains for a second or two: a node's CPU in it may round to 0
         assert 0 <= u['cpu_seconds_training'] <= u['cpu_seconds'], (name, u)
         assert u['cpu_seconds'] > 0 and 20 < u['peak_rss_mb'] < 4000, (name, u)
     assert sum(u['cpu_seconds_training'] for u in nodes.values()) > 0, nodes
     # torch alone maps several hundred MB; the simulator and the actor never import it
-    for light in ('sim_node', 'actor_node'):
-        assert nodes[light]['peak_rss_mb'] < 300 < nodes['learner_node']['peak_rss_mb']
+    assert nodes['sim_and_actor']['peak_rss_mb'] < 300 < nodes['learner_node']['peak_rss_mb']
     line = next(ln for ln in out.splitlines() if ln.startswith('nodes (peak memory'))
-    assert f"actor_node {nodes['actor_node']['peak_rss_mb']:.0f} MB" in line
+    assert f"sim_and_actor {nodes['sim_and_actor']['peak_rss_mb']:.0f} MB" in line
 
 
 def test_resume_says_so_and_counts_this_session_only(runs):
@@ -118,7 +118,7 @@ def test_resume_says_so_and_counts_this_session_only(runs):
 
 @pytest.mark.parametrize('pairs', [1, 2])
 def test_compose_runs_each_simulator_and_its_actor_as_one_process(tmp_path, pairs):
-    """``--compose``: one process per pair, the same ROS arguments, the seeds by its name."""
+    """By default one process per pair, with the pair's ROS arguments and its seed."""
     from pg_node.common.params import load_config
     from pg_node.tools.train import node_commands, sim_seeds
     cfg = load_config(None, [f'num_actors={pairs}', 'seed=5', 'num_envs=16'])

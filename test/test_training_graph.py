@@ -1,5 +1,8 @@
 """
-End to end: the four nodes as real processes over DDS, trained by ``python -m pg_node train``.
+End to end: the four nodes over DDS, trained by ``python -m pg_node train``.
+
+``train`` runs the simulator and the actor in one process (``sim_and_actor``), the critic and
+the learner in processes of their own; ``--separate`` gives every node its own process.
 
 One training run (300k steps, the shipped configuration) is shared by the tests in file
 order: it must learn, equal the in-process reference bit for bit (lock-step synchronous
@@ -64,6 +67,10 @@ def run(tmp_path_factory):
 
 def test_graph_learns_and_versions_advance(run):
     run_dir, summary = run
+    # train's default: the simulator and the actor share a process, each logging as itself
+    assert set(summary['nodes']) == {'sim_and_actor', 'critic_node', 'learner_node'}
+    log = (run_dir / 'logs' / 'sim_and_actor.log').read_text()
+    assert '[sim_node]: lock_step: 64 x reacher2' in log and '[actor_node]: actor 0' in log
     from PIL import Image
     with Image.open(run_dir / 'learning_curve.png') as img:
         assert img.size == (1500, 800)
@@ -103,15 +110,14 @@ def test_graph_equals_inprocess_reference_with_other_lock_step_groups(tmp_path, 
     assert summary['eval_returns'] == ref['eval_returns']
 
 
-def test_graph_equals_inprocess_reference_with_each_pair_in_one_process(tmp_path):
-    """``train --compose``: the simulator and the actor share a process, the same computation."""
+def test_graph_equals_inprocess_reference_with_every_node_its_own_process(tmp_path):
+    """``train --separate``: the simulator and the actor apart, the same computation."""
     steps = 20_480
-    res = train(tmp_path / 'run', '--total-steps', str(steps), '--compose')
+    res = train(tmp_path / 'run', '--total-steps', str(steps), '--separate')
     assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
     summary = json.loads((tmp_path / 'run' / 'summary.json').read_text())
-    assert set(summary['nodes']) == {'sim_and_actor', 'critic_node', 'learner_node'}
-    log = (tmp_path / 'run' / 'logs' / 'sim_and_actor.log').read_text()
-    assert '[sim_node]: lock_step: 64 x reacher2' in log and '[actor_node]: actor 0' in log
+    assert set(summary['nodes']) == {'sim_node', 'actor_node', 'critic_node', 'learner_node'}
+    assert '[actor_node]: actor 0' in (tmp_path / 'run' / 'logs' / 'actor_node.log').read_text()
     ref = train_inprocess(load_config(default_config(), [f'total_steps={steps}']), steps)
     assert summary['policy_version'] == ref['policy_version']
     assert summary['eval_returns'] == ref['eval_returns']
@@ -192,7 +198,7 @@ def test_two_simulator_actor_pairs_feed_one_learner(tmp_path, mode):
             msg = TYPESTORE.deserialize_cdr(raw, conn.msgtype)
             actors.add({kv.key: kv.value for kv in msg.values}['actor'])
     assert actors == {'0', '1'}
-    for name in ('sim_node_0', 'sim_node_1', 'actor_node_0', 'actor_node_1'):
+    for name in ('sim_and_actor_0', 'sim_and_actor_1'):
         assert (tmp_path / 'run' / 'logs' / f'{name}.log').is_file()
 
 

@@ -11,10 +11,11 @@ and one executor runs both callbacks in turn. Measured on 2 cores (PROFILE.md, "
 the median and from about 3 to 1.2 ms at p99, and training ran about 10% faster; the critic
 and the learner stay processes of their own.
 
-``python -m pg_node train --compose`` starts it in place of the two processes; started by
-hand it takes the ROS arguments both nodes take (``--ros-args --params-file ...``, a
-namespace for several pairs). A ``-p`` given here reaches both nodes: ``seed`` moves the
-actor's sampling as well as the simulator's episodes. Ctrl-C or SIGTERM stops both.
+``python -m pg_node train`` starts it in place of the two processes (``--separate``: the
+two); started by hand it takes the ROS arguments both nodes take (``--ros-args
+--params-file ...``, a namespace for several pairs). A ``-p`` given here reaches both
+nodes: ``seed`` moves the actor's sampling as well as the simulator's episodes. Ctrl-C or
+SIGTERM stops both.
 """
 from pg_node.ros.actor_node import ActorNode
 from pg_node.ros.node_utils import run

@@ -5,9 +5,10 @@ Three tables, from one invocation:
 
 * **graph vs in-process**: the default A2C (64 arms, 8-step rollouts, lock-step, sync)
   trained in-process (:func:`pg_node.rl.train_inprocess.train_inprocess`), through the
-  four nodes (``python -m pg_node train``) and through the four nodes with the simulator
-  and the actor in one process (``train --compose``), in turn, ``tax_repeats`` times each;
-  the median of each and the ratios. All clocks start at the first update.
+  four nodes as ``python -m pg_node train`` starts them (the simulator and the actor in one
+  process) and with every node a process of its own (``train --separate``), in turn,
+  ``tax_repeats`` times each; the median of each and the ratios. All clocks start at the
+  first update.
 * **per node**: each node's peak resident memory and CPU seconds per 100k training steps
   (``summary.json``'s ``nodes``, read from ``/proc`` by the supervisor) in those graph runs;
 * **scaling**: graph and in-process for 16, 64 and 256 arms per simulator and 1 and 2
@@ -39,8 +40,8 @@ NODES = ('sim_node', 'actor_node', 'critic_node', 'learner_node', 'sim_and_actor
 LATENCY_LABELS = {'idle': 'no training running', 'training': 'a training graph runs'}
 TRAINING_LABELS = {'rollout': 'within a rollout',
                    'boundary': "at a rollout's end (hand-over)",
-                   'composed_rollout': 'within a rollout, simulator and actor in one process',
-                   'composed_boundary': "at a rollout's end, simulator and actor in one process"}
+                   'separate_rollout': 'within a rollout, every node its own process',
+                   'separate_boundary': "at a rollout's end, every node its own process"}
 #: the ratio's graph runs: default n_steps (a rollout's end is every n_steps-th round trip)
 N_STEPS = 8
 
@@ -114,22 +115,22 @@ def run_tax(b: Dict, log: Callable[[str], None]) -> Dict:
     from pg_node.tools import bench_runs as br
     out = {'steps': b['tax_steps'], 'pairs': [], 'nodes': {}, 'scaling': [], 'latency': {}}
     steps = b['tax_steps']
-    trips = {'rollout': [], 'boundary': [], 'composed_rollout': [], 'composed_boundary': []}
+    trips = {'rollout': [], 'boundary': [], 'separate_rollout': [], 'separate_boundary': []}
     for k in range(b['tax_repeats']):
-        log(f'tax: in-process, graph and graph composed, 64 arms, {steps:,} steps '
-            f'({k + 1}/{b["tax_repeats"]})')
+        log(f'tax: in-process, graph and graph of separate processes, 64 arms, {steps:,} '
+            f'steps ({k + 1}/{b["tax_repeats"]})')
         ip = inprocess_rate(steps)
         summary = graph_run(steps, round_trips=True)
-        composed = graph_run(steps, ['--compose'], round_trips=True)
+        separate = graph_run(steps, ['--separate'], round_trips=True)
         out['pairs'].append({'inprocess': ip, 'graph': summary['steps_per_second'],
-                             'composed': composed['steps_per_second']})
-        for prefix, run in (('', summary), ('composed_', composed)):
+                             'separate': separate['steps_per_second']})
+        for prefix, run in (('', summary), ('separate_', separate)):
             part = split_round_trips(run['round_trips_ns'], N_STEPS)
             trips[f'{prefix}rollout'].append(part[0])
             trips[f'{prefix}boundary'].append(part[1])
             trained = run['session_steps']
             for name, usage in run.get('nodes', {}).items():
-                if prefix and name != 'sim_and_actor':
+                if prefix and name not in ('sim_node', 'actor_node'):
                     continue          # the critic and the learner: from the default graph
                 out['nodes'].setdefault(name, []).append({
                     'peak_rss_mb': usage['peak_rss_mb'],
@@ -209,9 +210,9 @@ def _fmt(x, spec=',.0f'):
 def render_tax(res: Dict, table: Callable[[List[str], List[List[str]]], str]) -> List[str]:
     """Return the section's markdown lines."""
     pairs = res['pairs']
-    keys = ['graph', 'composed'] if all('composed' in p for p in pairs) else ['graph']
+    keys = ['graph', 'separate'] if all('separate' in p for p in pairs) else ['graph']
     ratio_head = ['run', 'in-process steps/s', 'graph steps/s', 'graph / in-process',
-                  'graph, composed, steps/s', 'composed / in-process'][:2 + 2 * len(keys)]
+                  'graph, separate, steps/s', 'separate / in-process'][:2 + 2 * len(keys)]
     ratio_rows = [[str(k + 1), _fmt(p['inprocess'])]
                   + [x for key in keys
                      for x in (_fmt(p[key]), _fmt(p[key] / p['inprocess'], '.3f'))]
@@ -226,14 +227,15 @@ def render_tax(res: Dict, table: Callable[[List[str], List[List[str]]], str]) ->
            f'{len(pairs)} times; steps/s from the first update to the last (all). The '
            'ratio is read within each run (its trainings are a minute apart; the machine '
            'drifts more than that between runs), and its median is the figure. '
-           + ('"Composed" is the same graph started with `train --compose`: each simulator '
-              'and its actor in one process (`sim_and_actor`), the critic and the learner '
-              'in their own. ' if 'composed' in keys else '')
+           + ('"Graph" is `python -m pg_node train`: the simulator and the actor in one '
+              'process (`sim_and_actor`), the critic and the learner in their own; '
+              '"separate" the same graph with every node a process of its own '
+              '(`train --separate`). ' if 'separate' in keys else '')
            + f'Load average {res.get("load", "?")}.', '',
            table(ratio_head, ratio_rows), '',
            "Each node in those graph runs: peak resident memory (the kernel's high-water "
            'mark) and CPU seconds per 100k training steps (median over the runs; '
-           '`sim_and_actor`: the process of both in the composed runs).', '',
+           '`sim_node` and `actor_node`: their processes in the separate runs).', '',
            table(['node', 'imports torch', 'peak memory MB', 'CPU s per 100k steps'],
                  [[name, 'yes' if name in ('critic_node', 'learner_node') else 'no',
                    _fmt(statistics.median(u['peak_rss_mb'] for u in res['nodes'][name])),
@@ -241,8 +243,9 @@ def render_tax(res: Dict, table: Callable[[List[str], List[List[str]]], str]) ->
                         '.2f')]
                   for name in NODES if name in res['nodes']]), '',
            'How cost grows with work: arms per simulator and simulator/actor pairs (each pair '
-           'a simulator and an actor process; one critic and one learner). In-process has one '
-           'actor, so two pairs of N arms are set beside one process of 2N arms.', '',
+           'a process of a simulator and an actor, as `train` starts them; one critic and one '
+           'learner). In-process has one actor, so two pairs of N arms are set beside one '
+           'process of 2N arms.', '',
            table(['arms per simulator', 'pairs', 'graph steps/s', 'in-process steps/s '
                   '(pairs x arms in one process)', 'graph / in-process'],
                  [[str(r['arms']), str(r['pairs']), _fmt(r.get('graph')),
@@ -264,8 +267,7 @@ def render_tax(res: Dict, table: Callable[[List[str], List[List[str]]], str]) ->
                 'received; every round trip of the runs after their first two rollouts, '
                 'pooled). Within a rollout the actor answers at once; after the last step of '
                 'a rollout the answer waits for the critic, the learner and the new weights '
-                '(the hand-over). "Composed": the runs with the simulator and the actor in '
-                'one process.', '',
+                '(the hand-over). "Every node its own process": the separate runs.', '',
                 table(['in the training graph', *head[1:]], rows(TRAINING_LABELS)), '']
     out += ['Lock-step round trip of sim_node with 64 arms and a client that answers at once '
             '(no actor, no learning), with no training running and while a training graph '

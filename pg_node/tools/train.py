@@ -1,10 +1,11 @@
 """
-``python -m pg_node train``: the whole training graph, each node its own process.
+``python -m pg_node train``: the whole training graph, supervised.
 
 Validates the configuration (``--config`` plus ``key=value`` overrides) before anything
-starts, writes the resolved parameters to ``<run_dir>/params.yaml``, starts ``sim_node``,
-``actor_node``, ``critic_node`` and ``learner_node`` (each in its own session, logging to
-``<run_dir>/logs/``), shows a progress bar read from the learner's ``progress.csv``, and
+starts, writes the resolved parameters to ``<run_dir>/params.yaml``, starts ``sim_node`` and
+``actor_node`` in one process (``sim_and_actor``: their lock-step exchange needs no other
+process to wake; ``--separate``: a process each), ``critic_node`` and ``learner_node``
+(each process in its own session, logging to ``<run_dir>/logs/``), shows a progress bar read from the learner's ``progress.csv``, and
 supervises: a node that dies is restarted (at most ``--max-restarts`` times each, with
 doubling back-off); the learner resumes from its newest checkpoint, the critic V from its
 own, the actor picks up the latched weights, and a restarted simulator starts fresh episodes
@@ -56,9 +57,10 @@ def parse_args(argv):
     parser.add_argument('--max-restarts', type=int, default=3,
                         help='restarts allowed per node (default: %(default)s)')
     parser.add_argument('--no-progress', action='store_true', help='no progress bar')
-    parser.add_argument('--compose', action='store_true',
-                        help='run each simulator and its actor in one process '
-                             '(pg_node.ros.sim_and_actor): a faster lock-step exchange')
+    parser.add_argument('--separate', action='store_true',
+                        help='run the simulator and the actor as processes of their own '
+                             '(default: each pair in one process, pg_node.ros.sim_and_actor, '
+                             'a faster lock-step exchange)')
     return parser.parse_args(argv)
 
 
@@ -520,8 +522,9 @@ def main(argv=None) -> int:
     if start is not None:
         print(f"resumed from policy version {start['version']} ({start['env_steps']} steps "
               f"learned, {start['checkpoint']})", flush=True)
-    sup = Supervisor(run_dir, node_commands(params, cfg, args.compose), args.max_restarts,
-                     total, sim_seeds(cfg, args.compose))
+    compose = not args.separate
+    sup = Supervisor(run_dir, node_commands(params, cfg, compose), args.max_restarts, total,
+                     sim_seeds(cfg, compose))
     view = ProgressView(run_dir / 'progress.csv', total, start, bar=not args.no_progress)
     t0 = view.t0
     state = 'running'
