@@ -6,10 +6,11 @@ The two nodes, their names, parameters, topics and services are those of
 shared, as a ROS 2 component container holds several nodes. Their lock-step exchange (a
 transition out, its command back, every control step) then needs no wake-up of another
 process: Fast DDS hands a message to a reader of the same process without its transports,
-and one executor runs both callbacks in turn. Measured on 2 cores (PROFILE.md, "Session of
-2026-12-02 12:25 UTC"), the round trip within a rollout went from about 1.0 to 0.6 ms at
-the median and from about 3 to 1.2 ms at p99, and training ran about 10% faster; the critic
-and the learner stay processes of their own.
+and one executor runs both callbacks in turn. Measured on 2 cores (BENCHMARKS.md, the ROS
+tax, two invocations of 5 paired runs): the round trip within a rollout 0.33-0.34 ms at the
+median and 0.91-0.92 ms at p99, against 0.68-0.82 and 2.3-2.9 ms with two processes, and
+training faster in each of the ten pairs (graph / in-process 0.765 and 0.639 against 0.559
+and 0.543). The critic and the learner stay processes of their own.
 
 ``python -m pg_node train`` starts it in place of the two processes (``--separate``: the
 two); started by hand it takes the ROS arguments both nodes take (``--ros-args
