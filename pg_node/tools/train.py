@@ -5,11 +5,12 @@ Validates the configuration (``--config`` plus ``key=value`` overrides) before a
 starts, writes the resolved parameters to ``<run_dir>/params.yaml``, starts ``sim_node`` and
 ``actor_node`` in one process (``sim_and_actor``: their lock-step exchange needs no other
 process to wake; ``--separate``: a process each), ``critic_node`` and ``learner_node``
-(each process in its own session, logging to ``<run_dir>/logs/``), shows a progress bar read from the learner's ``progress.csv``, and
-supervises: a node that dies is restarted (at most ``--max-restarts`` times each, with
-doubling back-off); the learner resumes from its newest checkpoint, the critic V from its
-own, the actor picks up the latched weights, and a restarted simulator starts fresh episodes
-(the learner writes the ones it cut short to the bag as such). When the learner has
+(each process in its own session, logging to ``<run_dir>/logs/``), shows a progress bar
+read from the learner's ``progress.csv``, and supervises: a node that dies is restarted (at
+most ``--max-restarts`` times each, with doubling back-off); the learner resumes from its
+newest checkpoint, the critic V from its own, the actor picks up the latched weights, and a
+restarted simulator starts fresh episodes (the learner writes the ones it cut short to the
+bag as such). When the learner has
 learned ``total_steps`` (or on Ctrl-C) the nodes are stopped with SIGINT (then SIGTERM,
 then SIGKILL), the deterministic policy is evaluated over ``--eval-episodes`` episodes, and
 ``summary.json`` and ``learning_curve.png`` are written next to ``checkpoints/``, ``bag/``
