@@ -286,9 +286,10 @@ class SimNode(Node):
                 throttle_duration_sec=1.0)
             return
         if g is not None and self.sent_ns[g] is not None:
-            self.trips.append(arrived - self.sent_ns[g])
+            trip = arrived - self.sent_ns[g]
+            self.trips.append(trip)
             if self.trip_log is not None:
-                self.trip_log.append(arrived - self.sent_ns[g])
+                self.trip_log.append(trip)
             self.sent_ns[g] = None
         cmd = cmd.reshape(n_arms, self.task.act_dim)
         clipped = np.clip(cmd, self.task.spec.ctrl_low, self.task.spec.ctrl_high)
@@ -556,9 +557,9 @@ class SimNode(Node):
     def close(self):
         """Stop the stepping threads; write the round trips if ``round_trip_log`` asks."""
         self.task.close()
-        path = self.params['round_trip_log']
         if self.trip_log is None:
             return
+        path = self.params['round_trip_log']
         try:
             np.save(Path(path).expanduser(), np.frombuffer(self.trip_log, dtype=np.int64))
         except OSError as exc:
