@@ -42,8 +42,6 @@ TRAINING_LABELS = {'rollout': 'within a rollout',
                    'boundary': "at a rollout's end (hand-over)",
                    'separate_rollout': 'within a rollout, every node its own process',
                    'separate_boundary': "at a rollout's end, every node its own process"}
-#: the ratio's graph runs: default n_steps (a rollout's end is every n_steps-th round trip)
-N_STEPS = 8
 
 
 def inprocess_rate(steps: int, overrides: Sequence[str] = ()) -> float:
@@ -112,10 +110,12 @@ def trip_stats(ms: np.ndarray) -> Dict:
 
 def run_tax(b: Dict, log: Callable[[str], None]) -> Dict:
     """Measure the three tables; return every number."""
+    from pg_node.common.params import defaults
     from pg_node.tools import bench_runs as br
     out = {'steps': b['tax_steps'], 'pairs': [], 'nodes': {}, 'scaling': [], 'latency': {}}
     steps = b['tax_steps']
     trips = {'rollout': [], 'boundary': [], 'separate_rollout': [], 'separate_boundary': []}
+    n_steps = defaults('actor_node')['n_steps']    # the runs' rollouts: a hand-over per n_steps
     for k in range(b['tax_repeats']):
         log(f'tax: in-process, graph and graph of separate processes, 64 arms, {steps:,} '
             f'steps ({k + 1}/{b["tax_repeats"]})')
@@ -125,7 +125,7 @@ def run_tax(b: Dict, log: Callable[[str], None]) -> Dict:
         out['pairs'].append({'inprocess': ip, 'graph': summary['steps_per_second'],
                              'separate': separate['steps_per_second']})
         for prefix, run in (('', summary), ('separate_', separate)):
-            part = split_round_trips(run['round_trips_ns'], N_STEPS)
+            part = split_round_trips(run['round_trips_ns'], n_steps)
             trips[f'{prefix}rollout'].append(part[0])
             trips[f'{prefix}boundary'].append(part[1])
             trained = run['session_steps']
