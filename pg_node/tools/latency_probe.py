@@ -3,12 +3,12 @@ sim_node with every lock-step round trip written to a file, for the benchmarks.
 
 ``python -m pg_node.tools.latency_probe OUT.npy --ros-args -p num_envs:=64`` runs sim_node
 (:mod:`pg_node.ros.sim_node`: its parameters, topics, code path and executor loop) with
-``round_trip_log:=OUT.npy``: in its own process and clock, the
-node times each transition from just before it is published to the arrival of the command
-that answers it (serialisation, DDS both ways, the client's work and the executor's
-dispatch) and, on shutdown (Ctrl-C / SIGINT), writes the round trips in nanoseconds to
-``OUT.npy``. A transition re-sent after a lock-step timeout restarts the clock, so a lost
-message shows up as one long round trip, not as a gap.
+``round_trip_log:=OUT.npy``: in its own process and clock, the node times each transition
+from just before it is published to the arrival of the command that answers it
+(serialisation, DDS both ways, the client's work and the executor's dispatch) and, on
+shutdown (Ctrl-C / SIGINT), writes the round trips in nanoseconds to ``OUT.npy``. A
+transition re-sent after a lock-step timeout restarts the clock, so a lost message shows up
+as one long round trip, not as a gap.
 """
 import sys
 

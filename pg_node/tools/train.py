@@ -10,11 +10,10 @@ read from the learner's ``progress.csv``, and supervises: a node that dies is re
 most ``--max-restarts`` times each, with doubling back-off); the learner resumes from its
 newest checkpoint, the critic V from its own, the actor picks up the latched weights, and a
 restarted simulator starts fresh episodes (the learner writes the ones it cut short to the
-bag as such). When the learner has
-learned ``total_steps`` (or on Ctrl-C) the nodes are stopped with SIGINT (then SIGTERM,
-then SIGKILL), the deterministic policy is evaluated over ``--eval-episodes`` episodes, and
-``summary.json`` and ``learning_curve.png`` are written next to ``checkpoints/``, ``bag/``
-and ``progress.csv``.
+bag as such). When the learner has learned ``total_steps`` (or on Ctrl-C) the nodes are
+stopped with SIGINT (then SIGTERM, then SIGKILL), the deterministic policy is evaluated
+over ``--eval-episodes`` episodes, and ``summary.json`` and ``learning_curve.png`` are
+written next to ``checkpoints/``, ``bag/`` and ``progress.csv``.
 
 ``--config`` takes a parameter file's path or a preset's name: ``--config ppo`` is the
 package's ``config/ppo.yaml`` (tuned PPO), ``--config a2c`` its ``config/a2c.yaml`` (the
@@ -90,6 +89,12 @@ def write_params(cfg: dict, path: Path):
                     + yaml.safe_dump(sections, sort_keys=False))
 
 
+#: a simulator/actor pair's processes, (name, module), the simulator's first: composed or not
+PAIR_PROCESSES = {True: [('sim_and_actor', 'pg_node.ros.sim_and_actor')],
+                  False: [('sim_node', 'pg_node.ros.sim_node'),
+                          ('actor_node', 'pg_node.ros.actor_node')]}
+
+
 def node_commands(params: Path, cfg: dict, compose: bool = False) -> dict:
     """
     Return ``{process name: command}`` for the whole graph.
@@ -105,8 +110,7 @@ def node_commands(params: Path, cfg: dict, compose: bool = False) -> dict:
     n = cfg[SHARED]['num_actors']
     cmds = {'critic_node': base + ['pg_node.ros.critic_node'] + ros,
             'learner_node': base + ['pg_node.ros.learner_node'] + ros}
-    pair = [('sim_and_actor', 'pg_node.ros.sim_and_actor')] if compose else [
-        ('sim_node', 'pg_node.ros.sim_node'), ('actor_node', 'pg_node.ros.actor_node')]
+    pair = PAIR_PROCESSES[compose]
     if n == 1:
         for name, module in pair:
             cmds[name] = base + [module] + ros
@@ -149,7 +153,7 @@ def make_bags_whole(bags) -> list:
 def sim_seeds(cfg: dict, compose: bool = False) -> dict:
     """Return each simulator's seed by the name of its process in :func:`node_commands`."""
     n, seed, arms = cfg[SHARED]['num_actors'], cfg[SHARED]['seed'], cfg[SHARED]['num_envs']
-    name = 'sim_and_actor' if compose else 'sim_node'
+    name = PAIR_PROCESSES[compose][0][0]           # the process the simulator runs in
     if n == 1:
         return {name: seed}
     return {f'{name}_{i}': seed + i * arms for i in range(n)}
