@@ -31,12 +31,12 @@ LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
-def start_node(tmp_path, *params):
-    """Start ``python -m pg_node.ros.sim_node`` in its own session with ``-p`` overrides."""
+def start_node(tmp_path, *params, module='pg_node.ros.sim_node'):
+    """Start ``python -m <module>`` (sim_node) in its own session with ``-p`` overrides."""
     env = dict(os.environ, ROS_DOMAIN_ID=str(DOMAIN_ID), PYTHONUNBUFFERED='1',
                PYTHONPATH=str(REPO), AMENT_PREFIX_PATH=os.environ.get(
                    'AMENT_PREFIX_PATH', str(Path(sys.executable).parent.parent)))
-    args = [sys.executable, '-m', 'pg_node.ros.sim_node', '--ros-args']
+    args = [sys.executable, '-m', module, '--ros-args']
     # one arm and one message per step unless the test says otherwise (the shipped config
     # trains with 64 arms); a later -p wins over an earlier one
     for param in ('num_envs:=1', 'lock_step_groups:=1') + params:
@@ -527,13 +527,7 @@ def test_real_time_mode_runs_on_its_own_and_drops_to_zero_torque(tmp_path, clien
 
 
 def _sim_and_actor(tmp_path, *params):
-    env = dict(os.environ, ROS_DOMAIN_ID=str(DOMAIN_ID), PYTHONUNBUFFERED='1',
-               PYTHONPATH=str(REPO), AMENT_PREFIX_PATH=os.environ.get(
-                   'AMENT_PREFIX_PATH', str(Path(sys.executable).parent.parent)))
-    args = [sys.executable, '-m', 'pg_node.ros.sim_and_actor', '--ros-args']
-    for param in ('num_envs:=2',) + params:
-        args += ['-p', param]
-    return processes.start_logged(args, tmp_path / 'sim_and_actor.log', env)
+    return start_node(tmp_path, 'num_envs:=2', *params, module='pg_node.ros.sim_and_actor')
 
 
 @pytest.mark.e2e
