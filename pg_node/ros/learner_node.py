@@ -86,6 +86,7 @@ class LearnerNode(Node):
         self.t0 = time.monotonic() - (state or {}).get('wall_seconds', 0.0)
         self.last_metrics = {}
         self.done = False
+        self.exit_code = None              # set when done: node_utils.run then stops
         bag_dir = self.run_dir / 'bag'
         if bag_dir.exists():
             # a restarted learner continues in a new bag beside the old one
@@ -229,7 +230,7 @@ class LearnerNode(Node):
         self.get_logger().info(f'done: {self.learner.env_steps} steps, policy version '
                                f'{self.learner.version}')
         if self.cfg['exit_when_done']:
-            raise SystemExit(0)
+            self.exit_code = 0             # node_utils.run stops the process after this callback
 
     def close(self):
         """Save and close everything (on exit, Ctrl-C or SIGTERM)."""

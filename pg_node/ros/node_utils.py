@@ -134,6 +134,10 @@ def run(make_node: Callable[[], Union[Node, List[Node]]], args=None,
     ``make_node`` may return a list of nodes: they share the process and its executor
     (composition); ``cleanup`` gets what ``make_node`` returned.
 
+    A node ends the process by setting its ``exit_code`` attribute (the learner, done):
+    the loop stops after that callback, without an exception through the executor, which
+    would log it as a fatal error of the callback.
+
     The node style of ``ros2/demos``' talker; a bad configuration is reported in one line
     (exit code 2) instead of a traceback, also a ``--params-file`` that is no valid YAML
     parameter file or ROS arguments that rcl cannot parse (rcl's own log lines of that are
@@ -174,6 +178,10 @@ def run(make_node: Callable[[], Union[Node, List[Node]]], args=None,
             _apply_nice(each)             # after the executor: its threads exist now
         while rclpy.ok():
             executor.spin_once(timeout_sec=0.5)
+            done = [n.exit_code for n in _nodes(node) if getattr(n, 'exit_code', None) is not None]
+            if done:
+                code = done[0]
+                break
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except _rclpy.RCLError:
