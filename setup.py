@@ -35,6 +35,7 @@ setup(
             'replay_node = pg_node.ros.replay_node:main',
             'policy_node = pg_node.ros.policy_node:main',
             'sim_and_actor = pg_node.ros.sim_and_actor:main',
+            'critic_and_learner = pg_node.ros.critic_and_learner:main',
         ],
     },
 )

@@ -239,7 +239,7 @@ def test_quick_bench_writes_every_table(tmp_path):
     assert len(tax['pairs']) == 1 and all(v > 0 for v in tax['pairs'][0].values())
     assert set(tax['pairs'][0]) == {'inprocess', 'graph', 'separate'}
     assert set(tax['nodes']) == {'sim_node', 'actor_node', 'critic_node', 'learner_node',
-                                 'sim_and_actor'}
+                                 'sim_and_actor', 'critic_and_learner'}
     assert [(r['arms'], r['pairs']) for r in tax['scaling']] == [(16, 1), (16, 2)]
     assert all(r['graph'] > 0 and r['inprocess'] > 0 for r in tax['scaling']), tax['scaling']
     for key in ('idle', 'training'):
@@ -252,7 +252,8 @@ def test_quick_bench_writes_every_table(tmp_path):
         assert ends['round_trips'] >= 6 and inside['round_trips'] >= 42, tax['latency']
         assert abs(inside['round_trips'] - 7 * ends['round_trips']) < 8, tax['latency']
         assert ends['median_ms'] > 2 * inside['median_ms'], tax['latency']
-    assert 'sim_and_actor' in tax['nodes'] and '| separate / in-process |' in text
+    assert '| critic_and_learner | yes |' in text and '| sim_and_actor | no |' in text
+    assert '| separate / in-process |' in text
     assert 'in the training graph' in text and "at a rollout's end (hand-over)" in text
     for name in ('throughput', 'latency', 'learning', 'variance', 'curves'):
         assert (tmp_path / 'bench_plots' / f'{name}.png').stat().st_size > 1000

@@ -488,7 +488,7 @@ def wait_for_progress(proc, run_dir, deadline, min_steps=0.0):
         time.sleep(0.2)
 
 
-def node_pids(run_dir, node=r'.*_node|sim_and_actor'):
+def node_pids(run_dir, node=r'.*_node|sim_and_actor|critic_and_learner'):
     """Return the pids of a run's node processes (all, or ``node``), named by its run dir."""
     out = subprocess.run(['pgrep', '-f', f'pg_node[.]ros[.]({node}) .*{run_dir}'],
                          capture_output=True, text=True).stdout.split()
@@ -825,8 +825,8 @@ def test_signal_to_train_alone_stops_every_node(tmp_path, sig):
                             preexec_fn=as_if_started_with_amp)
     try:
         wait_for_progress(proc, run_dir, time.monotonic() + 240)
-        # train's default: the simulator and the actor in one process, sim_and_actor
-        assert len(node_pids(run_dir)) == 3
+        # train's default: sim_and_actor and critic_and_learner
+        assert len(node_pids(run_dir)) == 2
         os.kill(proc.pid, sig)                 # the bring-up only, as timeout(1) does
         text = proc.communicate(timeout=120)[0]
     finally:

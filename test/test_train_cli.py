@@ -85,15 +85,17 @@ def test_summary_reports_each_nodes_memory_and_cpu(runs):
     """Peak memory and CPU seconds of every node; the nodes that only act hold no torch."""
     _, out, summary, _, _ = runs
     nodes = summary['nodes']
-    # train's default: the simulator and the actor in one process (--separate: two)
-    assert set(nodes) == {'sim_and_actor', 'critic_node', 'learner_node'}
+    # train's default: the simulator and the actor in one process, the critic and the
+    # learner in another (--separate: a process each)
+    assert set(nodes) == {'sim_and_actor', 'critic_and_learner'}
     for name, u in nodes.items():
         # a 4096-step run trains for a second or two: a node's CPU in it may round to 0
         assert 0 <= u['cpu_seconds_training'] <= u['cpu_seconds'], (name, u)
         assert u['cpu_seconds'] > 0 and 20 < u['peak_rss_mb'] < 4000, (name, u)
     assert sum(u['cpu_seconds_training'] for u in nodes.values()) > 0, nodes
     # torch alone maps several hundred MB; the simulator and the actor never import it
-    assert nodes['sim_and_actor']['peak_rss_mb'] < 300 < nodes['learner_node']['peak_rss_mb']
+    assert nodes['sim_and_actor']['peak_rss_mb'] < 300 < \
+        nodes['critic_and_learner']['peak_rss_mb']
     line = next(ln for ln in out.splitlines() if ln.startswith('nodes (peak memory'))
     assert f"sim_and_actor {nodes['sim_and_actor']['peak_rss_mb']:.0f} MB" in line
 
@@ -118,15 +120,21 @@ def test_resume_says_so_and_counts_this_session_only(runs):
 
 @pytest.mark.parametrize('pairs', [1, 2])
 def test_compose_runs_each_simulator_and_its_actor_as_one_process(tmp_path, pairs):
-    """By default one process per pair, with the pair's ROS arguments and its seed."""
+    """By default one process per pair and one for the critic and the learner."""
     from pg_node.common.params import load_config
-    from pg_node.tools.train import node_commands, sim_seeds
+    from pg_node.tools.train import learner_process, node_commands, sim_seeds
     cfg = load_config(None, [f'num_actors={pairs}', 'seed=5', 'num_envs=16'])
     params = tmp_path / 'params.yaml'
     apart, together = node_commands(params, cfg), node_commands(params, cfg, compose=True)
     tags = [''] if pairs == 1 else [f'_{i}' for i in range(pairs)]
-    assert set(together) == {'critic_node', 'learner_node',
-                             *(f'sim_and_actor{t}' for t in tags)}
+    assert set(together) == {'critic_and_learner', *(f'sim_and_actor{t}' for t in tags)}
+    assert together['critic_and_learner'][:3] == [sys.executable, '-m',
+                                                  'pg_node.ros.critic_and_learner']
+    # the pair-less ROS arguments of both (the one parameter file, no namespace)
+    assert together['critic_and_learner'][3:] == apart['critic_node'][3:] \
+        == apart['learner_node'][3:]
+    assert (learner_process(), learner_process(compose=True)) == ('learner_node',
+                                                                  'critic_and_learner')
     for t in tags:
         sim, both = apart[f'sim_node{t}'], together[f'sim_and_actor{t}']
         assert both[:3] == [sys.executable, '-m', 'pg_node.ros.sim_and_actor']

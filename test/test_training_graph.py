@@ -2,12 +2,14 @@
 End to end: the four nodes over DDS, trained by ``python -m pg_node train``.
 
 ``train`` runs the simulator and the actor in one process (``sim_and_actor``), the critic and
-the learner in processes of their own; ``--separate`` gives every node its own process.
+the learner in another (``critic_and_learner``); ``--separate`` gives every node its own
+process.
 
 One training run (300k steps, the shipped configuration) is shared by the tests in file
 order: it must learn, equal the in-process reference bit for bit (lock-step synchronous
 mode is deterministic), leave a bag that PyPI ``rosbags`` reads with the expected counts,
-and then resume from its checkpoint, surviving a SIGKILL of the learner while it writes.
+and then resume from its checkpoint, surviving a SIGKILL of the learner (and the critic in
+its process) while it writes.
 """
 import json
 import os
@@ -67,10 +69,15 @@ def run(tmp_path_factory):
 
 def test_graph_learns_and_versions_advance(run):
     run_dir, summary = run
-    # train's default: the simulator and the actor share a process, each logging as itself
-    assert set(summary['nodes']) == {'sim_and_actor', 'critic_node', 'learner_node'}
+    # train's default: the simulator and the actor share a process, the critic and the
+    # learner another, each node logging as itself
+    assert set(summary['nodes']) == {'sim_and_actor', 'critic_and_learner'}
     log = (run_dir / 'logs' / 'sim_and_actor.log').read_text()
     assert '[sim_node]: lock_step: 64 x reacher2' in log and '[actor_node]: actor 0' in log
+    log = (run_dir / 'logs' / 'critic_and_learner.log').read_text()
+    assert '[critic_node]: critic: phi = gae' in log and '[learner_node]: done: ' in log
+    # the learner's end is a clean stop of the process, not an exception in a callback
+    assert 'Exception in' not in log and 'FATAL' not in log
     from PIL import Image
     with Image.open(run_dir / 'learning_curve.png') as img:
         assert img.size == (1500, 800)
@@ -313,7 +320,8 @@ def test_resume_and_survive_a_learner_sigkill(run):
         ex.shutdown()
         node.destroy_node()
         rclpy.shutdown(context=ctx)
-        out = subprocess.run(['pgrep', '-f', f'pg_node.ros.learner_node.*{run_dir}'],
+        # train's default: the learner shares its process with the critic; both die
+        out = subprocess.run(['pgrep', '-f', f'pg_node.ros.critic_and_learner.*{run_dir}'],
                              capture_output=True, text=True).stdout.split()
         assert len(out) == 1, out
         os.kill(int(out[0]), signal.SIGKILL)
@@ -322,9 +330,11 @@ def test_resume_and_survive_a_learner_sigkill(run):
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
     assert proc.returncode == 0, text[-3000:]
-    assert 'learner_node exited with code -9; restarting' in text
+    assert 'critic_and_learner exited with code -9; restarting' in text
     after = json.loads((run_dir / 'summary.json').read_text())
-    assert after['total_steps'] >= more and after['restarts']['learner_node'] == 1
+    assert after['total_steps'] >= more and after['restarts']['critic_and_learner'] == 1
+    log = (run_dir / 'logs' / 'critic_and_learner.log').read_text()
+    assert log.count('[critic_node]: resumed V from') == 2, log[-3000:]   # both restarts
     versions = [int(float(r['policy_version'])) for r in progress(run_dir)]
     # the resumed run continued from the saved version, not from scratch
     assert versions[len(versions) - 1] > first and first + 1 in versions

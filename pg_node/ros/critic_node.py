@@ -15,8 +15,10 @@ its weights again), so no single lost message stalls synchronous training. A mal
 rollout is dropped and counted.
 
 A batch is sent as soon as phi is computed; V takes its regression step on the rollout
-afterwards, while the learner works, so the batch header's ``value_loss`` and
-``explained_variance`` are V's on the rollout before that step.
+afterwards, in a task queued behind the batch: while the learner works when it is a process
+of its own, after it when both share a process (``critic_and_learner``), off the hand-over's
+path either way. The batch header's ``value_loss`` and ``explained_variance`` are V's on the
+rollout before that step, and the next rollout's phi waits for the step, as in-process.
 
 V is checkpointed to ``<run_dir>/critic`` every ``checkpoint_every`` batches and on exit, and
 a restarted critic resumes from the newest valid checkpoint.
@@ -64,6 +66,7 @@ class CriticNode(Node):
                          'batches': 0, 'batches_resent': 0, 'stale_groups_dropped': 0}
         self.steps = RateCounter()
         self.last_stats = {}
+        self.pending_fit = None            # (obs, returns) of the batch V has not learned yet
         self.pub_batch = self.create_publisher(Float64MultiArray, '/pg_node/batch', RELIABLE)
         self.create_subscription(Float64MultiArray, '/pg_node/rollout', self.on_rollout,
                                  RELIABLE)
@@ -149,7 +152,8 @@ class CriticNode(Node):
             self.annotate(version, sorted(group.items()))
 
     def annotate(self, version: int, parts):
-        """Concatenate rollouts along the arm axis, compute phi, fit V, send the batch."""
+        """Concatenate rollouts along the arm axis, compute phi, send the batch, fit V."""
+        self.finish_fit()                  # phi of this rollout needs V after the last step
         ros = [ro for _, ro in parts]
         ro = RolloutArrays(**{k: np.concatenate([getattr(r, k) for r in ros], axis=1)
                               for k in ros[0].as_dict()})
@@ -174,9 +178,12 @@ class CriticNode(Node):
                   'explained_variance': stats['explained_variance']}
         msg = table_msg.to_msg(*messages.pack_batch(batch, header))
         self.pub_batch.publish(msg)
-        # V learns from the rollout only now: the learner and then the actors wait on the
-        # batch, not on this step (phi above was computed with V before it, as in-process)
-        self.last_stats = self.critic.fit(ro.obs, ret)
+        # V learns from the rollout only after the learner and then the actors are served
+        # (phi above was computed with V before its step, as in-process): a task queued
+        # now runs after the batch's delivery to a learner in this process
+        # (critic_and_learner), and at once when the learner is a process of its own
+        self.pending_fit = (ro.obs, ret)
+        self.schedule(self.finish_fit)
         self.sent[version] = msg
         self.sent.move_to_end(version)
         while len(self.sent) > 4:
@@ -186,11 +193,28 @@ class CriticNode(Node):
         self.batches += 1
         self.counters['batches'] += 1
         self.steps.add(ro.rew.size)
+
+    def schedule(self, work) -> None:
+        """Queue ``work`` on this node's executor (run it now when there is none)."""
+        executor = self.executor
+        if executor is None:
+            work()
+        else:
+            executor.create_task(work)
+
+    def finish_fit(self):
+        """Take V's regression step on the newest batch's rollout, if not taken yet."""
+        if self.pending_fit is None:
+            return
+        obs, ret = self.pending_fit
+        self.pending_fit = None
+        self.last_stats = self.critic.fit(obs, ret)
         if self.batches % self.cfg['checkpoint_every'] == 0:
             self.save()
 
     def save(self):
-        """Write an atomic checkpoint of V."""
+        """Write an atomic checkpoint of V (after its pending step)."""
+        self.finish_fit()
         if self.critic is not None:
             save_checkpoint(self.ckpt_dir, self.batches, self.critic.state())
 

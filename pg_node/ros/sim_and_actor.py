@@ -10,7 +10,8 @@ and one executor runs both callbacks in turn. Measured on 2 cores (BENCHMARKS.md
 tax, two invocations of 5 paired runs): the round trip within a rollout 0.33-0.34 ms at the
 median and 0.91-0.92 ms at p99, against 0.68-0.82 and 2.3-2.9 ms with two processes, and
 training faster in each of the ten pairs (graph / in-process 0.765 and 0.639 against 0.559
-and 0.543). The critic and the learner stay processes of their own.
+and 0.543). The critic and the learner share another process the same way
+(:mod:`pg_node.ros.critic_and_learner`).
 
 ``python -m pg_node train`` starts it in place of the two processes (``--separate``: the
 two); started by hand it takes the ROS arguments both nodes take (``--ros-args

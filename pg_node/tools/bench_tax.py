@@ -36,7 +36,10 @@ BUDGETS = {'tax_steps': (200_000, 4_096), 'tax_repeats': (5, 1),
            'tax_latency_steps': (5_000, 300)}
 #: scaling rows: (arms per simulator, simulator/actor pairs)
 SCALING = ((16, 1), (16, 2), (64, 1), (64, 2), (256, 1), (256, 2))
-NODES = ('sim_node', 'actor_node', 'critic_node', 'learner_node', 'sim_and_actor')
+NODES = ('sim_node', 'actor_node', 'critic_node', 'learner_node', 'sim_and_actor',
+         'critic_and_learner')
+#: the processes that hold torch (the learning side)
+TORCH_NODES = ('critic_node', 'learner_node', 'critic_and_learner')
 LATENCY_LABELS = {'idle': 'no training running', 'training': 'a training graph runs'}
 TRAINING_LABELS = {'rollout': 'within a rollout',
                    'boundary': "at a rollout's end (hand-over)",
@@ -228,16 +231,17 @@ def render_tax(res: Dict, table: Callable[[List[str], List[List[str]]], str]) ->
            'ratio is read within each run (its trainings are a minute apart; the machine '
            'drifts more than that between runs), and its median is the figure. '
            + ('"Graph" is `python -m pg_node train`: the simulator and the actor in one '
-              'process (`sim_and_actor`), the critic and the learner in their own; '
+              'process (`sim_and_actor`), the critic and the learner in another '
+              '(`critic_and_learner`); '
               '"separate" the same graph with every node a process of its own '
               '(`train --separate`). ' if 'separate' in keys else '')
            + f'Load average {res.get("load", "?")}.', '',
            table(ratio_head, ratio_rows), '',
            "Each node in those graph runs: peak resident memory (the kernel's high-water "
-           'mark) and CPU seconds per 100k training steps (median over the runs; '
-           '`sim_node` and `actor_node`: their processes in the separate runs).', '',
+           'mark) and CPU seconds per 100k training steps (median over the runs; a node '
+           'by its name: its process in the separate runs).', '',
            table(['node', 'imports torch', 'peak memory MB', 'CPU s per 100k steps'],
-                 [[name, 'yes' if name in ('critic_node', 'learner_node') else 'no',
+                 [[name, 'yes' if name in TORCH_NODES else 'no',
                    _fmt(statistics.median(u['peak_rss_mb'] for u in res['nodes'][name])),
                    _fmt(statistics.median(u['cpu_per_100k'] for u in res['nodes'][name]),
                         '.2f')]

@@ -4,8 +4,10 @@
 Validates the configuration (``--config`` plus ``key=value`` overrides) before anything
 starts, writes the resolved parameters to ``<run_dir>/params.yaml``, starts ``sim_node`` and
 ``actor_node`` in one process (``sim_and_actor``: their lock-step exchange needs no other
-process to wake; ``--separate``: a process each), ``critic_node`` and ``learner_node``
-(each process in its own session, logging to ``<run_dir>/logs/``), shows a progress bar
+process to wake) and ``critic_node`` and ``learner_node`` in another
+(``critic_and_learner``: the batch stays in the process; ``--separate``: every node a
+process of its own), each process in its own session and logging to
+``<run_dir>/logs/``, shows a progress bar
 read from the learner's ``progress.csv``, and supervises: a node that dies is restarted (at
 most ``--max-restarts`` times each, with doubling back-off); the learner resumes from its
 newest checkpoint, the critic V from its own, the actor picks up the latched weights, and a
@@ -58,9 +60,10 @@ def parse_args(argv):
                         help='restarts allowed per node (default: %(default)s)')
     parser.add_argument('--no-progress', action='store_true', help='no progress bar')
     parser.add_argument('--separate', action='store_true',
-                        help='run the simulator and the actor as processes of their own '
-                             '(default: each pair in one process, pg_node.ros.sim_and_actor, '
-                             'a faster lock-step exchange)')
+                        help='run every node as a process of its own (default: each '
+                             'simulator and its actor in one process, sim_and_actor, and '
+                             'the critic and the learner in another, critic_and_learner: '
+                             'faster)')
     return parser.parse_args(argv)
 
 
@@ -93,6 +96,15 @@ def write_params(cfg: dict, path: Path):
 PAIR_PROCESSES = {True: [('sim_and_actor', 'pg_node.ros.sim_and_actor')],
                   False: [('sim_node', 'pg_node.ros.sim_node'),
                           ('actor_node', 'pg_node.ros.actor_node')]}
+#: the critic's and the learner's processes, the learner's last: composed or not
+TRAINING_PROCESSES = {True: [('critic_and_learner', 'pg_node.ros.critic_and_learner')],
+                      False: [('critic_node', 'pg_node.ros.critic_node'),
+                              ('learner_node', 'pg_node.ros.learner_node')]}
+
+
+def learner_process(compose: bool = False) -> str:
+    """Return the name of the process the learner runs in."""
+    return TRAINING_PROCESSES[compose][-1][0]
 
 
 def node_commands(params: Path, cfg: dict, compose: bool = False) -> dict:
@@ -103,13 +115,13 @@ def node_commands(params: Path, cfg: dict, compose: bool = False) -> dict:
     (its topics become ``/arm<i>/pg_node/transition``...), actor ``i`` gets ``actor_id`` i,
     and simulator ``i`` seeds its arms from ``seed + i * num_envs`` so that no two arms of
     the run draw the same episodes. With ``compose`` each pair is one process,
-    ``sim_and_actor`` (``sim_and_actor_<i>``), holding both nodes.
+    ``sim_and_actor`` (``sim_and_actor_<i>``), holding both nodes, and the critic and the
+    learner are one, ``critic_and_learner``.
     """
     base = [sys.executable, '-m']
     ros = ['--ros-args', '--params-file', str(params)]
     n = cfg[SHARED]['num_actors']
-    cmds = {'critic_node': base + ['pg_node.ros.critic_node'] + ros,
-            'learner_node': base + ['pg_node.ros.learner_node'] + ros}
+    cmds = {name: base + [module] + ros for name, module in TRAINING_PROCESSES[compose]}
     pair = PAIR_PROCESSES[compose]
     if n == 1:
         for name, module in pair:
@@ -163,8 +175,10 @@ class Supervisor:
     """Starts, watches, restarts and stops the node processes."""
 
     def __init__(self, run_dir: Path, commands: dict, max_restarts: int,
-                 total_steps: Optional[int] = None, seeds: Optional[dict] = None):
+                 total_steps: Optional[int] = None, seeds: Optional[dict] = None,
+                 learner: str = 'learner_node'):
         self.run_dir = run_dir
+        self.learner = learner      # the process the learner runs in
         self.commands = commands
         self.total_steps = total_steps
         self.seeds = dict(seeds or {})
@@ -216,9 +230,9 @@ class Supervisor:
             code = proc.poll()
             if code is None:
                 continue
-            if name == 'learner_node' and code == 0 and self._learned_all():
+            if name == self.learner and code == 0 and self._learned_all():
                 return 'done'
-            if name == 'learner_node' and code != 0 and name not in self.next_start:
+            if name == self.learner and code != 0 and name not in self.next_start:
                 # killed (SIGKILL, OOM...): its bag, the newest, has no summary yet
                 bags = bag_dirs(self.run_dir)
                 if bags and bags[-1] not in self.unfinished_bags:
@@ -529,7 +543,7 @@ def main(argv=None) -> int:
               f"learned, {start['checkpoint']})", flush=True)
     compose = not args.separate
     sup = Supervisor(run_dir, node_commands(params, cfg, compose), args.max_restarts, total,
-                     sim_seeds(cfg, compose))
+                     sim_seeds(cfg, compose), learner_process(compose))
     view = ProgressView(run_dir / 'progress.csv', total, start, bar=not args.no_progress)
     t0 = view.t0
     state = 'running'
