@@ -15,6 +15,10 @@ then stopped, as Ctrl-C does. Arguments:
 - ``namespace`` (of the simulator/actor pair), ``actor_id`` and ``use_learner:=false`` to start
   only a simulator/actor pair that joins a critic and learner running elsewhere on the same
   ``ROS_DOMAIN_ID`` (set ``num_actors`` on the critic/learner side);
+- ``compose`` (default ``true``, as ``python -m pg_node train``): the simulator and the actor
+  run in one process (``sim_and_actor``), the critic and the learner in another
+  (``critic_and_learner``): the same four nodes, names, topics and parameters, with fewer
+  processes to wake each control step; ``compose:=false`` starts a process per node;
 - ``supervised:=true``: instead of the four nodes, run ``python -m pg_node train`` with the
   same file and overrides: it restarts a node that dies, evaluates the final policy and
   writes ``summary.json`` and the learning-curve plot; the launch ends with it.
@@ -79,19 +83,39 @@ def _bring_up(context):
     namespace = _value(context, 'namespace')
     actor_id = int(_value(context, 'actor_id'))
     shared = {k: v for k, v in given.items() if k in ('seed', 'num_envs')}
-    sim = Node(package='pg_node', executable='sim_node', name='sim_node', namespace=namespace,
-               parameters=[params, shared], output='screen')
-    actor = Node(package='pg_node', executable='actor_node', name='actor_node',
-                 namespace=namespace, parameters=[params, {**shared, 'actor_id': actor_id}],
-                 output='screen')
-    actions = [sim, actor]
-    if _value(context, 'use_learner').lower() == 'true':
-        critic = Node(package='pg_node', executable='critic_node', name='critic_node',
-                      parameters=[params, {**shared, 'run_dir': run_dir}], output='screen')
-        learner = Node(package='pg_node', executable='learner_node', name='learner_node',
-                       parameters=[params, {**given, 'run_dir': run_dir}], output='screen')
+    pair = {'sim_node': shared, 'actor_node': {**shared, 'actor_id': actor_id}}
+    training = {'critic_node': {**shared, 'run_dir': run_dir},
+                'learner_node': {**given, 'run_dir': run_dir}}
+    use_learner = _value(context, 'use_learner').lower() == 'true'
+    if _value(context, 'compose').lower() == 'true':
+        # no name=: it would rename every node of the process; each node's own values go
+        # in a section of its name, as a parameters dict would reach both nodes
+        actions = [Node(package='pg_node', executable='sim_and_actor', namespace=namespace,
+                        parameters=[params, _sections_file(pair)], output='screen')]
+        if use_learner:
+            both = Node(package='pg_node', executable='critic_and_learner',
+                        parameters=[params, _sections_file(training)], output='screen')
+            actions += [both, _end_with(both, 'the learner has finished')]
+        return actions
+    actions = [Node(package='pg_node', executable=name, name=name, namespace=namespace,
+                    parameters=[params, values], output='screen')
+               for name, values in pair.items()]
+    if use_learner:
+        critic, learner = [Node(package='pg_node', executable=name, name=name,
+                                parameters=[params, values], output='screen')
+                           for name, values in training.items()]
         actions += [critic, learner, _end_with(learner, 'the learner has finished')]
     return actions
+
+
+def _sections_file(values_by_node):
+    """Write ``{node name: parameters}`` as a parameter file of ``/**/<name>`` sections."""
+    import tempfile
+    with tempfile.NamedTemporaryFile('w', prefix='pg_node_launch_', suffix='.yaml',
+                                     delete=False) as f:
+        yaml.safe_dump({f'/**/{name}': {'ros__parameters': values}
+                        for name, values in values_by_node.items()}, f, sort_keys=False)
+    return f.name
 
 
 def generate_launch_description():
@@ -111,6 +135,9 @@ def generate_launch_description():
         ('namespace', '', 'namespace of the simulator/actor pair'),
         ('actor_id', '0', 'id of this pair when several feed one learner'),
         ('use_learner', 'true', 'also start the critic and the learner'),
+        ('compose', 'true', 'the simulator and the actor in one process (sim_and_actor), '
+                            'the critic and the learner in another (critic_and_learner); '
+                            'false: a process each'),
         ('supervised', 'false', 'run python -m pg_node train (restarts, evaluation, summary)'),
     ]
     return LaunchDescription(

@@ -4,13 +4,14 @@ from pathlib import Path
 import shutil
 import subprocess
 import sys
+import time
 import xml.etree.ElementTree as ET
 
 import pytest
 
 REPO = Path(__file__).resolve().parent.parent
 EXECUTABLES = ('sim_node', 'actor_node', 'critic_node', 'learner_node', 'replay_node',
-               'policy_node')
+               'policy_node', 'sim_and_actor', 'critic_and_learner')
 SOURCES = ('package.xml', 'setup.py', 'setup.cfg', 'resource', 'pg_node', 'config', 'launch')
 
 
@@ -134,14 +135,15 @@ def _ends_launch_with(handler, action):
 
 def test_launch_ends_when_the_learner_exits_and_takes_overrides(monkeypatch):
     from pg_node.common.params import params_for
-    actions = _bring_up(monkeypatch)
+    actions = _bring_up(monkeypatch, compose='false')
     nodes = {a.kwargs['executable']: a for a in actions if type(a).__name__ == 'Node'}
     assert set(nodes) == {'sim_node', 'actor_node', 'critic_node', 'learner_node'}
     handlers = [a for a in actions if type(a).__name__ == 'RegisterEventHandler']
     assert len(handlers) == 1 and _ends_launch_with(handlers[0], nodes['learner_node'])
     assert nodes['learner_node'].kwargs['parameters'][1] == {'run_dir': 'runs/latest'}
     # overrides reach the nodes that read them, typed as the table wants them
-    actions = _bring_up(monkeypatch, total_steps='5000', seed='3', num_envs='16', algo='ppo')
+    actions = _bring_up(monkeypatch, total_steps='5000', seed='3', num_envs='16', algo='ppo',
+                        compose='false')
     nodes = {a.kwargs['executable']: a for a in actions if type(a).__name__ == 'Node'}
     learner = nodes['learner_node'].kwargs['parameters'][1]
     assert learner == {'total_steps': 5000, 'seed': 3, 'num_envs': 16, 'algo': 'ppo',
@@ -150,9 +152,66 @@ def test_launch_ends_when_the_learner_exits_and_takes_overrides(monkeypatch):
         assert params_for('learner_node')[key].check(key, value) == value
     assert nodes['sim_node'].kwargs['parameters'][1] == {'seed': 3, 'num_envs': 16}
     # a simulator/actor pair alone: no learner to wait for
-    actions = _bring_up(monkeypatch, use_learner='false', namespace='/arm1', actor_id='1')
+    actions = _bring_up(monkeypatch, use_learner='false', namespace='/arm1', actor_id='1',
+                        compose='false')
     assert [a.kwargs['executable'] for a in actions] == ['sim_node', 'actor_node']
     assert actions[1].kwargs['parameters'][1] == {'actor_id': 1}
+
+
+def _sections(node):
+    """Return the launch's own parameter file of a composed process, ``{section: values}``."""
+    import yaml
+    params = node.kwargs['parameters']
+    assert len(params) == 2 and isinstance(params[1], str), params
+    return {k: v['ros__parameters'] for k, v in yaml.safe_load(Path(params[1]).read_text())
+            .items()}
+
+
+def test_launch_composes_as_train_does_with_each_nodes_own_values(monkeypatch):
+    """By default two processes; each node's values in a section of its own name."""
+    actions = _bring_up(monkeypatch, total_steps='5000', seed='3', num_envs='16', algo='ppo')
+    nodes = {a.kwargs['executable']: a for a in actions if type(a).__name__ == 'Node'}
+    assert set(nodes) == {'sim_and_actor', 'critic_and_learner'}
+    # a launch name would rename every node of the process
+    assert all('name' not in n.kwargs for n in nodes.values())
+    handlers = [a for a in actions if type(a).__name__ == 'RegisterEventHandler']
+    assert len(handlers) == 1 and _ends_launch_with(handlers[0], nodes['critic_and_learner'])
+    assert _sections(nodes['sim_and_actor']) == {
+        '/**/sim_node': {'seed': 3, 'num_envs': 16},
+        '/**/actor_node': {'seed': 3, 'num_envs': 16, 'actor_id': 0}}
+    assert _sections(nodes['critic_and_learner']) == {
+        '/**/critic_node': {'seed': 3, 'num_envs': 16, 'run_dir': 'runs/latest'},
+        '/**/learner_node': {'total_steps': 5000, 'seed': 3, 'num_envs': 16, 'algo': 'ppo',
+                             'run_dir': 'runs/latest'}}
+    actions = _bring_up(monkeypatch, use_learner='false', namespace='/arm1', actor_id='1')
+    (pair,) = actions
+    assert pair.kwargs['executable'] == 'sim_and_actor' and pair.kwargs['namespace'] == '/arm1'
+    assert _sections(pair)['/**/actor_node'] == {'actor_id': 1}
+
+
+@pytest.mark.e2e
+def test_launch_composed_process_gives_each_node_its_own_values(monkeypatch, tmp_path):
+    """The files the launch writes, given to the real process: each node takes its values."""
+    from pg_node.tools import processes
+    (pair,) = _bring_up(monkeypatch, use_learner='false', namespace='/arm1', actor_id='1',
+                        seed='7', num_envs='3')
+    args = [sys.executable, '-m', 'pg_node.ros.sim_and_actor', '--ros-args',
+            '-r', '__ns:=/arm1']
+    for path in pair.kwargs['parameters']:
+        args += ['--params-file', path]
+    env = dict(os.environ, PYTHONPATH=str(REPO), PYTHONUNBUFFERED='1',
+               ROS_DOMAIN_ID=os.environ.get('ROS_DOMAIN_ID', str(150 + os.getpid() % 50)),
+               AMENT_PREFIX_PATH=os.environ.get('AMENT_PREFIX_PATH', sys.prefix))
+    proc = processes.start_logged(args, tmp_path / 'pair.log', env)
+    deadline = time.monotonic() + 60
+    while 'waiting for policy weights' not in (tmp_path / 'pair.log').read_text():
+        assert proc.poll() is None and time.monotonic() < deadline, \
+            (tmp_path / 'pair.log').read_text()
+        time.sleep(0.2)
+    code, log = processes.stop_logged(proc)
+    assert code == 0, log
+    assert '[arm1.sim_node]: lock_step: 3 x reacher2' in log and ', seed 7' in log, log
+    assert '[arm1.actor_node]: actor 1: 3 arms' in log, log
 
 
 def test_launch_runs_the_supervised_bring_up_on_request(monkeypatch):
@@ -168,7 +227,7 @@ def test_launch_takes_a_preset_by_name_or_its_file(monkeypatch):
     for given in ({'preset': 'ppo'}, {'params_file': str(REPO / 'config' / 'ppo.yaml')}):
         actions = _bring_up(monkeypatch, **given)
         nodes = [a for a in actions if type(a).__name__ == 'Node']
-        assert len(nodes) == 4
+        assert len(nodes) == 2                        # sim_and_actor, critic_and_learner
         for node in nodes:
             assert node.kwargs['parameters'][0] == str(REPO / 'config' / 'ppo.yaml')
     train, _ = _bring_up(monkeypatch, preset='a2c', supervised='true')
