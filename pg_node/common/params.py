@@ -142,6 +142,15 @@ NICE = Param(10, "CPU niceness (0-19) of all the node's threads, as `nice -n` gi
                  'each other every control step; the hand-over itself runs while those two '
                  'wait. Never lowered below what the node was started with', low=0, high=19)
 
+SCHED_IDLE = Param(True, "in sync mode, run all the node's threads under Linux's SCHED_IDLE "
+                         'policy (as `chrt --idle 0`): they take a core only when no other '
+                         'thread wants it, so the work after each hand-over (fitting V; the '
+                         "bag, logs, checkpoints) never delays the simulator's steps, and the "
+                         'hand-over itself runs while the simulator and the actor wait for '
+                         'it. Other busy programs on the machine then go first: set false '
+                         'on a machine shared with other work (nice applies then). Async '
+                         'mode keeps nice only: its simulator never waits')
+
 ACTOR_PARAMS: Dict[str, Param] = {
     'n_steps': Param(8, 'control steps per arm in one rollout (rollout = n_steps x num_envs)',
                      low=1),
@@ -173,6 +182,7 @@ CRITIC_PARAMS: Dict[str, Param] = {
     'vf_max_grad_norm': Param(0.5, 'gradient clipping of V (0: none)', low=0.0, live=True),
     'checkpoint_every': Param(100, 'batches between checkpoints of V', low=1, live=True),
     'nice': NICE,
+    'sched_idle': SCHED_IDLE,
 }
 
 LEARNER_PARAMS: Dict[str, Param] = {
@@ -199,6 +209,7 @@ LEARNER_PARAMS: Dict[str, Param] = {
     'bag_split_episodes': Param(2000, 'episode summaries per bag file before a split', low=1),
     'exit_when_done': Param(True, 'stop the learner once total_steps are learned', live=True),
     'nice': NICE,
+    'sched_idle': SCHED_IDLE,
 }
 
 

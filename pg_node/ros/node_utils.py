@@ -111,19 +111,51 @@ def take_nice(nice: int) -> Optional[str]:
     return None
 
 
+def take_idle() -> Optional[str]:
+    """
+    Put every thread of this process under the SCHED_IDLE policy; return why not, or None.
+
+    What ``chrt --idle -a -p 0 <pid>`` does; threads started later inherit it. A thread
+    under SCHED_IDLE runs only when no other thread wants its core, and a waking thread of
+    the normal policy takes the core from it at once, where a nice-10 thread keeps it for
+    a while (PROFILE.md: the simulator's second stepping thread waited 0.55 ms at p90 for a
+    core beside a nice-10 critic and learner, 0.06-0.1 ms beside SCHED_IDLE ones). An
+    unprivileged process cannot leave the policy again.
+    """
+    if not hasattr(os, 'SCHED_IDLE'):
+        return 'SCHED_IDLE is Linux only'
+    try:
+        for tid in sorted(int(t) for t in os.listdir('/proc/self/task')):
+            try:
+                os.sched_setscheduler(tid, os.SCHED_IDLE, os.sched_param(0))
+            except ProcessLookupError:
+                continue                   # the thread ended meanwhile
+    except OSError as exc:
+        return exc.strerror or str(exc)
+    return None
+
+
 def _apply_nice(node: Node) -> None:
-    """Take the node's ``nice`` parameter, if it has one; say what happened."""
+    """Take the node's ``nice`` and ``sched_idle`` parameters, if it has them; say so."""
     if not node.has_parameter('nice'):
         return
     nice = node.get_parameter('nice').value
-    if not nice:
-        return
-    refused = take_nice(nice)
-    if refused is None:
-        node.get_logger().info(f'running at CPU niceness {nice} (parameter nice)')
-    else:
-        node.get_logger().warning(f'nice {nice}: the system refused ({refused}); running at '
-                                  'the niceness it was started with')
+    if nice:
+        refused = take_nice(nice)
+        if refused is None:
+            node.get_logger().info(f'running at CPU niceness {nice} (parameter nice)')
+        else:
+            node.get_logger().warning(f'nice {nice}: the system refused ({refused}); running '
+                                      'at the niceness it was started with')
+    if (node.has_parameter('sched_idle') and node.get_parameter('sched_idle').value
+            and node.get_parameter('sync_mode').value == 'sync'):
+        refused = take_idle()
+        if refused is None:
+            node.get_logger().info('running under SCHED_IDLE: a core only when the simulator '
+                                   'and the actor leave one (parameter sched_idle)')
+        else:
+            node.get_logger().warning(f'sched_idle: the system refused ({refused}); running '
+                                      'under the normal policy')
 
 
 def run(make_node: Callable[[], Union[Node, List[Node]]], args=None,
