@@ -18,7 +18,8 @@ processes of the machine) when it exits; ``report`` reads them::
 
 Prints the hand-over chain (actor sends the rollout ... the simulator has the first command
 of the next), the simulator's work and round trip by step of the rollout, its work piece
-by piece, and the same pieces of the in-process loop. Nothing is asserted.
+by piece, ArmTask.step's two stepping threads by step of the rollout, and the same pieces
+of the in-process loop. Nothing is asserted.
 """
 import argparse
 import collections
@@ -72,8 +73,9 @@ POINTS = {
          "        mark('c_j1')\n"),
         ('        self.pub_batch.publish(msg)\n        # V learns',
          "        self.pub_batch.publish(msg)\n        mark('c_b1')\n        # V learns"),
-        ('        self.last_stats = self.critic.fit(ro.obs, ret)\n',
-         "        self.last_stats = self.critic.fit(ro.obs, ret)\n        mark('c_f1')\n")],
+        ('        self.last_stats = self.critic.fit(obs, ret)\n',
+         "        mark('c_f0')\n        self.last_stats = self.critic.fit(obs, ret)\n"
+         "        mark('c_f1')\n")],
     'pg_node/ros/learner_node.py': [
         ('publish, log and checkpoint."""\n',
          'publish, log and checkpoint."""\n        mark(\'l_b0\')\n'),
@@ -93,6 +95,17 @@ POINTS = {
         ('        self.last_transitions[g] = transition.to_cdr(tr)',
          "        mark('s_b0')\n        self.last_transitions[g] = transition.to_cdr(tr)"),
         (_SEND, f"        mark('s_b1')\n{_SEND}")],
+    'pg_node/sim/arm_task.py': [
+        ('        def advance(envs):\n            for i in envs:\n',
+         "        def advance(envs):\n            w = 'm' if threading.get_ident() == main else 'w'\n"
+         "            mark(f'k_{w}0')\n            for i in envs:\n"),
+        ('                mujoco.mj_step(m, datas[i], nstep=n)\n\n',
+         "                mujoco.mj_step(m, datas[i], nstep=n)\n            mark(f'k_{w}1')\n\n"),
+        ('        chunks = self._chunks_of(lo, hi)\n',
+         "        main = threading.get_ident()\n        chunks = self._chunks_of(lo, hi)\n"
+         "        mark('k_sub')\n"),
+        ('        for job in others:\n            job.result()\n',
+         "        for job in others:\n            job.result()\n        mark('k_join')\n")],
     'pg_node/rl/train_inprocess.py': [
         ('            ro = buf.finish()\n',
          "            mark('i_b0')\n            ro = buf.finish()\n"),
@@ -124,7 +137,8 @@ def apply(tree: Path) -> int:
                 return 2
             text = text.replace(old, new)
         text = text.replace('\nimport numpy as np\n',
-                            '\nimport numpy as np\nfrom pg_node.probe_ts import mark\n', 1)
+                            '\nimport numpy as np\nfrom pg_node.probe_ts import mark\n'
+                            'import threading\n', 1)
         path.write_text(text)
     (tree / 'pg_node' / 'probe_ts.py').write_text(STAMPS)
     print(f'stamped {len(POINTS)} files in {tree}')
@@ -164,7 +178,7 @@ def report(graph: Path, inprocess: Path = None, skip: int = 50) -> int:
         print(f'  {a:6s} -> {b:6s} {_ms([(c[b] - c[a]) / 1e6 for c in cycles])}')
     print(f'  rollout sent -> first command at the simulator '
           f'{_ms([(c["s_cmd"] - c["a_ro0"]) / 1e6 for c in cycles])}')
-    for a, b in (('c_b1', 'c_f1'), ('l_w1', 'l_end')):
+    for a, b in (('c_b1', 'c_f0'), ('c_f0', 'c_f1'), ('l_w1', 'l_end')):
         print(f'  after it, off the path: {a} -> {b} '
               f'{_ms([(c[b] - c[a]) / 1e6 for c in cycles if a in c and b in c])}')
     work, trip = collections.defaultdict(list), collections.defaultdict(list)
@@ -195,8 +209,11 @@ def report(graph: Path, inprocess: Path = None, skip: int = 50) -> int:
         print('simulator pieces (command in, task.step, build, to_cdr, publish), median ms')
         for name, v in parts.items():
             print(f'  {name:16s} {_ms(v)}')
+    _stepping_threads(ev)
     if inprocess is not None:
         ev = _events(inprocess)
+        _stepping_threads(ev)
+        ev = [(t, n) for t, n in ev if not n.startswith('k_')]
         pairs = collections.defaultdict(list)
         for (t0, a), (t1, b) in zip(ev, ev[1:]):
             pairs[f'{a} -> {b}'].append((t1 - t0) / 1e6)
@@ -205,6 +222,44 @@ def report(graph: Path, inprocess: Path = None, skip: int = 50) -> int:
                      'i_learn -> i_load', 'i_load -> i_s0'):
             print(f'  {name:18s} {_ms(pairs.get(name, []))}')
     return 0
+
+
+def _stepping_threads(ev) -> None:
+    """Print ArmTask.step's two threads by step of the rollout: wake-up, chunks, the step."""
+    rows = collections.defaultdict(lambda: collections.defaultdict(list))
+    names = ('k_m0', 'k_m1', 'k_w0', 'k_w1', 'k_join')
+    k, cur = 0, None
+
+    def close():
+        if cur and all(n in cur for n in names):
+            r = rows[k]
+            r['wake'].append(cur['k_w0'] - cur['k_sub'])
+            r['main'].append(cur['k_m1'] - cur['k_m0'])
+            r['worker'].append(cur['k_w1'] - cur['k_w0'])
+            r['step'].append(cur['k_join'] - cur['k_sub'])
+
+    for t, n in ev:
+        if n in ('a_w0', 'i_load'):           # new weights: the next step is step 0
+            close()
+            k, cur = -1, None
+        elif n == 'k_sub':
+            close()
+            k, cur = k + 1, {'k_sub': t}
+        elif cur is not None and n in names and n not in cur:
+            cur[n] = t
+    close()
+    if not rows:
+        return
+
+    def med_p90(v):
+        v = sorted(v)
+        return f'{statistics.median(v) / 1e3:5.0f} /{v[int(len(v) * 0.9)] / 1e3:5.0f}'
+    print('ArmTask.step by step of the rollout, us, median / p90: the second thread\'s '
+          'wake-up, each thread\'s envs, the whole')
+    print('  step  wake          main          worker        step')
+    for p in sorted(rows):
+        print(f'  {p:4d}  ' + '  '.join(med_p90(rows[p][c])
+                                      for c in ('wake', 'main', 'worker', 'step')))
 
 
 def main(argv=None) -> int:
