@@ -97,12 +97,13 @@ POINTS = {
         (_SEND, f"        mark('s_b1')\n{_SEND}")],
     'pg_node/sim/arm_task.py': [
         ('        def advance(envs):\n            for i in envs:\n',
-         "        def advance(envs):\n            w = 'm' if threading.get_ident() == main else 'w'\n"
+         '        def advance(envs):\n'
+         "            w = 'm' if threading.get_ident() == main else 'w'\n"
          "            mark(f'k_{w}0')\n            for i in envs:\n"),
         ('                mujoco.mj_step(m, datas[i], nstep=n)\n\n',
          "                mujoco.mj_step(m, datas[i], nstep=n)\n            mark(f'k_{w}1')\n\n"),
         ('        chunks = self._chunks_of(lo, hi)\n',
-         "        main = threading.get_ident()\n        chunks = self._chunks_of(lo, hi)\n"
+         '        main = threading.get_ident()\n        chunks = self._chunks_of(lo, hi)\n'
          "        mark('k_sub')\n"),
         ('        for job in others:\n            job.result()\n',
          "        for job in others:\n            job.result()\n        mark('k_join')\n")],
@@ -254,12 +255,12 @@ def _stepping_threads(ev) -> None:
     def med_p90(v):
         v = sorted(v)
         return f'{statistics.median(v) / 1e3:5.0f} /{v[int(len(v) * 0.9)] / 1e3:5.0f}'
-    print('ArmTask.step by step of the rollout, us, median / p90: the second thread\'s '
-          'wake-up, each thread\'s envs, the whole')
+    print("ArmTask.step by step of the rollout, us, median / p90: the second thread's "
+          "wake-up, each thread's envs, the whole")
     print('  step  wake          main          worker        step')
     for p in sorted(rows):
-        print(f'  {p:4d}  ' + '  '.join(med_p90(rows[p][c])
-                                      for c in ('wake', 'main', 'worker', 'step')))
+        cells = [med_p90(rows[p][c]) for c in ('wake', 'main', 'worker', 'step')]
+        print(f'  {p:4d}  ' + '  '.join(cells))
 
 
 def main(argv=None) -> int:

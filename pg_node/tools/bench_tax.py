@@ -6,9 +6,9 @@ Three tables, from one invocation:
 * **graph vs in-process**: the default A2C (64 arms, 8-step rollouts, lock-step, sync)
   trained in-process (:func:`pg_node.rl.train_inprocess.train_inprocess`), through the
   four nodes as ``python -m pg_node train`` starts them (the simulator and the actor in one
-  process) and with every node a process of its own (``train --separate``), in turn,
-  ``tax_repeats`` times each; the median of each and the ratios. All clocks start at the
-  first update.
+  process, the critic and the learner in another) and with every node a process of its own
+  (``train --separate``), in turn, ``tax_repeats`` times each; the median of each and the
+  ratios. All clocks start at the first update.
 * **per node**: each node's peak resident memory and CPU seconds per 100k training steps
   (``summary.json``'s ``nodes``, read from ``/proc`` by the supervisor) in those graph runs;
 * **scaling**: graph and in-process for 16, 64 and 256 arms per simulator and 1 and 2
@@ -133,8 +133,8 @@ def run_tax(b: Dict, log: Callable[[str], None]) -> Dict:
             trips[f'{prefix}boundary'].append(part[1])
             trained = run['session_steps']
             for name, usage in run.get('nodes', {}).items():
-                if prefix and name not in ('sim_node', 'actor_node'):
-                    continue          # the critic and the learner: from the default graph
+                # a process name says which graph it ran in: sim_node ... learner_node in
+                # the separate one, sim_and_actor and critic_and_learner in the default
                 out['nodes'].setdefault(name, []).append({
                     'peak_rss_mb': usage['peak_rss_mb'],
                     'cpu_per_100k': usage['cpu_seconds_training'] / trained * 1e5})
@@ -237,9 +237,10 @@ def render_tax(res: Dict, table: Callable[[List[str], List[List[str]]], str]) ->
               '(`train --separate`). ' if 'separate' in keys else '')
            + f'Load average {res.get("load", "?")}.', '',
            table(ratio_head, ratio_rows), '',
-           "Each node in those graph runs: peak resident memory (the kernel's high-water "
+           "Each process in those graph runs: peak resident memory (the kernel's high-water "
            'mark) and CPU seconds per 100k training steps (median over the runs; a node '
-           'by its name: its process in the separate runs).', '',
+           "by its own name: its process in the separate runs; two nodes' names: the "
+           "default graph's processes).", '',
            table(['node', 'imports torch', 'peak memory MB', 'CPU s per 100k steps'],
                  [[name, 'yes' if name in TORCH_NODES else 'no',
                    _fmt(statistics.median(u['peak_rss_mb'] for u in res['nodes'][name])),
