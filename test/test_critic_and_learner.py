@@ -142,3 +142,13 @@ def test_critic_steps_v_after_a_learner_in_its_process_has_the_batch(tmp_path):
                          capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr[-3000:]
     assert json.loads(out.stdout.splitlines()[-1]) == ['batch', 'fit'] * 3
+
+
+def test_critic_and_learner_refuses_a_bad_learner_parameter_in_one_line(tmp_path):
+    out = subprocess.run([sys.executable, '-m', 'pg_node.ros.critic_and_learner', '--ros-args',
+                          '-p', f'run_dir:={tmp_path}', '-p', 'n_steps:=0'],
+                         env=env(), capture_output=True, text=True, timeout=120)
+    assert out.returncode == 2, out.stderr[-3000:]
+    errors = [ln for ln in out.stderr.splitlines() if not ln.startswith('[INFO]')]
+    assert errors == ["configuration error: parameter 'learner_node.n_steps': 0 is not "
+                      'allowed; expected an int with 1 <= value'], out.stderr

@@ -20,8 +20,13 @@ from pg_node.ros.node_utils import run
 
 
 def make_nodes():
-    """Return ``[CriticNode(), LearnerNode()]``."""
-    return [CriticNode(), LearnerNode()]
+    """Return ``[CriticNode(), LearnerNode()]``; the critic is destroyed if the learner fails."""
+    critic = CriticNode()
+    try:
+        return [critic, LearnerNode()]
+    except BaseException:
+        critic.destroy_node()
+        raise
 
 
 def cleanup(nodes):
