@@ -24,6 +24,16 @@ def thread_nices(pid) -> dict:
     return out
 
 
+def run_child(code: str):
+    """Run ``code`` in a fresh Python (this folder importable); return its printed JSON."""
+    env = child_env()
+    env['PYTHONPATH'] += os.pathsep + str(Path(__file__).parent)
+    out = subprocess.run([sys.executable, '-c', code], env=env, capture_output=True, text=True,
+                         timeout=60)
+    assert out.returncode == 0, out.stderr
+    return json.loads(out.stdout)
+
+
 def test_take_nice_renices_every_thread_and_never_lowers():
     """Threads started before and after take the niceness; a lower one later changes nothing."""
     code = (
@@ -39,12 +49,7 @@ def test_take_nice_renices_every_thread_and_never_lowers():
         'kept = thread_nices(os.getpid())\n'
         'stop.set()\n'
         'print(json.dumps([first, second, list(raised.values()), list(kept.values())]))\n')
-    env = child_env()
-    env['PYTHONPATH'] += os.pathsep + str(Path(__file__).parent)
-    out = subprocess.run([sys.executable, '-c', code], env=env, capture_output=True, text=True,
-                         timeout=60)
-    assert out.returncode == 0, out.stderr
-    first, second, raised, kept = json.loads(out.stdout)
+    first, second, raised, kept = run_child(code)
     assert first is None and second is None
     # main, the thread started before, the one after, and whatever the imports started
     assert len(raised) >= 3 and set(raised) == {6}
@@ -78,12 +83,7 @@ def test_take_idle_puts_every_thread_under_sched_idle():
         'count = len(thread_nices(os.getpid()))\n'
         'stop.set()\n'
         'print(json.dumps([refused, policies, nices, count]))\n')
-    env = child_env()
-    env['PYTHONPATH'] += os.pathsep + str(Path(__file__).parent)
-    out = subprocess.run([sys.executable, '-c', code], env=env, capture_output=True, text=True,
-                         timeout=60)
-    assert out.returncode == 0, out.stderr
-    refused, policies, nices, count = json.loads(out.stdout)
+    refused, policies, nices, count = run_child(code)
     assert refused is None and count >= 3
     assert policies == [os.SCHED_IDLE] and nices == [4]
 

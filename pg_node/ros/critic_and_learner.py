@@ -16,17 +16,12 @@ checkpoints first.
 """
 from pg_node.ros.critic_node import CriticNode
 from pg_node.ros.learner_node import LearnerNode
-from pg_node.ros.node_utils import run
+from pg_node.ros.node_utils import make_together, run
 
 
 def make_nodes():
     """Return ``[CriticNode(), LearnerNode()]``; the critic is destroyed if the learner fails."""
-    critic = CriticNode()
-    try:
-        return [critic, LearnerNode()]
-    except BaseException:
-        critic.destroy_node()
-        raise
+    return make_together(CriticNode, LearnerNode)
 
 
 def cleanup(nodes):

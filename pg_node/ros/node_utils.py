@@ -158,6 +158,27 @@ def _apply_nice(node: Node) -> None:
                                       'under the normal policy')
 
 
+def make_together(*factories: Callable[[], Node]) -> List[Node]:
+    """
+    Build the nodes of one process in turn (composition); return them as a list.
+
+    When one fails (a refused parameter), the nodes built before it are closed (their
+    ``close()``, if they have one: the simulator's MuJoCo threads) and destroyed before the
+    error goes on to :func:`run`, which reports it.
+    """
+    built = []
+    try:
+        for make in factories:
+            built.append(make())
+    except BaseException:
+        for node in reversed(built):
+            if hasattr(node, 'close'):
+                node.close()
+            node.destroy_node()
+        raise
+    return built
+
+
 def run(make_node: Callable[[], Union[Node, List[Node]]], args=None,
         cleanup: Optional[Callable[[Union[Node, List[Node]]], None]] = None) -> int:
     """

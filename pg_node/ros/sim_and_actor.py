@@ -20,19 +20,13 @@ nodes: ``seed`` moves the actor's sampling as well as the simulator's episodes. 
 SIGTERM stops both.
 """
 from pg_node.ros.actor_node import ActorNode
-from pg_node.ros.node_utils import run
+from pg_node.ros.node_utils import make_together, run
 from pg_node.ros.sim_node import SimNode
 
 
 def make_nodes():
     """Return ``[SimNode(), ActorNode()]``; the simulator is closed if the actor fails."""
-    sim = SimNode()
-    try:
-        return [sim, ActorNode()]
-    except BaseException:
-        sim.close()
-        sim.destroy_node()
-        raise
+    return make_together(SimNode, ActorNode)
 
 
 def main(args=None):
