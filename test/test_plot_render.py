@@ -178,6 +178,12 @@ def test_plot_overlays_runs_with_their_names_and_reacher2_references(tmp_path):
                       'seed1', 'seed1 deterministic evaluation -7.25',
                       'random torques -42.8', 'zero torques -11.7']
     assert fig._suptitle.get_text() == 'seed0, seed1'
+    # environment steps read 150k, 2M: not 150000175000200000 run together under a panel
+    steps_axes = [ax for ax in fig.axes if ax.get_xlabel() == 'environment steps']
+    assert fig.axes[0] in steps_axes and len(steps_axes) >= 2
+    for ax in steps_axes:
+        fmt = ax.xaxis.get_major_formatter()
+        assert (fmt(150_000, 0), fmt(2_000_000, 1)) == ('150k', '2M')
     plt.close(fig)
     # one run: its name is the title; another model: no reacher2 references
     one = RunData(tmp_path / 'seed0')

@@ -193,6 +193,13 @@ def plot_runs(runs, output, width=1500, height=800, dpi=100, title=None):
     return output
 
 
+def _steps_axis(ax) -> None:
+    """Label ``ax``'s x axis as environment steps, ticks as 50k, 1.5M (no run-together digits)."""
+    from matplotlib.ticker import EngFormatter
+    ax.set_xlabel('environment steps')
+    ax.xaxis.set_major_formatter(EngFormatter(sep=''))
+
+
 def draw_runs(runs, width=1500, height=800, dpi=100, title=None):
     """
     Return a figure of the panels of one or more runs, drawn over each other.
@@ -214,6 +221,8 @@ def draw_runs(runs, width=1500, height=800, dpi=100, title=None):
     for ax, xi, xlabel in ((axes[0, 0], 0, 'environment steps'),
                            (axes[0, 1], 1, 'wall time (min)')):
         ax.set_xlabel(xlabel)
+        if xi == 0:
+            _steps_axis(ax)
         ax.set_ylabel('return')
         drawn = False
         for data, name, colour in zip(runs, names, colours):
@@ -262,7 +271,7 @@ def draw_runs(runs, width=1500, height=800, dpi=100, title=None):
             curve = data.against_steps(name)
             if curve is not None:
                 ax.plot(curve[0], curve[1], lw=0.8, color=colour)
-                ax.set_xlabel('environment steps')
+                _steps_axis(ax)
             elif name in data.metrics:
                 t, v = data.metrics[name]
                 ax.plot(data.minutes(t), v, lw=0.8, color=colour)
