@@ -22,7 +22,6 @@ import numpy as np
 from pg_node.bag.recorder import EpisodeRecorder, parse_episode
 from pg_node.common.params import defaults
 from pg_node.rl.learner import EpisodeStats, Learner, make_policy
-from pg_node.rl.rollout_buffer import RolloutArrays
 from pg_node.rl.weights import flatten_state
 from pg_node.ros import command
 from pg_node.ros import messages
@@ -36,6 +35,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosbags.rosbag2 import Reader
 from rosbags.typesys import get_typestore, Stores
+from sample_messages import ACT, make_rollout, N, OBS
 from std_msgs.msg import Float64MultiArray
 
 REPO = Path(__file__).resolve().parent.parent
@@ -48,7 +48,6 @@ LATCHED_10 = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
                         history=HistoryPolicy.KEEP_LAST)
 RELIABLE_10 = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.VOLATILE, history=HistoryPolicy.KEEP_LAST)
-OBS, ACT, N = 10, 2, 2          # reacher2: observation and action sizes; arms in these tests
 
 
 def env(domain):
@@ -156,19 +155,6 @@ def make_transition(seq, **change):
               'episode_step': np.full(N, seq)}
     fields.update(change)
     return transition.to_msg(transition.Transition(**fields))
-
-
-def make_rollout(rollout_seq, obs_dim=OBS, **change):
-    T = 4
-    rng = np.random.default_rng(rollout_seq)
-    steps = np.repeat(np.arange(T)[:, None], N, 1)
-    f = {'obs': rng.normal(size=(T, N, obs_dim)), 'act': rng.normal(size=(T, N, ACT)),
-         'logp': np.zeros((T, N)), 'rew': rng.normal(size=(T, N)),
-         'terminated': np.zeros((T, N), bool), 'truncated': np.zeros((T, N), bool),
-         'final_obs': rng.normal(size=(T, N, obs_dim)), 'ep_step': steps,
-         'episode_id': np.zeros((T, N), int), 'seq': steps}
-    f.update(change)
-    return table_msg.to_msg(*messages.pack_rollout(RolloutArrays(**f), 0, 0, rollout_seq))
 
 
 def make_batch(version, batch_seq=0, obs_dim=OBS, header_version=None, **change):

@@ -7,6 +7,7 @@ import sys
 import time
 import xml.etree.ElementTree as ET
 
+from domains import ros_domain
 import pytest
 
 REPO = Path(__file__).resolve().parent.parent
@@ -199,9 +200,7 @@ def test_launch_composed_process_gives_each_node_its_own_values(monkeypatch, tmp
             '-r', '__ns:=/arm1']
     for path in pair.kwargs['parameters']:
         args += ['--params-file', path]
-    env = dict(os.environ, PYTHONPATH=str(REPO), PYTHONUNBUFFERED='1',
-               ROS_DOMAIN_ID=os.environ.get('ROS_DOMAIN_ID', str(150 + os.getpid() % 50)),
-               AMENT_PREFIX_PATH=os.environ.get('AMENT_PREFIX_PATH', sys.prefix))
+    env = processes.child_env(ros_domain(base=150, spread=50))
     proc = processes.start_logged(args, tmp_path / 'pair.log', env)
     deadline = time.monotonic() + 60
     while 'waiting for policy weights' not in (tmp_path / 'pair.log').read_text():

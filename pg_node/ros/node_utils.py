@@ -135,7 +135,7 @@ def take_idle() -> Optional[str]:
     return None
 
 
-def _apply_nice(node: Node) -> None:
+def _apply_cpu_params(node: Node) -> None:
     """Take the node's ``nice`` and ``sched_idle`` parameters, if it has them; say so."""
     if not node.has_parameter('nice'):
         return
@@ -228,12 +228,14 @@ def run(make_node: Callable[[], Union[Node, List[Node]]], args=None,
         for each in _nodes(node):
             executor.add_node(each)
         for each in _nodes(node):
-            _apply_nice(each)             # after the executor: its threads exist now
+            _apply_cpu_params(each)       # after the executor: its threads exist now
+        # the nodes that can end the process, looked up once: the loop runs per callback
+        enders = [n for n in _nodes(node) if hasattr(n, 'exit_code')]
         while rclpy.ok():
             executor.spin_once(timeout_sec=0.5)
-            done = [n.exit_code for n in _nodes(node) if getattr(n, 'exit_code', None) is not None]
-            if done:
-                code = done[0]
+            ended = next((n.exit_code for n in enders if n.exit_code is not None), None)
+            if ended is not None:
+                code = ended
                 break
     except (KeyboardInterrupt, ExternalShutdownException):
         pass

@@ -29,6 +29,7 @@ import traceback
 from typing import Callable, Dict, List, Sequence, Tuple
 
 import numpy as np
+from pg_node.tools.train import PAIR_PROCESSES, TRAINING_PROCESSES
 
 #: budgets: full run, and --quick
 BUDGETS = {'tax_steps': (200_000, 4_096), 'tax_repeats': (5, 1),
@@ -36,10 +37,13 @@ BUDGETS = {'tax_steps': (200_000, 4_096), 'tax_repeats': (5, 1),
            'tax_latency_steps': (5_000, 300)}
 #: scaling rows: (arms per simulator, simulator/actor pairs)
 SCALING = ((16, 1), (16, 2), (64, 1), (64, 2), (256, 1), (256, 2))
-NODES = ('sim_node', 'actor_node', 'critic_node', 'learner_node', 'sim_and_actor',
-         'critic_and_learner')
+#: the graphs' processes as train names them: every node apart, then the default's
+NODES = tuple(name for compose in (False, True)
+              for table in (PAIR_PROCESSES, TRAINING_PROCESSES)
+              for name, _ in table[compose])
 #: the processes that hold torch (the learning side)
-TORCH_NODES = ('critic_node', 'learner_node', 'critic_and_learner')
+TORCH_NODES = tuple(name for compose in (False, True)
+                    for name, _ in TRAINING_PROCESSES[compose])
 LATENCY_LABELS = {'idle': 'no training running', 'training': 'a training graph runs'}
 TRAINING_LABELS = {'rollout': 'within a rollout',
                    'boundary': "at a rollout's end (hand-over)",

@@ -6,16 +6,15 @@ starts, writes the resolved parameters to ``<run_dir>/params.yaml``, starts ``si
 ``actor_node`` in one process (``sim_and_actor``: their lock-step exchange needs no other
 process to wake) and ``critic_node`` and ``learner_node`` in another
 (``critic_and_learner``: the batch stays in the process; ``--separate``: every node a
-process of its own), each process in its own session and logging to
-``<run_dir>/logs/``, shows a progress bar
-read from the learner's ``progress.csv``, and supervises: a node that dies is restarted (at
-most ``--max-restarts`` times each, with doubling back-off); the learner resumes from its
-newest checkpoint, the critic V from its own, the actor picks up the latched weights, and a
-restarted simulator starts fresh episodes (the learner writes the ones it cut short to the
-bag as such). When the learner has learned ``total_steps`` (or on Ctrl-C) the nodes are
-stopped with SIGINT (then SIGTERM, then SIGKILL), the deterministic policy is evaluated
-over ``--eval-episodes`` episodes, and ``summary.json`` and ``learning_curve.png`` are
-written next to ``checkpoints/``, ``bag/`` and ``progress.csv``.
+process of its own), each process in its own session and logging to ``<run_dir>/logs/``,
+shows a progress bar read from the learner's ``progress.csv``, and supervises: a node that
+dies is restarted (at most ``--max-restarts`` times each, with doubling back-off); the
+learner resumes from its newest checkpoint, the critic V from its own, the actor picks up
+the latched weights, and a restarted simulator starts fresh episodes (the learner writes the
+ones it cut short to the bag as such). When the learner has learned ``total_steps`` (or on
+Ctrl-C) the nodes are stopped with SIGINT (then SIGTERM, then SIGKILL), the deterministic
+policy is evaluated over ``--eval-episodes`` episodes, and ``summary.json`` and
+``learning_curve.png`` are written next to ``checkpoints/``, ``bag/`` and ``progress.csv``.
 
 ``--config`` takes a parameter file's path or a preset's name: ``--config ppo`` is the
 package's ``config/ppo.yaml`` (tuned PPO), ``--config a2c`` its ``config/a2c.yaml`` (the
