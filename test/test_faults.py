@@ -671,8 +671,8 @@ def test_sigterm_stops_each_node_cleanly_with_sigint_ignored(tmp_path):
     Nodes started as a non-interactive shell starts ``cmd &`` (SIGINT ignored), then SIGTERM.
 
     The graph trains; SIGTERM to each node (what docker, systemd and ``ros2 launch`` send)
-    ends it with exit code 0 and no traceback, whatever callback was running: rclpy's
-    handler shuts the context down under a callback that may be publishing. The learner
+    ends it with exit code 0 and no traceback, whatever callback was running: the loop
+    stops after that callback (``node_utils.stop_on_signals``). The learner
     closes its bag whole: every file passes the mcap reader's full validation.
     """
     run_dir = tmp_path / 'run'

@@ -3,10 +3,13 @@ What pg_node's nodes share: QoS profiles, the ``main`` loop, diagnostics, rate c
 
 Kept apart from the math: only nodes import this module.
 """
+import contextlib
 import os
+import signal
 import sys
+import threading
 import time
-from typing import Callable, Dict, List, Optional, Union
+from typing import Callable, Dict, Iterator, List, Optional, Union
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from pg_node.common.params import ConfigError
@@ -15,6 +18,7 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
 
 #: Reliable, keep-last-1, transient-local: a late or restarted subscriber gets the latest.
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
@@ -179,6 +183,96 @@ def make_together(*factories: Callable[[], Node]) -> List[Node]:
     return built
 
 
+class StopRequest:
+    """Which stop signal arrived (``signum``), if one did; see :func:`stop_on_signals`."""
+
+    def __init__(self):
+        self.signum: Optional[int] = None
+
+    def __bool__(self) -> bool:
+        return self.signum is not None
+
+
+#: the signals that stop a node: Ctrl-C and ``ros2 launch``'s first, docker's and systemd's
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+#: how long a node's spin loop waits at most for an event: its latency to a stop signal
+SPIN_TIMEOUT = 0.1
+
+
+@contextlib.contextmanager
+def stop_on_signals() -> Iterator[StopRequest]:
+    """
+    Turn SIGINT and SIGTERM into a request that the spin loop reads between callbacks.
+
+    rclpy's own handlers (``rclpy.init``'s default) do not do that: SIGINT raises
+    KeyboardInterrupt inside whatever callback runs, which the events executor logs as a
+    fatal error of that callback with its stack, and SIGTERM shuts the context down under a
+    callback that may be publishing. Here the handler only notes the signal; the callback
+    finishes, and the loop stops after it (within :data:`SPIN_TIMEOUT` when idle, since the
+    executor waits in C++ and Python runs the handler when it returns). Call
+    ``rclpy.init`` with ``SignalHandlerOptions.NO`` so that rclpy installs none of its own.
+
+    A second signal acts as it would without this block (KeyboardInterrupt, or termination
+    by SIGTERM): ``ros2 launch`` escalates from SIGINT to SIGTERM to SIGKILL when a node
+    takes too long to stop, and a user's second Ctrl-C should not be swallowed. Installed
+    whatever the inherited disposition: a node started by ``cmd &`` from a script has
+    SIGINT ignored, and rclpy's handler took it in that case too. Main thread only (Python
+    runs signal handlers there); elsewhere the block changes nothing.
+    """
+    request = StopRequest()
+    old = {}
+
+    def restore():
+        while old:
+            sig, handler = old.popitem()
+            signal.signal(sig, handler)
+
+    def note(signum, frame):
+        request.signum = signum
+        restore()
+
+    if threading.current_thread() is threading.main_thread():
+        for sig in STOP_SIGNALS:
+            old[sig] = signal.signal(sig, note)
+    try:
+        yield request
+    finally:
+        restore()
+
+
+def init_quietly(args=None) -> Optional[str]:
+    """
+    ``rclpy.init`` without rclpy's signal handlers; return the reason if rcl refuses.
+
+    rcl's own log lines of a refusal (bad ``--params-file``, ROS arguments it cannot parse)
+    are held back so that the caller can report one line; when init succeeds, whatever it
+    wrote to stderr is passed on.
+    """
+    import tempfile
+    with tempfile.TemporaryFile() as held:
+        sys.stderr.flush()
+        saved = os.dup(2)
+        os.dup2(held.fileno(), 2)
+        try:
+            rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+            error = None
+        except _rclpy.RCLError as exc:
+            error = exc
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+        if error is not None:
+            # "failed to initialize rcl: <reason>[\n], at /src/file.c:line, ...": the reason
+            reason = str(error).replace('failed to initialize rcl: ', '', 1)
+            return reason.split(', at /')[0].split('\n')[0].strip()
+        held.seek(0)
+        text = held.read()
+        if text:
+            sys.stderr.buffer.write(text)
+            sys.stderr.flush()
+    return None
+
+
 def run(make_node: Callable[[], Union[Node, List[Node]]], args=None,
         cleanup: Optional[Callable[[Union[Node, List[Node]]], None]] = None) -> int:
     """
@@ -189,74 +283,54 @@ def run(make_node: Callable[[], Union[Node, List[Node]]], args=None,
 
     A node ends the process by setting its ``exit_code`` attribute (the learner, done):
     the loop stops after that callback, without an exception through the executor, which
-    would log it as a fatal error of the callback.
+    would log it as a fatal error of the callback. SIGINT and SIGTERM stop the loop the
+    same way, between callbacks (:func:`stop_on_signals`), and the nodes are cleaned up.
 
     The node style of ``ros2/demos``' talker; a bad configuration is reported in one line
     (exit code 2) instead of a traceback, also a ``--params-file`` that is no valid YAML
-    parameter file or ROS arguments that rcl cannot parse (rcl's own log lines of that are
-    held back; when init succeeds, whatever it wrote to stderr is passed on).
+    parameter file or ROS arguments that rcl cannot parse (:func:`init_quietly`).
     """
-    import tempfile
-    with tempfile.TemporaryFile() as held:
-        sys.stderr.flush()
-        saved = os.dup(2)
-        os.dup2(held.fileno(), 2)
-        try:
-            rclpy.init(args=args)
-            error = None
-        except _rclpy.RCLError as exc:
-            error = exc
-        finally:
-            os.dup2(saved, 2)
-            os.close(saved)
-        if error is not None:
-            # "failed to initialize rcl: <reason>[\n], at /src/file.c:line, ...": the reason
-            reason = str(error).replace('failed to initialize rcl: ', '', 1)
-            reason = reason.split(', at /')[0].split('\n')[0].strip()
-            print(f'configuration error: {reason}', file=sys.stderr)
-            return 2
-        held.seek(0)
-        text = held.read()
-        if text:
-            sys.stderr.buffer.write(text)
-            sys.stderr.flush()
+    reason = init_quietly(args)
+    if reason is not None:
+        print(f'configuration error: {reason}', file=sys.stderr)
+        return 2
     node = None
     code = 0
-    try:
-        node = make_node()
-        executor = make_executor()
-        for each in _nodes(node):
-            executor.add_node(each)
-        for each in _nodes(node):
-            _apply_cpu_params(each)       # after the executor: its threads exist now
-        # the nodes that can end the process, looked up once: the loop runs per callback
-        enders = [n for n in _nodes(node) if hasattr(n, 'exit_code')]
-        while rclpy.ok():
-            executor.spin_once(timeout_sec=0.5)
-            ended = next((n.exit_code for n in enders if n.exit_code is not None), None)
-            if ended is not None:
-                code = ended
-                break
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except _rclpy.RCLError:
-        if rclpy.ok():
-            raise
-        # SIGTERM (or SIGINT) shut the context down from rclpy's signal handler while a
-        # callback was publishing or the executor was building its wait set: that is the
-        # stop it asked for, not an error (cleanup below closes files, it publishes nothing)
-    except ConfigError as exc:
-        print(f'configuration error: {exc}', file=sys.stderr)
-        code = 2
-    except SystemExit as exc:
-        code = int(exc.code or 0)
-    finally:
-        if node is not None:
-            if cleanup is not None:
-                cleanup(node)
+    with stop_on_signals() as stop:
+        try:
+            node = make_node()
+            executor = make_executor()
             for each in _nodes(node):
-                each.destroy_node()
-        rclpy.try_shutdown()
+                executor.add_node(each)
+            for each in _nodes(node):
+                _apply_cpu_params(each)       # after the executor: its threads exist now
+            # the nodes that can end the process, looked up once: the loop runs per callback
+            enders = [n for n in _nodes(node) if hasattr(n, 'exit_code')]
+            while rclpy.ok() and not stop:
+                executor.spin_once(timeout_sec=SPIN_TIMEOUT)
+                ended = next((n.exit_code for n in enders if n.exit_code is not None), None)
+                if ended is not None:
+                    code = ended
+                    break
+        except (KeyboardInterrupt, ExternalShutdownException):
+            pass                              # a second signal, or a shutdown from elsewhere
+        except _rclpy.RCLError:
+            if rclpy.ok():
+                raise
+            # the context was shut down under a callback that was publishing: a stop too
+        except ConfigError as exc:
+            print(f'configuration error: {exc}', file=sys.stderr)
+            code = 2
+        except SystemExit as exc:
+            code = int(exc.code or 0)
+        finally:
+            # still under stop_on_signals: a first signal now does not cut the saving short
+            if node is not None:
+                if cleanup is not None:
+                    cleanup(node)
+                for each in _nodes(node):
+                    each.destroy_node()
+            rclpy.try_shutdown()
     return code
 
 

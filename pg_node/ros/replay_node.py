@@ -62,6 +62,7 @@ import time
 
 from pg_node.bag import ros_types
 from pg_node.bag.reader import BagReader
+from pg_node.ros import node_utils
 from rcl_interfaces.msg import ParameterDescriptor, ParameterType
 import rclpy
 from rclpy.exceptions import ParameterUninitializedException
@@ -549,32 +550,36 @@ def main(args=None) -> int:
               'wait_timeout': opts.wait_timeout, 'delay': opts.delay,
               'wait_acked_timeout': opts.wait_acked_timeout}
     overrides = [Parameter(k, value=v) for k, v in values.items() if v is not None]
-    rclpy.init(args=['replay_node'] + ros)
+    reason = node_utils.init_quietly(['replay_node'] + ros)
+    if reason is not None:
+        print(f'replay_node: {reason}', file=sys.stderr)
+        return EXIT_NOTHING
     node = None
     status = EXIT_OK
-    try:
+    with node_utils.stop_on_signals() as stop:
         try:
-            node = ReplayNode(parameter_overrides=overrides)
-        except (ValueError, FileNotFoundError, OSError) as exc:
-            print(f'replay_node: {exc}', file=sys.stderr)
-            return EXIT_NOTHING
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        node.start()
-        while rclpy.ok() and not node.done.is_set():
-            executor.spin_once(timeout_sec=0.1)
-        node.report()
-        if node.damage:
-            status = EXIT_DAMAGED
-        elif node.error is not None or not node.played:
-            status = EXIT_NOTHING
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.stop()
-            node.destroy_node()
-        rclpy.try_shutdown()
+            try:
+                node = ReplayNode(parameter_overrides=overrides)
+            except (ValueError, FileNotFoundError, OSError) as exc:
+                print(f'replay_node: {exc}', file=sys.stderr)
+                return EXIT_NOTHING
+            executor = SingleThreadedExecutor()
+            executor.add_node(node)
+            node.start()
+            while rclpy.ok() and not node.done.is_set() and not stop:
+                executor.spin_once(timeout_sec=node_utils.SPIN_TIMEOUT)
+            node.report()
+            if node.damage:
+                status = EXIT_DAMAGED
+            elif node.error is not None or not node.played:
+                status = EXIT_NOTHING
+        except (KeyboardInterrupt, ExternalShutdownException):
+            pass
+        finally:
+            if node is not None:
+                node.stop()
+                node.destroy_node()
+            rclpy.try_shutdown()
     return status
 
 
