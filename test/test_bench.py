@@ -257,3 +257,26 @@ def test_quick_bench_writes_every_table(tmp_path):
     assert 'in the training graph' in text and "at a rollout's end (hand-over)" in text
     for name in ('throughput', 'latency', 'learning', 'variance', 'curves'):
         assert (tmp_path / 'bench_plots' / f'{name}.png').stat().st_size > 1000
+
+
+def test_throughput_plot_ticks_read_apart(tmp_path, monkeypatch):
+    """The ladder's log axis: labels 2k, 5k, 10k ... at major ticks only, none run together."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    figures = []
+    monkeypatch.setattr(plt, 'close', figures.append)
+    res = fake_results()
+    res['throughput']['rows'].append(
+        {'key': 'sim_node1', 'name': 'one arm', 'steps_per_second': 1900.0, 'note': ''})
+    bench.make_plots({'throughput': res['throughput']}, tmp_path)
+    (fig,) = figures
+    ax = fig.axes[0]
+    fig.canvas.draw()
+    axis = ax.xaxis
+    low, high = ax.get_xlim()
+    shown = [t.get_text() for t in axis.get_ticklabels() if t.get_text()]
+    assert [t.get_text() for t in axis.get_ticklabels(minor=True) if t.get_text()] == []
+    assert shown and set(shown) <= {'1k', '2k', '5k', '10k', '20k', '50k', '100k'}, shown
+    assert low < 2000 and high > 40000 and {'2k', '10k'} <= set(shown), (low, high, shown)
+    plt.close(fig)
