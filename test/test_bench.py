@@ -279,4 +279,5 @@ def test_throughput_plot_ticks_read_apart(tmp_path, monkeypatch):
     assert [t.get_text() for t in axis.get_ticklabels(minor=True) if t.get_text()] == []
     assert shown and set(shown) <= {'1k', '2k', '5k', '10k', '20k', '50k', '100k'}, shown
     assert low < 2000 and high > 40000 and {'2k', '10k'} <= set(shown), (low, high, shown)
+    monkeypatch.undo()                        # plt.close is matplotlib's again
     plt.close(fig)
