@@ -358,6 +358,13 @@ def test_actor_node_survives_bad_weights_and_transitions(nodes):
         c.spin_until(lambda: len(cmds) == 2)
         assert all(len(x) == N * ACT and np.all(np.abs(x) <= 1.0) for x in cmds)
         c.spin_until(lambda: c.counter(status, 'commands') == 2)
+        # the simulator re-sends transition 1, as when our command never reached it (a
+        # restarted simulator that had not yet heard of the actor): the same command again
+        pub_t.publish(make_transition(1))
+        c.spin_until(lambda: len(cmds) == 3)
+        assert cmds[2] == cmds[1] and cmds[1] != cmds[0]
+        c.spin_until(lambda: c.counter(status, 'commands_resent') == 1)
+        assert c.counter(status, 'commands') == 2
         nodes['burst']['actor'] = window
     finally:
         c.close()
@@ -464,14 +471,37 @@ KILLS = ((40_000, 'sim_node'), (90_000, 'actor_node'), (140_000, 'critic_node'),
 KILL_STEPS = 300_000
 
 
+def log_tails(run_dir, lines=15):
+    """Return the last lines of each node log of a run, for a failing assertion's message."""
+    tails = []
+    for log in sorted((run_dir / 'logs').glob('*.log')):
+        text = log.read_text(errors='replace').splitlines()
+        tails.append(f'--- {log.name}:\n' + '\n'.join(text[-lines:]))
+    return '\n'.join(tails)
+
+
 def wait_for_progress(proc, run_dir, deadline, min_steps=0.0):
     """Return the newest progress row once it has ``min_steps``; fail if train ends first."""
     while True:
-        assert time.monotonic() < deadline and proc.poll() is None
+        if time.monotonic() >= deadline or proc.poll() is not None:
+            row = last_progress(run_dir / 'progress.csv')
+            pytest.fail(f'no progress to {min_steps:g} steps (train exit code {proc.poll()}, '
+                        f'newest row {row}); the node logs end:\n{log_tails(run_dir)}')
         row = last_progress(run_dir / 'progress.csv')
         if row is not None and row['env_steps'] >= min_steps:
             return row
         time.sleep(0.2)
+
+
+def kill_run(proc, run_dir):
+    """Kill ``train`` (a test that failed) and every node of its run, if still running."""
+    if proc.poll() is None:
+        os.killpg(proc.pid, signal.SIGKILL)
+    for pid in node_pids(run_dir):     # in sessions of their own: killpg does not reach them
+        try:
+            os.kill(pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
 
 
 def node_pids(run_dir, node=r'.*_node|sim_and_actor|critic_and_learner'):
@@ -512,8 +542,7 @@ def test_sigkill_of_each_node_mid_run(tmp_path):
             os.kill(pids[0], signal.SIGKILL)
         text = proc.communicate(timeout=600)[0]
     finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
+        kill_run(proc, run_dir)
     assert proc.returncode == 0, text[-3000:]
     summary = json.loads((run_dir / 'summary.json').read_text())
     assert summary['total_steps'] >= KILL_STEPS
@@ -634,8 +663,7 @@ def test_sigterm_sigint_and_sigkill_of_each_node_mid_run(tmp_path):
             os.kill(pids[0], sig)
         text = proc.communicate(timeout=900)[0]
     finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
+        kill_run(proc, run_dir)
     assert proc.returncode == 0, text[-3000:]
     summary = json.loads((run_dir / 'summary.json').read_text())
     assert summary['total_steps'] >= total
@@ -816,13 +844,47 @@ def test_signal_to_train_alone_stops_every_node(tmp_path, sig):
         os.kill(proc.pid, sig)                 # the bring-up only, as timeout(1) does
         text = proc.communicate(timeout=120)[0]
     finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-        for pid in node_pids(run_dir):         # do not leave them behind if the test fails
-            os.kill(pid, signal.SIGKILL)
+        kill_run(proc, run_dir)
     assert proc.returncode == 0, text[-3000:]
     said = 'interrupted' if sig == signal.SIGINT else f'interrupted by signal {sig.name}'
     assert f'{said}: stopping the nodes' in text
     assert node_pids(run_dir) == []
     summary = json.loads((run_dir / 'summary.json').read_text())
     assert summary['interrupted'] and 0 < summary['total_steps'] < 10_000_000
+
+
+@pytest.mark.e2e
+@pytest.mark.slow
+def test_sigkill_of_train_stops_every_node_cleanly(tmp_path):
+    """
+    ``kill -9`` of the bring-up: the kernel sends its nodes SIGTERM and they stop cleanly.
+
+    ``train`` cannot stop its nodes when it is killed by SIGKILL (or the OOM killer); they
+    run in sessions of their own, so a killpg of ``train`` does not reach them either. Each
+    node asked the kernel for SIGTERM on its supervisor's death (``stop_with_supervisor``):
+    all stop, the learner's bag is whole without a reindex. Before, they ran on for good: a
+    CI run's failed test left a graph that fed the next test's simulator foreign commands.
+    """
+    run_dir = tmp_path / 'run'
+    cmd = [sys.executable, '-m', 'pg_node', 'train', '--run-dir', str(run_dir),
+           '--no-progress', '--total-steps', '10000000', '--eval-episodes', '2']
+    proc = subprocess.Popen(cmd, env=env(GRAPH), cwd=REPO, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL, start_new_session=True)
+    try:
+        wait_for_progress(proc, run_dir, time.monotonic() + 240)
+        pids = node_pids(run_dir)
+        assert len(pids) == 2                  # sim_and_actor and critic_and_learner
+        os.killpg(proc.pid, signal.SIGKILL)    # train and its group; the nodes have their own
+        proc.wait(timeout=30)
+        deadline = time.monotonic() + 60
+        while node_pids(run_dir) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert node_pids(run_dir) == [], log_tails(run_dir)
+    finally:
+        kill_run(proc, run_dir)
+    for log in (run_dir / 'logs').glob('*.log'):
+        assert 'Traceback' not in log.read_text(), log.read_text()[-3000:]
+    files = sorted((run_dir / 'bag').glob('*.mcap'))
+    assert files
+    for f in files:
+        full_mcap_check(f)

@@ -14,8 +14,12 @@ sampled by version v it waits for version v + 1 before acting again: exact on-po
 so a lost message or a restarted critic cannot deadlock the graph. In ``async`` mode it
 keeps sampling with the newest weights it has.
 
-A transition re-sent by the simulator (same ``seq``) is ignored; one that skips a number (a
-restarted simulator, a world reset) discards the partial rollout, whose last command's
+A transition re-sent by the simulator (same ``seq``: it had no command for a second) gets the
+command already sent for it once more, the same torques: the first was lost, as it is when a
+restarted simulator sends its first transition before its command subscription has heard of
+this publisher (the transition is latched, the command is not). A re-send that comes before
+the answer (the actor waits for weights) is answered once. A transition that skips a number
+(a restarted simulator, a world reset) discards the partial rollout, whose last command's
 outcome is unknown.
 
 A lock-step simulator that steps its arms in ``G`` groups (``lock_step_groups``) sends each
@@ -64,8 +68,8 @@ class ActorNode(Node):
         self.last_rollout = None
         self.last_rollout_time = 0.0
         self.rollout_seq = 0
-        self.counters = {'commands': 0, 'rollouts': 0, 'rollouts_resent': 0,
-                         'rollouts_discarded': 0, 'transitions_dropped': 0,
+        self.counters = {'commands': 0, 'commands_resent': 0, 'rollouts': 0,
+                         'rollouts_resent': 0, 'rollouts_discarded': 0, 'transitions_dropped': 0,
                          'transitions_repeated': 0, 'weights_dropped': 0,
                          'weights_received': 0, 'policy_lag': 0}
         self.steps = RateCounter()
@@ -142,7 +146,12 @@ class ActorNode(Node):
         buf = self.bufs[g]
         if tr.seq == self.last_seq[g]:
             self.counters['transitions_repeated'] += 1
-            if buf.pending or g in self.pending:
+            if buf.pending:
+                # answered, yet the simulator is still waiting: the command was lost
+                self.pub_cmd.publish(self.last_cmd[g])
+                self.counters['commands_resent'] += 1
+                return
+            if g in self.pending:
                 return
             # a re-send of a transition we never answered (e.g. we just started): answer it
         elif tr.seq != self.last_seq[g] + tr.groups and buf.pos + buf.pending > 0:
@@ -168,6 +177,7 @@ class ActorNode(Node):
         self.bufs = [RolloutBuffer(self.cfg['n_steps'], arms.stop - arms.start, self.obs_dim,
                                    self.act_dim) for arms in self.groups]
         self.last_seq = [-1] * groups
+        self.last_cmd = [None] * groups        # the serialised command sent for last_seq
         self.pending = {}                      # group -> transition not answered yet
 
     def discard_partial(self):
@@ -196,7 +206,8 @@ class ActorNode(Node):
         act, logp = self.policy.sample(tr.obs, self.rng)
         cmd = np.clip(act, self.spec.ctrl_low, self.spec.ctrl_high)
         # the simulator waits for the command: send it first, then keep the step
-        self.pub_cmd.publish(command.to_cdr(cmd, tr.seq))
+        self.last_cmd[g] = command.to_cdr(cmd, tr.seq)
+        self.pub_cmd.publish(self.last_cmd[g])
         self.bufs[g].add_action(tr.obs, act, logp, tr.episode_step, tr.episode_id, tr.seq)
         self.counters['commands'] += 1
         self.steps.add(tr.num_envs)

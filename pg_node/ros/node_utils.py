@@ -13,6 +13,7 @@ from typing import Callable, Dict, Iterator, List, Optional, Union
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from pg_node.common.params import ConfigError
+from pg_node.common.paths import SUPERVISOR_ENV
 import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
@@ -240,6 +241,47 @@ def stop_on_signals() -> Iterator[StopRequest]:
         restore()
 
 
+PR_SET_PDEATHSIG = 1    # <linux/prctl.h>
+
+
+def stop_with_supervisor(request: StopRequest) -> bool:
+    """
+    Have the kernel send this process SIGTERM when the supervisor that started it dies.
+
+    A supervisor starts its nodes in sessions of their own, so a Ctrl-C reaches each once,
+    and stops them on its way out; killed with SIGKILL (``kill -9``, the OOM killer, a
+    test's timeout) it cannot. Without this its nodes would run on, a training graph on the
+    ROS domain that the next run joins and hears (the 2026-12-02 CI run: an orphaned graph
+    fed a later test's simulator foreign commands for minutes). SIGTERM takes the Ctrl-C
+    path (:func:`stop_on_signals`): the node closes its bag and checkpoint and exits.
+
+    Only when ``PG_NODE_SUPERVISOR_PID`` names this process's parent (``prctl`` watches the
+    parent): a node started by ``ros2 run`` or ``ros2 launch`` has no such variable, and one
+    that inherited a stale one is left alone. A supervisor that died before this ran is
+    noted in ``request`` as a SIGTERM. Linux only; elsewhere nothing changes. Return whether
+    the node now stops with its supervisor.
+    """
+    named = os.environ.get(SUPERVISOR_ENV, '').strip()
+    if not named.isdigit() or not sys.platform.startswith('linux'):
+        return False
+    supervisor = int(named)
+    if os.getppid() != supervisor:
+        try:
+            os.kill(supervisor, 0)
+        except ProcessLookupError:
+            request.signum = signal.SIGTERM       # it died before we got here
+        except PermissionError:
+            pass
+        return False
+    import ctypes
+    libc = ctypes.CDLL(None, use_errno=True)
+    if libc.prctl(PR_SET_PDEATHSIG, int(signal.SIGTERM), 0, 0, 0) != 0:
+        return False
+    if os.getppid() != supervisor:                # it died between the two looks
+        request.signum = signal.SIGTERM
+    return True
+
+
 def init_quietly(args=None) -> Optional[str]:
     """
     ``rclpy.init`` without rclpy's signal handlers; return the reason if rcl refuses.
@@ -297,6 +339,7 @@ def run(make_node: Callable[[], Union[Node, List[Node]]], args=None,
     node = None
     code = 0
     with stop_on_signals() as stop:
+        stop_with_supervisor(stop)
         try:
             node = make_node()
             executor = make_executor()
@@ -314,10 +357,6 @@ def run(make_node: Callable[[], Union[Node, List[Node]]], args=None,
                     break
         except (KeyboardInterrupt, ExternalShutdownException):
             pass                              # a second signal, or a shutdown from elsewhere
-        except _rclpy.RCLError:
-            if rclpy.ok():
-                raise
-            # the context was shut down under a callback that was publishing: a stop too
         except ConfigError as exc:
             print(f'configuration error: {exc}', file=sys.stderr)
             code = 2

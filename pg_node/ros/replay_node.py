@@ -557,6 +557,7 @@ def main(args=None) -> int:
     node = None
     status = EXIT_OK
     with node_utils.stop_on_signals() as stop:
+        node_utils.stop_with_supervisor(stop)
         try:
             try:
                 node = ReplayNode(parameter_overrides=overrides)

@@ -10,9 +10,10 @@ import contextlib
 import os
 import signal
 import subprocess
+import threading
 from typing import Dict, Iterator, Optional
 
-from pg_node.common.paths import SOURCE_ROOT
+from pg_node.common.paths import SOURCE_ROOT, SUPERVISOR_ENV
 
 REPO = SOURCE_ROOT
 STOP_WAITS = ((signal.SIGINT, 10.0), (signal.SIGTERM, 5.0), (signal.SIGKILL, 5.0))
@@ -23,9 +24,15 @@ def child_env(domain_id: Optional[int] = None) -> Dict[str, str]:
     Return the environment of a node process: this one, pg_node importable, unbuffered.
 
     With ``domain_id`` the child joins that ``ROS_DOMAIN_ID`` (tests use one per process so
-    that parallel runs do not hear each other).
+    that parallel runs do not hear each other). Called from the main thread, it names this
+    process as the node's supervisor: the node then stops when this process dies, even by
+    SIGKILL (:func:`pg_node.ros.node_utils.stop_with_supervisor`). Not from another thread:
+    the kernel ties that to the thread that started the child, which may end first.
     """
     env = dict(os.environ, PYTHONUNBUFFERED='1')
+    env.pop(SUPERVISOR_ENV, None)
+    if threading.current_thread() is threading.main_thread():
+        env[SUPERVISOR_ENV] = str(os.getpid())
     path = env.get('PYTHONPATH')
     env['PYTHONPATH'] = f'{REPO}{os.pathsep}{path}' if path else str(REPO)
     if domain_id is not None:
