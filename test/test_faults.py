@@ -857,11 +857,11 @@ def test_signal_to_train_alone_stops_every_node(tmp_path, sig):
 @pytest.mark.slow
 def test_sigkill_of_train_stops_every_node_cleanly(tmp_path):
     """
-    ``kill -9`` of the bring-up: the kernel sends its nodes SIGTERM and they stop cleanly.
+    ``kill -9`` of the bring-up: the kernel sends its nodes SIGHUP and they stop cleanly.
 
     ``train`` cannot stop its nodes when it is killed by SIGKILL (or the OOM killer); they
     run in sessions of their own, so a killpg of ``train`` does not reach them either. Each
-    node asked the kernel for SIGTERM on its supervisor's death (``stop_with_supervisor``):
+    node asked the kernel for SIGHUP on its supervisor's death (``stop_with_supervisor``):
     all stop, the learner's bag is whole without a reindex. Before, they ran on for good: a
     CI run's failed test left a graph that fed the next test's simulator foreign commands.
     """
@@ -884,6 +884,8 @@ def test_sigkill_of_train_stops_every_node_cleanly(tmp_path):
         kill_run(proc, run_dir)
     for log in (run_dir / 'logs').glob('*.log'):
         assert 'Traceback' not in log.read_text(), log.read_text()[-3000:]
+    # the cleanup ran: the learner's and the critic's checkpoints on the way out
+    assert list((run_dir / 'checkpoints').glob('*.pt')) and (run_dir / 'critic').is_dir()
     files = sorted((run_dir / 'bag').glob('*.mcap'))
     assert files
     for f in files:

@@ -6,8 +6,10 @@ for 20 ms), which is where a signal lands in a training node: rclpy's default ha
 KeyboardInterrupt inside the callback there (logged as ``[FATAL] ... Exception in 'timers'
 callback`` with the stack, issue 16's note) or shut the context down under it. Now the callback
 finishes, the loop stops, the cleanup runs, and the exit code is 0. A second signal during a
-cleanup that hangs ends the process, as ``ros2 launch``'s escalation expects.
+cleanup that hangs ends the process, as ``ros2 launch``'s escalation expects. SIGHUP (a
+closed terminal, a supervisor's death) only ever asks, however often it comes.
 """
+import os
 import signal
 import subprocess
 import sys
@@ -46,6 +48,8 @@ BUSY_NODE = textwrap.dedent("""
         print(f'cleanup after {node.ticks} ticks', flush=True)
         if HANG:
             time.sleep(60)
+        if sys.argv[1] == 'slow':
+            time.sleep(1.0)
         print('cleaned up', flush=True)
 
     sys.exit(node_utils.run(Busy, cleanup=cleanup))
@@ -106,3 +110,69 @@ def test_a_second_signal_ends_a_cleanup_that_hangs():
     out = finish(proc)
     assert proc.returncode == -signal.SIGTERM, out[-3000:]
     assert 'cleaned up' not in out
+
+
+def test_every_sighup_only_asks():
+    """
+    SIGHUP twice, the second during the cleanup: the node still saves and exits 0.
+
+    The kernel may send the parent-death signal twice within microseconds
+    (``stop_with_supervisor``); with SIGTERM the second killed half the nodes mid-save.
+    """
+    proc = start_busy('slow')
+    proc.send_signal(signal.SIGHUP)
+    line = proc.stdout.readline()
+    assert line.startswith('cleanup after'), line
+    proc.send_signal(signal.SIGHUP)
+    out = finish(proc)
+    assert proc.returncode == 0 and 'cleaned up' in out, out[-3000:]
+
+
+SUPERVISOR = textwrap.dedent("""
+    import subprocess, sys, time
+    from pg_node.tools import processes
+    log = open(sys.argv[2], 'w')
+    node = subprocess.Popen([sys.executable, '-c', sys.argv[1], 'slow'], stdout=log,
+                            stderr=subprocess.STDOUT, env=processes.child_env(int(sys.argv[3])),
+                            start_new_session=True)
+    print(node.pid, flush=True)
+    time.sleep(600)
+""")
+
+
+def alive(pid: int) -> bool:
+    """Whether ``pid`` runs (a zombie that init has not reaped yet has exited)."""
+    try:
+        with open(f'/proc/{pid}/stat') as f:
+            return f.read().rpartition(')')[2].split()[0] != 'Z'
+    except OSError:
+        return False
+
+
+@pytest.mark.skipif(not sys.platform.startswith('linux'), reason='prctl(PR_SET_PDEATHSIG)')
+def test_a_node_stops_cleanly_when_its_supervisor_is_killed(tmp_path):
+    """A supervisor killed by SIGKILL: its node (own session) saves and exits by itself."""
+    log = tmp_path / 'node.log'
+    sup = subprocess.Popen([sys.executable, '-c', SUPERVISOR, BUSY_NODE, str(log),
+                            str(DOMAIN_ID)], env=processes.child_env(DOMAIN_ID),
+                           stdout=subprocess.PIPE, text=True, start_new_session=True)
+    node = int(sup.stdout.readline())
+    try:
+        end = time.monotonic() + 60
+        while 'busy' not in log.read_text() and time.monotonic() < end:
+            time.sleep(0.1)
+        sup.kill()
+        sup.wait()
+        while time.monotonic() < end and alive(node):
+            time.sleep(0.1)
+        if alive(node):
+            pytest.fail('the node did not stop: ' + log.read_text()[-2000:])
+    finally:
+        if sup.poll() is None:
+            sup.kill()
+        try:
+            os.kill(node, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+    out = log.read_text()
+    assert 'cleaned up' in out and 'Traceback' not in out, out[-3000:]

@@ -219,9 +219,15 @@ def stop_on_signals() -> Iterator[StopRequest]:
     whatever the inherited disposition: a node started by ``cmd &`` from a script has
     SIGINT ignored, and rclpy's handler took it in that case too. Main thread only (Python
     runs signal handlers there); elsewhere the block changes nothing.
+
+    SIGHUP (a closed terminal, and the death of the node's supervisor:
+    :func:`stop_with_supervisor`) is a stop request too, but every one only asks, for the
+    whole block: the kernel may send the parent-death signal twice within microseconds,
+    and the second must not kill the node while it saves.
     """
     request = StopRequest()
     old = {}
+    kept = {}
 
     def restore():
         while old:
@@ -232,13 +238,20 @@ def stop_on_signals() -> Iterator[StopRequest]:
         request.signum = signum
         restore()
 
+    def note_hangup(signum, frame):
+        if request.signum is None:
+            request.signum = signum
+
     if threading.current_thread() is threading.main_thread():
         for sig in STOP_SIGNALS:
             old[sig] = signal.signal(sig, note)
+        kept[signal.SIGHUP] = signal.signal(signal.SIGHUP, note_hangup)
     try:
         yield request
     finally:
         restore()
+        for sig, handler in kept.items():
+            signal.signal(sig, handler)
 
 
 PR_SET_PDEATHSIG = 1    # <linux/prctl.h>
@@ -246,19 +259,23 @@ PR_SET_PDEATHSIG = 1    # <linux/prctl.h>
 
 def stop_with_supervisor(request: StopRequest) -> bool:
     """
-    Have the kernel send this process SIGTERM when the supervisor that started it dies.
+    Have the kernel send this process SIGHUP when the supervisor that started it dies.
 
     A supervisor starts its nodes in sessions of their own, so a Ctrl-C reaches each once,
     and stops them on its way out; killed with SIGKILL (``kill -9``, the OOM killer, a
     test's timeout) it cannot. Without this its nodes would run on, a training graph on the
     ROS domain that the next run joins and hears (the 2026-12-02 CI run: an orphaned graph
-    fed a later test's simulator foreign commands for minutes). SIGTERM takes the Ctrl-C
-    path (:func:`stop_on_signals`): the node closes its bag and checkpoint and exits.
+    fed a later test's simulator foreign commands for minutes). SIGHUP is a stop request
+    (:func:`stop_on_signals`): the node closes its bag and checkpoint and exits. Not
+    SIGTERM: the kernel may send the signal more than once (strace showed two, 3 us apart,
+    when ``train``, which runs several threads, was killed), and a second SIGTERM kills a
+    node that is saving, as it should in ``ros2 launch``'s escalation; half the nodes died
+    unsaved that way.
 
     Only when ``PG_NODE_SUPERVISOR_PID`` names this process's parent (``prctl`` watches the
     parent): a node started by ``ros2 run`` or ``ros2 launch`` has no such variable, and one
     that inherited a stale one is left alone. A supervisor that died before this ran is
-    noted in ``request`` as a SIGTERM. Linux only; elsewhere nothing changes. Return whether
+    noted in ``request`` as a SIGHUP. Linux only; elsewhere nothing changes. Return whether
     the node now stops with its supervisor.
     """
     named = os.environ.get(SUPERVISOR_ENV, '').strip()
@@ -269,16 +286,16 @@ def stop_with_supervisor(request: StopRequest) -> bool:
         try:
             os.kill(supervisor, 0)
         except ProcessLookupError:
-            request.signum = signal.SIGTERM       # it died before we got here
+            request.signum = signal.SIGHUP        # it died before we got here
         except PermissionError:
             pass
         return False
     import ctypes
     libc = ctypes.CDLL(None, use_errno=True)
-    if libc.prctl(PR_SET_PDEATHSIG, int(signal.SIGTERM), 0, 0, 0) != 0:
+    if libc.prctl(PR_SET_PDEATHSIG, int(signal.SIGHUP), 0, 0, 0) != 0:
         return False
     if os.getppid() != supervisor:                # it died between the two looks
-        request.signum = signal.SIGTERM
+        request.signum = signal.SIGHUP
     return True
 
 
