@@ -150,6 +150,8 @@ class ActorNode(Node):
                 # answered, yet the simulator is still waiting: the command was lost
                 self.pub_cmd.publish(self.last_cmd[g])
                 self.counters['commands_resent'] += 1
+                self.get_logger().info(f'transition {tr.seq} came again: sending its command '
+                                       'again', throttle_duration_sec=1.0)
                 return
             if g in self.pending:
                 return
