@@ -100,15 +100,21 @@ def test_a_signal_inside_a_callback_stops_the_node_cleanly(sig, ignore_sigint):
         assert took < 10, took
 
 
-def test_a_second_signal_ends_a_cleanup_that_hangs():
-    """SIGINT starts the stop; SIGTERM during a cleanup that hangs ends the process."""
-    proc = start_busy('hang')
-    proc.send_signal(signal.SIGINT)
+def signal_twice(mode: str, first, second):
+    """Send ``first``, then ``second`` once the cleanup has begun; return exit code, output."""
+    proc = start_busy(mode)
+    proc.send_signal(first)
     line = proc.stdout.readline()
     assert line.startswith('cleanup after'), line
-    proc.send_signal(signal.SIGTERM)
+    proc.send_signal(second)
     out = finish(proc)
-    assert proc.returncode == -signal.SIGTERM, out[-3000:]
+    return proc.returncode, out
+
+
+def test_a_second_signal_ends_a_cleanup_that_hangs():
+    """SIGINT starts the stop; SIGTERM during a cleanup that hangs ends the process."""
+    code, out = signal_twice('hang', signal.SIGINT, signal.SIGTERM)
+    assert code == -signal.SIGTERM, out[-3000:]
     assert 'cleaned up' not in out
 
 
@@ -119,13 +125,8 @@ def test_every_sighup_only_asks():
     The kernel may send the parent-death signal twice within microseconds
     (``stop_with_supervisor``); with SIGTERM the second killed half the nodes mid-save.
     """
-    proc = start_busy('slow')
-    proc.send_signal(signal.SIGHUP)
-    line = proc.stdout.readline()
-    assert line.startswith('cleanup after'), line
-    proc.send_signal(signal.SIGHUP)
-    out = finish(proc)
-    assert proc.returncode == 0 and 'cleaned up' in out, out[-3000:]
+    code, out = signal_twice('slow', signal.SIGHUP, signal.SIGHUP)
+    assert code == 0 and 'cleaned up' in out, out[-3000:]
 
 
 SUPERVISOR = textwrap.dedent("""
