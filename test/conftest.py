@@ -14,6 +14,7 @@ import signal
 import sys
 import time
 
+from pg_node.tools.processes import proc_stat
 import pytest
 
 GRACE = 30.0        # seconds: a node that lost its supervisor closes its bag and checkpoint
@@ -25,15 +26,14 @@ def _processes():
     for entry in os.listdir('/proc'):
         if not entry.isdigit():
             continue
+        fields = proc_stat(int(entry))
         try:
-            with open(f'/proc/{entry}/stat') as f:
-                fields = f.read().rpartition(')')[2].split()
             with open(f'/proc/{entry}/cmdline', 'rb') as f:
                 argv = f.read().decode(errors='replace').split('\0')[:-1]
         except OSError:
             continue
-        # after the command name: state, ppid (field 4), ..., starttime (field 22)
-        found[int(entry)] = (int(fields[1]), int(fields[19]), argv)
+        if fields is not None:
+            found[int(entry)] = (int(fields[1]), int(fields[19]), argv)
     return found
 
 
@@ -62,10 +62,9 @@ def stray_processes():
 @pytest.fixture(autouse=True)
 def no_process_left_behind():
     """Fail the test whose run left a pg_node process running without its supervisor."""
-    if not sys.platform.startswith('linux'):
-        yield
-        return
     yield
+    if not sys.platform.startswith('linux'):
+        return
     stray = stray_processes()
     end = time.monotonic() + GRACE
     while stray and time.monotonic() < end:

@@ -143,11 +143,8 @@ SUPERVISOR = textwrap.dedent("""
 
 def alive(pid: int) -> bool:
     """Whether ``pid`` runs (a zombie that init has not reaped yet has exited)."""
-    try:
-        with open(f'/proc/{pid}/stat') as f:
-            return f.read().rpartition(')')[2].split()[0] != 'Z'
-    except OSError:
-        return False
+    fields = processes.proc_stat(pid)
+    return fields is not None and fields[0] != 'Z'
 
 
 @pytest.mark.skipif(not sys.platform.startswith('linux'), reason='prctl(PR_SET_PDEATHSIG)')

@@ -11,7 +11,7 @@ import os
 import signal
 import subprocess
 import threading
-from typing import Dict, Iterator, Optional
+from typing import Dict, Iterator, List, Optional
 
 from pg_node.common.paths import SOURCE_ROOT, SUPERVISOR_ENV
 
@@ -134,6 +134,21 @@ def stop_logged(proc: subprocess.Popen):
 _TICK = os.sysconf('SC_CLK_TCK') if hasattr(os, 'sysconf') else 100
 
 
+def proc_stat(pid: int) -> Optional[List[str]]:
+    """
+    Return the fields of ``/proc/<pid>/stat`` after the command name (Linux); None if gone.
+
+    The command name (field 2) may hold spaces and parentheses, so the fields are counted
+    after its last ``)``: index 0 is the state (field 3), 1 the parent pid, 11 and 12 the
+    user and system CPU ticks, 19 the start time in ticks since boot.
+    """
+    try:
+        with open(f'/proc/{pid}/stat') as f:
+            return f.read().rsplit(')', 1)[1].split()
+    except (OSError, IndexError):
+        return None
+
+
 def process_usage(pid: int) -> Optional[Dict[str, float]]:
     """
     Return a live process's CPU seconds (user + system), resident and peak resident MB.
@@ -142,10 +157,10 @@ def process_usage(pid: int) -> Optional[Dict[str, float]]:
     is gone or ``/proc`` cannot tell. The peak (``VmHWM``) is the kernel's high-water mark,
     exact however seldom it is read.
     """
+    fields = proc_stat(pid)
+    if fields is None:
+        return None
     try:
-        with open(f'/proc/{pid}/stat') as f:
-            # the command name (field 2) may hold spaces: count fields after its ')'
-            fields = f.read().rsplit(')', 1)[1].split()
         with open(f'/proc/{pid}/status') as f:
             status = dict(line.split(':', 1) for line in f if ':' in line)
         return {'cpu_seconds': (int(fields[11]) + int(fields[12])) / _TICK,
