@@ -106,6 +106,7 @@ def in_process(n, seconds):
 
 def through_node(n, seconds, domain_id):
     """Return lock-step batch steps/s of sim_node driven by a minimal client."""
+    from pg_node.common.run import COMMANDS
     from pg_node.ros import command
     import rclpy
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -120,7 +121,7 @@ def through_node(n, seconds, domain_id):
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=domain_id)
     node = rclpy.create_node('bench_client', context=context)
-    pub = node.create_publisher(Float64MultiArray, '/arm_controller/commands', 10)
+    pub = node.create_publisher(Float64MultiArray, '/' + COMMANDS, 10)
     act = np.full((n, 2), 0.1)
     count = [0]
 

@@ -12,9 +12,15 @@ then stopped, as Ctrl-C does. Arguments:
   rest. An unknown name stops the launch with one line that lists the presets;
 - ``total_steps``, ``seed``, ``num_envs``, ``algo``: override the parameter file's values
   (empty, the default: the file's value);
-- ``namespace`` (of the simulator/actor pair), ``actor_id`` and ``use_learner:=false`` to start
-  only a simulator/actor pair that joins a critic and learner running elsewhere on the same
-  ``ROS_DOMAIN_ID`` (set ``num_actors`` on the critic/learner side);
+- ``run_id``: the run's name on the ROS network (letters, digits, ``_``): every node runs
+  in the namespace ``/<run_id>`` and its topics are ``/<run_id>/pg_node/...``; nodes drop
+  messages of another run, so several launches (and ``python -m pg_node train`` runs) share
+  one ``ROS_DOMAIN_ID`` without mixing. Empty (the default): made from ``run_dir``'s name,
+  as ``train`` makes it, so give two runs two run dirs or two run ids;
+- ``namespace`` (of the simulator/actor pair: relative to ``/<run_id>``, e.g. ``arm1``),
+  ``actor_id`` and ``use_learner:=false`` to start only a simulator/actor pair that joins a
+  critic and learner running elsewhere on the same ``ROS_DOMAIN_ID`` with the same
+  ``run_id`` (set ``num_actors`` on the critic/learner side);
 - ``compose`` (default ``true``, as ``python -m pg_node train``): the simulator and the actor
   run in one process (``sim_and_actor``), the critic and the learner in another
   (``critic_and_learner``): the same four nodes, names, topics and parameters, with fewer
@@ -24,6 +30,7 @@ then stopped, as Ctrl-C does. Arguments:
   writes ``summary.json`` and the learning-curve plot; the launch ends with it.
 """
 import os
+import re
 import sys
 
 from ament_index_python.packages import get_package_share_directory
@@ -67,25 +74,50 @@ def _preset_file(name):
     return path
 
 
+def _run_id(context):
+    """Return the ``run_id`` argument, or one made from the run dir's name as train does."""
+    given = _value(context, 'run_id')
+    if given:
+        if not re.fullmatch(r'[A-Za-z][A-Za-z0-9_]{0,63}', given):
+            raise RuntimeError(f'run_id {given!r}: letters, digits and underscores, starting '
+                               'with a letter, at most 64')
+        return given
+    # pg_node.common.run.run_id_for_dir, kept free of pg_node imports: ros2 launch may run
+    # another Python than the one pg_node's dependencies were installed into
+    name = re.sub(r'[^A-Za-z0-9_]', '_', os.path.basename(os.path.normpath(
+        _value(context, 'run_dir'))))
+    return (name if name and name[0].isalpha() else 'run_' + name)[:64]
+
+
+def _pair_namespace(run_ns, namespace):
+    """Return the pair's namespace: ``namespace`` under the run's, unless it is absolute."""
+    if namespace.startswith('/'):
+        return namespace
+    return '/'.join(part for part in (run_ns.rstrip('/'), namespace.strip('/')) if part) or '/'
+
+
 def _bring_up(context):
     params = _value(context, 'params_file')
     if _value(context, 'preset'):
         params = _preset_file(_value(context, 'preset'))
     run_dir = _value(context, 'run_dir')
     given = {k: yaml.safe_load(_value(context, k)) for k in OVERRIDES if _value(context, k)}
+    run_id = _run_id(context)
     if _value(context, 'supervised').lower() == 'true':
         train = ExecuteProcess(
             cmd=[sys.executable, '-m', 'pg_node', 'train', '--config', params,
-                 '--run-dir', run_dir, '--no-progress',
+                 '--run-dir', run_dir, '--run-id', run_id, '--no-progress',
                  *[f'{k}={v}' for k, v in given.items()]],
             output='screen', sigterm_timeout='30')
         return [train, _end_with(train, 'supervised training finished')]
-    namespace = _value(context, 'namespace')
+    run_ns = f'/{run_id}'
+    namespace = _pair_namespace(run_ns, _value(context, 'namespace'))
     actor_id = int(_value(context, 'actor_id'))
     shared = {k: v for k, v in given.items() if k in ('seed', 'num_envs')}
+    shared['run_id'] = run_id
     pair = {'sim_node': shared, 'actor_node': {**shared, 'actor_id': actor_id}}
     training = {'critic_node': {**shared, 'run_dir': run_dir},
-                'learner_node': {**given, 'run_dir': run_dir}}
+                'learner_node': {**given, 'run_id': run_id, 'run_dir': run_dir}}
     use_learner = _value(context, 'use_learner').lower() == 'true'
     if _value(context, 'compose').lower() == 'true':
         # no name=: it would rename every node of the process; each node's own values go
@@ -93,7 +125,7 @@ def _bring_up(context):
         actions = [Node(package='pg_node', executable='sim_and_actor', namespace=namespace,
                         parameters=[params, _sections_file(pair)], output='screen')]
         if use_learner:
-            both = Node(package='pg_node', executable='critic_and_learner',
+            both = Node(package='pg_node', executable='critic_and_learner', namespace=run_ns,
                         parameters=[params, _sections_file(training)], output='screen')
             actions += [both, _end_with(both, 'the learner has finished')]
         return actions
@@ -102,7 +134,7 @@ def _bring_up(context):
                for name, values in pair.items()]
     if use_learner:
         critic, learner = [Node(package='pg_node', executable=name, name=name,
-                                parameters=[params, values], output='screen')
+                                namespace=run_ns, parameters=[params, values], output='screen')
                            for name, values in training.items()]
         actions += [critic, learner, _end_with(learner, 'the learner has finished')]
     return actions
@@ -132,7 +164,10 @@ def generate_launch_description():
         ('seed', '', 'seed of simulator, policy and sampling (empty: from params_file)'),
         ('num_envs', '', 'arms per simulator (empty: from params_file)'),
         ('algo', '', 'a2c, ppo, npg or trpo (empty: from params_file)'),
-        ('namespace', '', 'namespace of the simulator/actor pair'),
+        ('run_id', '', "the run's name on the ROS network: nodes in /<run_id>, topics "
+                       "/<run_id>/pg_node/... (empty: from run_dir's name)"),
+        ('namespace', '', 'namespace of the simulator/actor pair, under /<run_id> unless it '
+                          'starts with /'),
         ('actor_id', '0', 'id of this pair when several feed one learner'),
         ('use_learner', 'true', 'also start the critic and the learner'),
         ('compose', 'true', 'the simulator and the actor in one process (sim_and_actor), '

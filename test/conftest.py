@@ -1,5 +1,5 @@
 """
-Every test leaves no pg_node process running behind it.
+Every test leaves no pg_node process running behind it, and DDS stays on this machine.
 
 A node that outlives the process that started it keeps talking on its ROS domain, and a
 later test on that domain hears it: on 2026-12-02 a test that failed left a training graph
@@ -18,6 +18,11 @@ from pg_node.tools.processes import proc_stat
 import pytest
 
 GRACE = 30.0        # seconds: a node that lost its supervisor closes its bag and checkpoint
+
+# Localhost by default (Jazzy's discovery range): no test's nodes, nor the test process's own,
+# send discovery traffic out of this machine's network interfaces. A user's own setting wins;
+# the tests that build network namespaces set what they test (test/netns.py).
+os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
 
 
 def _processes():

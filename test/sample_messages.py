@@ -14,12 +14,13 @@ N, T = 2, 4                     # arms and control steps of a sample rollout
 
 
 def make_rollout(rollout_seq: int, version: int = 0, obs_dim: int = OBS, first_seq: int = 0,
-                 **change):
+                 run: int = 0, **change):
     """
     Return actor 0's rollout ``rollout_seq`` of policy ``version`` as a message.
 
     Seeded by ``rollout_seq``; transition numbers ``first_seq``.. ``first_seq + T - 1``;
-    ``change`` replaces whole fields (malformed rollouts).
+    ``run``: the run token in its header; ``change`` replaces whole fields (malformed
+    rollouts).
     """
     rng = np.random.default_rng(rollout_seq)
     steps = np.repeat(np.arange(T)[:, None], N, 1) + first_seq
@@ -30,4 +31,4 @@ def make_rollout(rollout_seq: int, version: int = 0, obs_dim: int = OBS, first_s
          'episode_id': np.zeros((T, N), int), 'seq': steps}
     f.update(change)
     return table_msg.to_msg(*messages.pack_rollout(RolloutArrays(**f), version, 0,
-                                                   rollout_seq))
+                                                   rollout_seq, run))

@@ -102,3 +102,55 @@ def test_check_model_compiles_the_shipped_models():
     from pg_node.common.paths import check_model, models_dir
     for model in models_dir().glob('*.xml'):
         assert check_model(model.stem) == model
+
+
+# -- runs and hosts (pg_node.common.run, pg_node.tools.hosts) --------------------------------
+@pytest.mark.parametrize('args, words', [
+    (['train', '--run-id', '1x'], ['--run-id', 'starting with a letter']),
+    (['train', 'run_id=a-b'], ["parameter 'run_id'", 'starting with a letter']),
+    (['train', '--part'], ['--part', 'expected one argument']),
+    (['train', '--part', 'everything'], ['--part', 'invalid choice']),
+    (['train', '--part', 'workers', 'num_actors=2'], ['--part workers needs --run-id']),
+    (['train', '--part', 'workers', '--run-id', 'x', 'num_actors=2', '--actors', '1,2'],
+     ['--actors 1,2', 'actor 2 is out of range', 'actors 0..1']),
+    (['train', '--part', 'workers', '--run-id', 'x', '--actors', 'one'], ['--actors one']),
+    (['train', '--actors', '0'], ['--actors is for --part workers']),
+    (['monitor', '--run', 'a b'], ['--run', 'starting with a letter']),
+    (['topics', '--run', '-x'], ['--run']),
+])
+def test_bad_run_and_host_options_are_one_line(tmp_path, args, words):
+    done = run(*args, '--run-dir', tmp_path / 'run', timeout=60) if args[0] == 'train' \
+        else run(*args, timeout=60)
+    refused(done, 2, *words)
+    last = done.stderr.strip().splitlines()[-1]           # after argparse's usage, if any
+    assert 'error' in last and all(w in last for w in words), done.stderr
+    assert not (tmp_path / 'run' / 'logs').exists()       # nothing was started
+
+
+@pytest.mark.e2e
+def test_a_worker_host_refuses_an_unknown_run_and_a_config_that_differs(tmp_path):
+    """No learner announces the run: one line; a learner of other values: one line naming them."""
+    done = run('train', '--part', 'workers', '--run-id', 'nobody_here', '--wait-learner', '2',
+               'num_envs=2', '--run-dir', tmp_path / 'w0', timeout=60)
+    refused(done, 2, "no learner host announces run 'nobody_here'", 'after 2 s')
+    env = dict(os.environ, PYTHONPATH=str(REPO), ROS_DOMAIN_ID=str(DOMAIN_ID),
+               AMENT_PREFIX_PATH=os.environ.get('AMENT_PREFIX_PATH', sys.prefix))
+    learner = subprocess.Popen(
+        [sys.executable, '-m', 'pg_node', 'train', '--part', 'learner', '--run-id', 'mm',
+         '--run-dir', str(tmp_path / 'l'), '--no-progress', 'num_envs=8', 'num_actors=2',
+         '--total-steps', '100000'], env=env, cwd=REPO, stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    try:
+        done = run('train', '--part', 'workers', '--run-id', 'mm', '--wait-learner', '60',
+                   'num_envs=16', 'num_actors=2', 'seed=3', '--run-dir', tmp_path / 'w1',
+                   timeout=120)
+        refused(done, 2, "configuration differs from the learner host's",
+                '/**.num_envs: 16 here, 8 on the learner host',
+                '/**.seed: 3 here, 0 on the learner host')
+        assert not (tmp_path / 'w1' / 'logs').exists() or not any(
+            (tmp_path / 'w1' / 'logs').iterdir())              # no node was started
+    finally:
+        import signal
+        os.killpg(learner.pid, signal.SIGINT)
+        out = learner.communicate(timeout=60)[0]
+    assert learner.returncode == 0, out

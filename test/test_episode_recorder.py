@@ -116,7 +116,7 @@ def test_topic_counts_types_and_qos(recorded):
     path, src, open_before, written, T, n_batches = recorded
     msgs, conns, meta = read_bag(path)
     steps = T * n_batches
-    for topic in ('/clock', '/joint_states', '/arm_controller/commands', '/pg_node/reward'):
+    for topic in ('/clock', '/joint_states', '/pg_node/commands', '/pg_node/reward'):
         assert len(msgs[topic]) == steps, topic
     # episodes of 7 steps over 30 steps: arms start episodes at steps 0, 7, 14, 21, 28
     assert len(msgs['/target']) == 2 * 5
@@ -128,7 +128,7 @@ def test_topic_counts_types_and_qos(recorded):
     assert conns['/pg_node/episode'].msgtype == 'diagnostic_msgs/msg/DiagnosticStatus'
     qos = {e['topic_metadata']['name']: e['topic_metadata']['offered_qos_profiles']
            for e in meta['rosbag2_bagfile_information']['topics_with_message_count']}
-    assert set(qos) >= {'/clock', '/joint_states', '/target', '/arm_controller/commands',
+    assert set(qos) >= {'/clock', '/joint_states', '/target', '/pg_node/commands',
                         '/pg_node/reward', '/pg_node/episode', '/pg_node/metrics/policy_loss'}
     assert qos['/target'][0]['durability'] == 'transient_local'
     assert qos['/target'][0]['depth'] == 2
@@ -181,7 +181,7 @@ def test_effort_commands_rewards_and_stamps(recorded):
     msgs, _, _ = read_bag(path)
     gear = 200.0
     for (_, js), (_, cmd), (_, rew), (_, clk) in zip(
-            msgs['/joint_states'], msgs['/arm_controller/commands'], msgs['/pg_node/reward'],
+            msgs['/joint_states'], msgs['/pg_node/commands'], msgs['/pg_node/reward'],
             msgs['/clock']):
         data = np.asarray(cmd.data)
         assert np.all(np.abs(data) <= 1.0)
@@ -190,7 +190,7 @@ def test_effort_commands_rewards_and_stamps(recorded):
         assert len(rew.data) == 2
         assert (js.header.stamp.sec, js.header.stamp.nanosec) == (
             clk.clock.sec, clk.clock.nanosec)
-    clipped = np.concatenate([np.asarray(m.data) for _, m in msgs['/arm_controller/commands']])
+    clipped = np.concatenate([np.asarray(m.data) for _, m in msgs['/pg_node/commands']])
     assert np.any(np.abs(clipped) == 1.0)  # some sampled actions were clipped
     stamps = [m.clock.sec + m.clock.nanosec * 1e-9 for _, m in msgs['/clock']]
     np.testing.assert_allclose(stamps, 0.02 * np.arange(len(stamps)), atol=1e-9)

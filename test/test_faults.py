@@ -157,7 +157,7 @@ def make_transition(seq, **change):
     return transition.to_msg(transition.Transition(**fields))
 
 
-def make_batch(version, batch_seq=0, obs_dim=OBS, header_version=None, **change):
+def make_batch(version, batch_seq=0, obs_dim=OBS, header_version=None, run=0, **change):
     T = 3
     rng = np.random.default_rng(batch_seq)
     zeros = np.zeros((T, N))
@@ -169,7 +169,7 @@ def make_batch(version, batch_seq=0, obs_dim=OBS, header_version=None, **change)
     f.update(change)
     header = {'version': version if header_version is None else header_version,
               'n_actors': 1, 'batch_seq': batch_seq, 'n_steps': T, 'num_envs': N,
-              'value_loss': 0.0, 'explained_variance': 0.0}
+              'value_loss': 0.0, 'explained_variance': 0.0, 'run': run}
     return table_msg.to_msg(*messages.pack_batch(messages.Batch(**f), header))
 
 
@@ -293,9 +293,12 @@ def test_sim_node_survives_bad_commands(nodes):
     c = Client(SIM, nodes['sim'])
     try:
         trs = c.listen('/pg_node/transition', LATCHED_10, transition.from_msg)
-        pub = c.node.create_publisher(Float64MultiArray, '/arm_controller/commands', 10)
+        pub = c.node.create_publisher(Float64MultiArray, '/pg_node/commands', 10)
         c.spin_until(lambda: trs and pub.get_subscription_count() >= 1)
         seq = trs[-1].seq
+        # the answer to the current transition, but from another run: dropped, counted
+        c.each(pub, [command.tag(raw([0.1, -0.1, 0.2, 0.0]), seq, run=7)],
+               'sim_node: simulated arms', ('foreign_messages',))
         nan, inf = float('nan'), float('inf')
         name = 'sim_node: simulated arms'
         keys = ('commands_dropped_size', 'commands_dropped_nonfinite',
@@ -326,7 +329,7 @@ def test_sim_node_survives_bad_commands(nodes):
 def test_actor_node_survives_bad_weights_and_transitions(nodes):
     c = Client(ACTOR, nodes['actor'])
     try:
-        cmds = c.listen('/arm_controller/commands', 10, lambda m: list(m.data))
+        cmds = c.listen('/pg_node/commands', 10, lambda m: list(m.data))
         pub_w = c.node.create_publisher(Float64MultiArray, '/pg_node/policy_weights',
                                         LATCHED_10)
         pub_t = c.node.create_publisher(Float64MultiArray, '/pg_node/transition', LATCHED_10)
@@ -341,6 +344,9 @@ def test_actor_node_survives_bad_weights_and_transitions(nodes):
         c.each(pub_w, [table_msg.to_msg(*messages.pack_weights(*small, 0, 0)),  # layout
                        table_msg.to_msg(*messages.pack_weights(layout, vec_nan, 0, 0)),
                        raw([0.0] * 7, offset=2)], status, ('weights_dropped',))
+        # good weights, but another run's: not loaded, and no command comes of them
+        c.each(pub_w, [table_msg.to_msg(*messages.pack_weights(layout, vec, 0, 0, run=7))],
+               status, ('foreign_messages',))
         pub_w.publish(table_msg.to_msg(*messages.pack_weights(layout, vec, 0, 0)))
         c.spin_until(lambda: c.counter(status, 'weights_received') == 1)
         assert c.counter(status, 'weights_dropped') == 3
@@ -351,6 +357,7 @@ def test_actor_node_survives_bad_weights_and_transitions(nodes):
                        make_transition(0, terminated=np.full(N, 0.5)),
                        raw([0.0] * 9, offset=1)], status, keys)
         window = c.burst(pub_t, make_transition(0, obs=np.full((N, OBS), np.inf)), status, keys)
+        c.each(pub_t, [make_transition(0, run=7)], status, ('foreign_messages',))
         assert cmds == []                                    # nothing acted on
         pub_t.publish(make_transition(0))                    # good: answered
         c.spin_until(lambda: len(cmds) == 1)
@@ -387,6 +394,7 @@ def test_critic_node_survives_bad_rollouts(nodes):
                      make_rollout(0, terminated=np.full((4, N), 0.5))], 'critic_node', keys)
         window = c.burst(pub, make_rollout(0, rew=np.full((4, N), -np.inf)), 'critic_node',
                          keys)
+        c.each(pub, [make_rollout(0, run=7)], 'critic_node', ('foreign_messages',))
         pub.publish(make_rollout(0))                         # good: a batch comes out
         c.spin_until(lambda: len(batches) == 1)
         # a layout that does not match the first rollout's observation size
@@ -425,6 +433,7 @@ def test_learner_node_skips_a_corrupted_checkpoint_and_survives_bad_batches(node
         window = c.burst(pub, make_batch(5, act=np.full((3, N, ACT), np.nan)), 'learner_node',
                          keys)
         assert versions == [5]
+        c.each(pub, [make_batch(5, run=7)], 'learner_node', ('foreign_messages',))
         pub.publish(make_batch(5))
         c.spin_until(lambda: versions[-1] == 6)
         c.spin_until(lambda: c.counter('learner_node', 'batches') == 1)

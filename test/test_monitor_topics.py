@@ -14,6 +14,7 @@ import threading
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from domains import ros_domain
+from pg_node.common.run import run_topic
 from pg_node.tools.monitor import MonitorState, sparkline
 import pytest
 import rclpy
@@ -83,14 +84,17 @@ def test_state_renders_metrics_episodes_and_stale_nodes():
 class Publisher:
     """Publish metrics (20 Hz), episode summaries and diagnostics (2 Hz) in a thread."""
 
-    def __init__(self):
-        """Create the node and start spinning."""
+    def __init__(self, run='', loss=0.125):
+        """Create the node of run ``run`` and start spinning."""
         self.context = rclpy.Context()
         rclpy.init(context=self.context, domain_id=DOMAIN_ID)
+        self.run, self.loss_value = run, loss
         self.node = rclpy.create_node('fake_training', context=self.context)
-        self.ret = self.node.create_publisher(Float64, '/pg_node/metrics/episode_return', 10)
-        self.loss = self.node.create_publisher(Float64, '/pg_node/metrics/policy_loss', 10)
-        self.eps = self.node.create_publisher(DiagnosticStatus, '/pg_node/episode', 10)
+        self.ret = self.node.create_publisher(Float64, run_topic(run, 'metrics/episode_return'),
+                                              10)
+        self.loss = self.node.create_publisher(Float64, run_topic(run, 'metrics/policy_loss'),
+                                               10)
+        self.eps = self.node.create_publisher(DiagnosticStatus, run_topic(run, 'episode'), 10)
         self.diag = self.node.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self.i = 0
         self.node.create_timer(0.05, self.fast)
@@ -103,13 +107,14 @@ class Publisher:
     def fast(self):
         self.i += 1
         self.ret.publish(Float64(data=-40.0 + 0.1 * self.i))
-        self.loss.publish(Float64(data=0.125))
+        self.loss.publish(Float64(data=self.loss_value))
 
     def slow(self):
         self.eps.publish(episode(-12.5))
         array = DiagnosticArray()
         array.status = [DiagnosticStatus(level=DiagnosticStatus.WARN, name='fake_node: test',
-                                         message='hello from the test')]
+                                         message=f'hello from the test of run {self.run!r}',
+                                         values=[KeyValue(key='run_id', value=self.run)])]
         self.diag.publish(array)
 
     def close(self):
@@ -207,3 +212,28 @@ def test_monitor_refuses_a_negative_time(option, capsys):
         main([option, '-1', '--once'] + bounded)
     assert exc.value.code == 2
     assert f'argument {option}: must be > 0, got -1' in capsys.readouterr().err
+
+
+@pytest.mark.e2e
+def test_monitor_and_topics_tell_two_runs_apart(publisher):
+    """Two runs on one domain: monitor asks which and shows the chosen one; topics names both."""
+    other = Publisher(run='exp_b', loss=0.5)
+    try:
+        done = run('monitor', '--once', '--duration', '6')
+        assert done.returncode == 2, done.stdout + done.stderr
+        assert 'several runs on this ROS domain' in done.stderr and 'exp_b' in done.stderr
+        done = run('monitor', '--once', '--duration', '6', '--run', 'exp_b')
+        assert done.returncode == 0, done.stderr
+        assert '0.5' in next(line for line in done.stdout.splitlines() if 'policy_loss' in line)
+        node = next(line for line in done.stdout.splitlines() if 'fake_node: test' in line)
+        assert "run 'exp_b'" in node                 # the other run's status is not shown
+        assert "run ''" not in done.stdout
+        listed = run('topics', '--discovery', '4', '--duration', '0.5', '--json', '--run',
+                     'exp_b')
+        names = {r['name'] for r in json.loads(listed.stdout)}
+        assert '/exp_b/pg_node/metrics/policy_loss' in names and '/diagnostics' in names
+        assert not any(n.startswith('/pg_node/') for n in names), names
+        both = run('topics', '--discovery', '4', '--duration', '0.5')
+        assert 'runs: (no run id), exp_b' in both.stdout, both.stdout
+    finally:
+        other.close()

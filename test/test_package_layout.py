@@ -141,22 +141,29 @@ def test_launch_ends_when_the_learner_exits_and_takes_overrides(monkeypatch):
     assert set(nodes) == {'sim_node', 'actor_node', 'critic_node', 'learner_node'}
     handlers = [a for a in actions if type(a).__name__ == 'RegisterEventHandler']
     assert len(handlers) == 1 and _ends_launch_with(handlers[0], nodes['learner_node'])
-    assert nodes['learner_node'].kwargs['parameters'][1] == {'run_dir': 'runs/latest'}
+    assert nodes['learner_node'].kwargs['parameters'][1] == {'run_id': 'latest',
+                                                             'run_dir': 'runs/latest'}
+    # the run's id, from run_dir's name as train makes it, is every node's namespace
+    assert {n.kwargs['namespace'] for n in nodes.values()} == {'/latest'}
     # overrides reach the nodes that read them, typed as the table wants them
     actions = _bring_up(monkeypatch, total_steps='5000', seed='3', num_envs='16', algo='ppo',
                         compose='false')
     nodes = {a.kwargs['executable']: a for a in actions if type(a).__name__ == 'Node'}
     learner = nodes['learner_node'].kwargs['parameters'][1]
     assert learner == {'total_steps': 5000, 'seed': 3, 'num_envs': 16, 'algo': 'ppo',
-                       'run_dir': 'runs/latest'}
+                       'run_id': 'latest', 'run_dir': 'runs/latest'}
     for key, value in learner.items():
         assert params_for('learner_node')[key].check(key, value) == value
-    assert nodes['sim_node'].kwargs['parameters'][1] == {'seed': 3, 'num_envs': 16}
-    # a simulator/actor pair alone: no learner to wait for
-    actions = _bring_up(monkeypatch, use_learner='false', namespace='/arm1', actor_id='1',
-                        compose='false')
+    assert nodes['sim_node'].kwargs['parameters'][1] == {
+        'seed': 3, 'num_envs': 16, 'run_id': 'latest'}
+    # a simulator/actor pair alone, joining run exp1: no learner to wait for
+    actions = _bring_up(monkeypatch, use_learner='false', namespace='arm1', actor_id='1',
+                        compose='false', run_id='exp1')
     assert [a.kwargs['executable'] for a in actions] == ['sim_node', 'actor_node']
-    assert actions[1].kwargs['parameters'][1] == {'actor_id': 1}
+    assert actions[1].kwargs['parameters'][1] == {'actor_id': 1, 'run_id': 'exp1'}
+    assert actions[1].kwargs['namespace'] == '/exp1/arm1'       # under the run's namespace
+    with pytest.raises(RuntimeError, match="run_id '1x'"):
+        _bring_up(monkeypatch, run_id='1x')
 
 
 def _sections(node):
@@ -177,17 +184,19 @@ def test_launch_composes_as_train_does_with_each_nodes_own_values(monkeypatch):
     assert all('name' not in n.kwargs for n in nodes.values())
     handlers = [a for a in actions if type(a).__name__ == 'RegisterEventHandler']
     assert len(handlers) == 1 and _ends_launch_with(handlers[0], nodes['critic_and_learner'])
+    run = {'run_id': 'latest'}
     assert _sections(nodes['sim_and_actor']) == {
-        '/**/sim_node': {'seed': 3, 'num_envs': 16},
-        '/**/actor_node': {'seed': 3, 'num_envs': 16, 'actor_id': 0}}
+        '/**/sim_node': {'seed': 3, 'num_envs': 16, **run},
+        '/**/actor_node': {'seed': 3, 'num_envs': 16, **run, 'actor_id': 0}}
     assert _sections(nodes['critic_and_learner']) == {
-        '/**/critic_node': {'seed': 3, 'num_envs': 16, 'run_dir': 'runs/latest'},
+        '/**/critic_node': {'seed': 3, 'num_envs': 16, **run, 'run_dir': 'runs/latest'},
         '/**/learner_node': {'total_steps': 5000, 'seed': 3, 'num_envs': 16, 'algo': 'ppo',
-                             'run_dir': 'runs/latest'}}
+                             **run, 'run_dir': 'runs/latest'}}
+    assert {n.kwargs['namespace'] for n in nodes.values()} == {'/latest'}
     actions = _bring_up(monkeypatch, use_learner='false', namespace='/arm1', actor_id='1')
     (pair,) = actions
     assert pair.kwargs['executable'] == 'sim_and_actor' and pair.kwargs['namespace'] == '/arm1'
-    assert _sections(pair)['/**/actor_node'] == {'actor_id': 1}
+    assert _sections(pair)['/**/actor_node'] == {'actor_id': 1, **run}
 
 
 @pytest.mark.e2e
@@ -219,6 +228,7 @@ def test_launch_runs_the_supervised_bring_up_on_request(monkeypatch):
     cmd = train.kwargs['cmd']
     assert cmd[1:4] == ['-m', 'pg_node', 'train'] and 'total_steps=5000' in cmd
     assert cmd[cmd.index('--run-dir') + 1] == '/tmp/r'
+    assert cmd[cmd.index('--run-id') + 1] == 'r'
     assert _ends_launch_with(handler, train)
 
 

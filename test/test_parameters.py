@@ -141,6 +141,10 @@ def test_learner_and_critic_apply_live_hyperparameters(client, tmp_path):
         assert all(r.successful for r in res), [r.reason for r in res]
         res = client.wait(lp.set_parameters([Parameter('algo', value='ppo')])).results[0]
         assert not res.successful and 'read-only' in res.reason
+        # what would end or stretch the run from outside is read-only
+        for name, value in (('total_steps', 10), ('exit_when_done', False)):
+            res = client.wait(lp.set_parameters([Parameter(name, value=value)])).results[0]
+            assert not res.successful and 'read-only' in res.reason, name
         res = client.wait(lp.set_parameters([Parameter('n_epochs', value=0)])).results[0]
         assert not res.successful
         cp = client.params('/critic_node')

@@ -21,6 +21,7 @@ import mujoco
 import numpy as np
 from pg_node.common.params import load_config
 from pg_node.common.paths import resolve_model
+from pg_node.common.run import COMMANDS, CONTROLLER_COMMANDS
 from pg_node.ros import transition
 from pg_node.sim.arm_task import ArmTask
 from pg_node.sim.observation import ObservationBuilder
@@ -58,11 +59,17 @@ def trained(tmp_path_factory):
             'eval_returns': np.array(summary['eval_returns'])}
 
 
-def start(tmp_path, module, *params):
-    """Start ``python -m <module> --ros-args -p ...`` in the test's domain."""
+#: the simulator as the robot's stand-in: it takes commands where a controller would
+AS_ROBOT = (f'{COMMANDS}:={CONTROLLER_COMMANDS}',)
+
+
+def start(tmp_path, module, *params, remap=()):
+    """Start ``python -m <module> --ros-args -p ... -r ...`` in the test's domain."""
     args = [sys.executable, '-m', module, '--ros-args']
     for param in params:
         args += ['-p', param]
+    for rule in remap:
+        args += ['-r', rule]
     log = tmp_path / f'{module.rsplit(".", 1)[-1]}_{time.monotonic_ns()}.log'
     return processes.start_logged(args, log, processes.child_env(DOMAIN_ID))
 
@@ -199,7 +206,7 @@ def run_real_time(tmp_path, client, trained, num_envs, min_episodes, policy_path
         client.wait(lambda: any(m.startswith('waiting') for m, _ in client.diagnostics),
                     what='policy_node to load its policy')
         sim = start(tmp_path, 'pg_node.ros.sim_node', 'mode:=real_time',
-                    f'num_envs:={num_envs}', f'seed:={SIM_SEED}')
+                    f'num_envs:={num_envs}', f'seed:={SIM_SEED}', remap=AS_ROBOT)
         client.wait(lambda: client.commands, what='the first command')
         with client.lock:
             first_seq = client.transitions[-1].seq if client.transitions else 0

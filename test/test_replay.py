@@ -171,7 +171,7 @@ def test_round_trip_as_fast_as_possible_equals_the_bag(tmp_path):
     expected, _ = bag_messages(SAMPLE)
     total = sum(len(v) for v in expected.values())
     listener = Listener(topic_table(SAMPLE))
-    proc = start_replay(tmp_path, SAMPLE, '--rate', '0', '--keep-all',
+    proc = start_replay(tmp_path, SAMPLE, '--rate', '0', '--keep-all', '--commands',
                         '--wait-for-subscribers', '1', '--delay', '0.5')
     try:
         listener.spin_until(lambda: sum(len(v) for v in listener.got.values()) >= total
@@ -190,6 +190,36 @@ def test_round_trip_as_fast_as_possible_equals_the_bag(tmp_path):
         bad = [i for i, (got, sent) in enumerate(zip(listener.got[topic], msgs))
                if not same_cdr(got, sent)]
         assert not bad, (topic, bad[:5])  # same bytes, same order
+
+
+@pytest.mark.e2e
+def test_command_topics_are_left_out_unless_asked(tmp_path):
+    """A bag played where a real arm listens must not drive it: commands stay in the bag."""
+    commands, reward = '/arm_controller/commands', '/pg_node/reward'
+    topics = topic_table(SAMPLE)
+    listener = Listener({name: topics[name] for name in (commands, reward)})
+    expected = len(bag_messages(SAMPLE, [reward])[0][reward])
+    try:
+        proc = start_replay(tmp_path, SAMPLE, '--rate', '0', '--keep-all', '--delay', '0.5')
+        try:
+            assert listener.spin_until(lambda: len(listener.got[reward]) >= expected, 40)
+            proc.wait(30)
+            listener.spin_until(lambda: False, 0.5)
+        finally:
+            code, log = stop(proc)
+        assert code == 0, log
+        assert f'skipping {commands}: a command topic' in log
+        assert listener.got[commands] == []
+        # asked for by name: played
+        proc = start_replay(tmp_path, SAMPLE, '--rate', '0', '--keep-all', '--topics',
+                            commands)
+        try:
+            assert listener.spin_until(lambda: len(listener.got[commands]) >= 150, 40)
+        finally:
+            code, log = stop(proc)
+        assert code == 0, log
+    finally:
+        listener.close()
 
 
 def write_rosbags_bag(path):
@@ -385,7 +415,7 @@ def test_a_running_subscriber_gets_every_message_without_being_waited_for(tmp_pa
     expected, _ = bag_messages(SAMPLE)
     total = sum(len(v) for v in expected.values())
     listener = Listener(topic_table(SAMPLE))
-    proc = start_replay(tmp_path, SAMPLE, '--rate', '0', '--keep-all')
+    proc = start_replay(tmp_path, SAMPLE, '--rate', '0', '--keep-all', '--commands')
     try:
         listener.spin_until(lambda: sum(len(v) for v in listener.got.values()) >= total
                             and proc.poll() is not None, 40)

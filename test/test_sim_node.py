@@ -75,7 +75,7 @@ class Client:
         self.node.create_subscription(PointStamped, '/target', self.targets.append,
                                       targets_qos)
         self.commands = self.node.create_publisher(Float64MultiArray,
-                                                   '/arm_controller/commands', 10)
+                                                   '/pg_node/commands', 10)
 
     def _on_transition(self, msg):
         self.transitions.append(transition.from_msg(msg))

@@ -42,16 +42,19 @@ def runs(tmp_path_factory):
 
 def test_start_line_names_the_algorithm(runs):
     _, out, _, _, _ = runs
-    first = out.splitlines()[0]
+    first, second = out.splitlines()[:2]
     assert first.startswith('pg_node: training a2c (phi = gae), 1 x 64 x reacher2 (sync)'), first
     assert 'for 4096 steps' in first
+    # the run's name on the network, and where the graph reaches (the tests keep it local)
+    assert second.startswith('run id run: topics /run/pg_node/..., graph on this machine '
+                             'only (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST'), second
 
 
 def test_progress_says_starting_then_labels_every_figure(runs):
     _, out, summary, _, _ = runs
     lines = out.splitlines()
-    assert lines[1] == 'starting nodes...'
-    assert re.fullmatch(r'nodes up after \d+\.\d s; learning', lines[2]), lines[2]
+    assert lines[2] == 'starting nodes...'
+    assert re.fullmatch(r'nodes up after \d+\.\d s; learning', lines[3]), lines[3]
     progress = [ln for ln in lines if ln.startswith('step ')]
     assert progress, out
     assert re.fullmatch(r'step \d+/4096: ([\d,]+|n/a) steps/s \(since the first update\), '
@@ -104,7 +107,7 @@ def test_resume_says_so_and_counts_this_session_only(runs):
     run_dir, _, sum1, out, summary = runs
     lines = out.splitlines()
     version = sum1['policy_version']
-    assert lines[1].startswith(f'resumed from policy version {version} (4096 steps learned, '), \
+    assert lines[2].startswith(f'resumed from policy version {version} (4096 steps learned, '), \
         out
     assert summary['resumed_from_version'] == version
     assert summary['total_steps'] == 6144 and summary['session_steps'] == 2048

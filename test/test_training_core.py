@@ -97,7 +97,7 @@ def test_rollout_buffer_and_message_round_trip():
     msg = table_msg.to_msg(*messages.pack_rollout(ro, version=7, actor_id=2, rollout_seq=9))
     header, back = messages.unpack_rollout(*table_msg.from_msg(msg), obs_dim=D, act_dim=A)
     assert header == {'version': 7, 'actor_id': 2, 'rollout_seq': 9, 'n_steps': T,
-                      'num_envs': N}
+                      'num_envs': N, 'run': 0}
     for k, v in ro.as_dict().items():
         np.testing.assert_array_equal(getattr(back, k), v)
         assert getattr(back, k).dtype == v.dtype
@@ -132,7 +132,7 @@ def test_weights_round_trip_and_layout_mismatch():
     layout, vec = flatten_state(pol)
     msg = table_msg.to_msg(*messages.pack_weights(layout, vec, 5, 1000))
     header, layout2, vec2 = messages.unpack_weights(*table_msg.from_msg(msg))
-    assert header == {'version': 5, 'env_steps': 1000}
+    assert header == {'version': 5, 'env_steps': 1000, 'run': 0}
     other = GaussianPolicy(10, 2)
     load_flat_state(other, layout2, vec2)
     obs = torch.randn(3, 10)
@@ -158,7 +158,7 @@ def test_weights_table_is_the_generic_table_of_one_row_per_tensor():
         fields[f'{name}[{"x".join(map(str, shape))}]'] = vec[pos:pos + n][None]
         pos += n
     dims, offset, data = messages.pack_weights(layout, vec, 5, 1000)
-    ref = table_msg.pack((5, 1000), fields)
+    ref = table_msg.pack((5, 1000, 0), fields)
     assert (dims, offset) == (ref[0], ref[1])
     np.testing.assert_array_equal(data, ref[2])
     with pytest.raises(ValueError, match='layout needs'):

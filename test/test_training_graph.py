@@ -130,6 +130,37 @@ def test_graph_equals_inprocess_reference_with_every_node_its_own_process(tmp_pa
     assert summary['eval_returns'] == ref['eval_returns']
 
 
+def test_two_runs_on_one_domain_each_equal_their_solo_computation(tmp_path):
+    """
+    Two trainings at once on one ROS domain (what a lab that keeps domain 0 does) never mix.
+
+    Each has its own run id (from its run dir's name), so its nodes and topics live under
+    ``/<run id>/``; each must produce exactly what it produces alone, which is the in-process
+    computation. Their seeds differ, so a mixture could not pass for either.
+    """
+    steps = 20_480
+    cmds = {seed: [sys.executable, '-m', 'pg_node', 'train', '--run-dir',
+                   str(tmp_path / f'run{seed}'), '--no-progress', '--total-steps', str(steps),
+                   '--seed', str(seed), '--eval-episodes', '20'] for seed in (1, 2)}
+    procs = {seed: subprocess.Popen(cmd, env=env(), cwd=REPO, stdout=subprocess.PIPE,
+                                    stderr=subprocess.STDOUT, text=True,
+                                    start_new_session=True)
+             for seed, cmd in cmds.items()}
+    outs = {seed: p.communicate(timeout=600)[0] for seed, p in procs.items()}
+    for seed, p in procs.items():
+        assert p.returncode == 0, outs[seed][-3000:]
+        assert f'run id run{seed}: topics /run{seed}/pg_node/...' in outs[seed]
+        summary = json.loads((tmp_path / f'run{seed}' / 'summary.json').read_text())
+        ref = train_inprocess(load_config(default_config(), [f'total_steps={steps}',
+                                                             f'seed={seed}']), steps,
+                              eval_episodes=20)
+        assert summary['policy_version'] == ref['policy_version']
+        assert summary['eval_returns'] == ref['eval_returns']
+        # the learner heard no other run's batch (the other run's topics are elsewhere)
+        log = (tmp_path / f'run{seed}' / 'logs' / 'critic_and_learner.log').read_text()
+        assert 'refused a batch' not in log and 'restarted' not in log, log[-2000:]
+
+
 def test_metrics_are_in_tensorboard_under_sb3_names(run):
     """``tensorboard --logdir <run>`` shows the curves, named as SB3 names them."""
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
@@ -157,7 +188,7 @@ def test_bag_is_read_by_rosbags_with_expected_counts(run):
     with Reader(run_dir / 'bag') as reader:
         counts = {c.topic: c.msgcount for c in reader.connections}
         assert counts['/joint_states'] == control_steps
-        assert counts['/arm_controller/commands'] == control_steps
+        assert counts['/pg_node/commands'] == control_steps
         assert counts['/pg_node/reward'] == control_steps
         assert counts['/clock'] == control_steps
         assert counts['/pg_node/episode'] == n * (control_steps // 50)

@@ -30,18 +30,18 @@ def test_pack_unpack_round_trip(n, obs_dim):
     assert dims[0] == ('env', n, n * width)
     assert [d[0] for d in dims[1:]] == ['obs', 'reward', 'terminated', 'truncated',
                                         'final_obs', 'episode_id', 'episode_step']
-    assert offset == 1 and data[0] == 12345 and data.shape == (1 + n * width,)
+    assert offset == 2 and data[0] == 12345 and data.shape == (2 + n * width,)
     # row i is env i: its reward sits right after its observation
-    assert data[1 + obs_dim] == tr.reward[0]
+    assert data[2 + obs_dim] == tr.reward[0]
     if n > 1:
-        assert data[1 + width + obs_dim] == tr.reward[1]
+        assert data[2 + width + obs_dim] == tr.reward[1]
     _assert_same(unpack(dims, offset, data), tr)
 
 
 def test_message_round_trip():
     tr = _example(4, 10)
     msg = transition.to_msg(tr)
-    assert msg.layout.data_offset == 1
+    assert msg.layout.data_offset == 2
     assert [d.label for d in msg.layout.dim][:2] == ['env', 'obs']
     _assert_same(transition.from_msg(msg), tr)
 
@@ -51,12 +51,12 @@ def test_a_group_message_names_its_first_arm_and_the_groups():
     tr = _example(3, 10)
     tr.first_arm, tr.groups = 32, 2
     dims, offset, data = pack(tr)
-    assert offset == 3 and data[:3].tolist() == [12345, 32, 2]
+    assert offset == 4 and data[:4].tolist() == [12345, 32, 2, 0]      # run token 0
     back = unpack(dims, offset, data)
     _assert_same(back, tr)
     assert back.groups == 2 and back.arms == slice(32, 35)
     assert transition.from_msg(transition.to_msg(tr)).first_arm == 32
-    assert pack(_example(3, 10))[1] == 1 and _example(3, 10).arms == slice(0, 3)
+    assert pack(_example(3, 10))[1] == 2 and _example(3, 10).arms == slice(0, 3)
     for i, bad, match in ((1, -1.0, '< 0'), (1, 0.5, 'whole'), (2, 0.0, 'groups 0 < 1')):
         data_bad = data.copy()
         data_bad[i] = bad
@@ -81,15 +81,15 @@ def _bad_layouts():
     yield 'values', dims, offset, data[:-1]
     yield 'data_offset', dims, 0, data
     flags = data.copy()
-    flags[1 + 11] = 0.5  # env 0's terminated
+    flags[offset + 11] = 0.5  # env 0's terminated
     yield 'terminated', dims, offset, flags
     ids = data.copy()
-    ids[1 + 23] = 1.5  # env 0's episode_id
+    ids[offset + 23] = 1.5  # env 0's episode_id
     yield 'episode_id', dims, offset, ids
     seq = data.copy()
     seq[0] = np.nan
     yield 'seq', dims, offset, seq
-    yield 'data_offset', dims, 2, data
+    yield 'data_offset', dims, 5, data
 
 
 @pytest.mark.parametrize('match,dims,offset,data', list(_bad_layouts()))
@@ -181,10 +181,10 @@ def test_checking_a_table_at_once_agrees_with_checking_it_field_by_field(seed):
     dims, offset, data = pack(tr)
     if seed % 4:                         # three in four get a value that breaks a rule
         data = data.copy()
-        at = int(rng.integers(1, data.size))
+        at = int(rng.integers(offset, data.size))
         data[at] = rng.choice([np.nan, np.inf, -np.inf, 2.0, -1.0, 0.5, 1e7, -1e7, 2.0**60])
     widths = {name: 10 if size is None else size for name, size in transition.FIELDS}
-    _, table = table_msg.unpack(dims, offset, data, 1, widths, rows_label='env')
+    _, table = table_msg.unpack(dims, offset, data, offset, widths, rows_label='env')
     assert isinstance(table, table_msg.Table)
     results = []
     for fields in (table, dict(table)):   # one pass, then field by field

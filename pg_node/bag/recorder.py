@@ -20,7 +20,7 @@ Topics (the contract the replay, plot and render tools and the README rely on):
   ``record_arms``): a recorded arm's goal at the first recorded step of each of its episodes,
   ``frame_id`` ``arm<i>``, the point from the observation's target field (world coordinates,
   ``z = 0`` for a planar goal);
-* ``/arm_controller/commands`` (``std_msgs/Float64MultiArray``), every step: the recorded
+* ``/pg_node/commands`` (``std_msgs/Float64MultiArray``), every step: the recorded
   arms' clipped actions, arm-major, layout dims ``arm`` x ``actuator``;
 * ``/pg_node/reward`` (``std_msgs/Float64MultiArray``), every step: the recorded arms'
   rewards, layout dim ``arm``;
@@ -72,6 +72,8 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, Float64MultiArray, MultiArrayDimension
 
 EPISODE_TOPIC = '/pg_node/episode'
+#: the recorded actions (training's command topic, never a real controller's)
+COMMANDS_TOPIC = '/pg_node/commands'
 METRICS_PREFIX = '/pg_node/metrics/'
 EPISODE_KEYS = ('actor', 'arm', 'episode_id', 'return', 'length', 'terminated', 'truncated',
                 'cut_short', 'policy_version', 'recorded_steps')
@@ -198,7 +200,7 @@ class EpisodeRecorder:
         w.add_topic('/target', PointStamped, QoSProfile(
             depth=max(1, self.record_arms), reliability=ReliabilityPolicy.RELIABLE,
             durability=DurabilityPolicy.TRANSIENT_LOCAL))
-        w.add_topic('/arm_controller/commands', Float64MultiArray, _DEFAULT)
+        w.add_topic(COMMANDS_TOPIC, Float64MultiArray, _DEFAULT)
         w.add_topic('/pg_node/reward', Float64MultiArray, _DEFAULT)
         w.add_topic(EPISODE_TOPIC, DiagnosticStatus, EPISODE_QOS)
 
@@ -322,7 +324,7 @@ class EpisodeRecorder:
             reward.layout.dim = [MultiArrayDimension(label='arm', size=len(arms),
                                                      stride=len(arms))]
         cmd.data = float64_field(act_c)
-        w.write('/arm_controller/commands', cmd, t_log)
+        w.write(COMMANDS_TOPIC, cmd, t_log)
         reward.data = float64_field(rew)
         w.write('/pg_node/reward', reward, t_log)
 

@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any, Callable, Dict, Optional, Sequence
 
 from pg_node.common.paths import check_model
+from pg_node.common.run import check_run_id
 import yaml
 
 SHARED = '/**'
@@ -133,6 +134,10 @@ SHARED_PARAMS: Dict[str, Param] = {
     'num_actors': Param(1, 'simulator/actor pairs feeding the critic and learner; in sync '
                            'mode one batch holds one rollout of each', low=1),
     'run_dir': Param('runs/latest', 'where checkpoints, the bag and progress files go'),
+    'run_id': Param('', "the run's name on the ROS network: its topics are "
+                        '/<run_id>/pg_node/..., and every node drops messages of another run '
+                        "(letters, digits, '_'; empty: /pg_node/...; train and the launch file "
+                        'always set one)', validate=check_run_id),
 }
 
 #: the training-side nodes (critic, learner) yield the cores to the lock-step loop
@@ -202,12 +207,12 @@ LEARNER_PARAMS: Dict[str, Param] = {
     'cg_iters': Param(10, 'npg/trpo: conjugate gradient iterations for F^-1 g', low=1),
     'cg_damping': Param(0.1, 'npg/trpo: damping added to the Fisher matrix in F v', low=0.0),
     'line_search_steps': Param(10, 'trpo: halvings of the step tried before giving up', low=1),
-    'total_steps': Param(2_000_000, 'environment steps (all arms) to train for', low=1, live=True),
+    'total_steps': Param(2_000_000, 'environment steps (all arms) to train for', low=1),
     'checkpoint_every': Param(100, 'policy versions between checkpoints', low=1, live=True),
     'record_arms': Param(4, 'arms of actor 0 whose every step is written to the bag '
                             '(episode summaries are written for all arms)', low=0),
     'bag_split_episodes': Param(2000, 'episode summaries per bag file before a split', low=1),
-    'exit_when_done': Param(True, 'stop the learner once total_steps are learned', live=True),
+    'exit_when_done': Param(True, 'stop the learner once total_steps are learned'),
     'nice': NICE,
     'sched_idle': SCHED_IDLE,
 }
@@ -278,7 +283,7 @@ def defaults(section: str) -> Dict[str, Any]:
 
 
 #: The shared parameters a node reads, where it is not all of them.
-NODE_SHARED = {'sim_node': ('model', 'num_envs', 'seed', 'lock_step_groups')}
+NODE_SHARED = {'sim_node': ('model', 'num_envs', 'seed', 'lock_step_groups', 'run_id')}
 
 
 def params_for(section: str) -> Dict[str, Param]:

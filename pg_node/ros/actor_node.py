@@ -34,13 +34,14 @@ import time
 import numpy as np
 from pg_node.common.params import params_for
 from pg_node.common.paths import resolve_model
+from pg_node.common.run import COMMANDS
 from pg_node.rl.rollout_buffer import concat_arms, RolloutBuffer
 from pg_node.rl.sampler import make_rng, NumpySampler
 from pg_node.ros import command
 from pg_node.ros import messages
 from pg_node.ros import table_msg
 from pg_node.ros import transition
-from pg_node.ros.node_utils import Diagnostics, LATCHED, RateCounter, RELIABLE, run
+from pg_node.ros.node_utils import Diagnostics, LATCHED, RateCounter, RELIABLE, run, RunGuard
 from pg_node.ros.parameters import declare_params
 from pg_node.sim.arm_task import arm_groups, ArmSpec
 from rclpy.node import Node
@@ -73,8 +74,9 @@ class ActorNode(Node):
                          'transitions_repeated': 0, 'weights_dropped': 0,
                          'weights_received': 0, 'policy_lag': 0}
         self.steps = RateCounter()
-        self.pub_cmd = self.create_publisher(Float64MultiArray, 'arm_controller/commands', 10)
-        self.pub_rollout = self.create_publisher(Float64MultiArray, '/pg_node/rollout',
+        self.run = RunGuard(self, self.cfg['run_id'])
+        self.pub_cmd = self.create_publisher(Float64MultiArray, COMMANDS, 10)
+        self.pub_rollout = self.create_publisher(Float64MultiArray, self.run.topic('rollout'),
                                                  RELIABLE)
         # one transition of each group of arms may wait here (depth 1 with one group: a
         # real-time simulator's newest transition replaces one not yet answered)
@@ -83,8 +85,8 @@ class ActorNode(Node):
                                             reliability=LATCHED.reliability,
                                             durability=LATCHED.durability),
                                  raw=True)
-        self.create_subscription(Float64MultiArray, '/pg_node/policy_weights', self.on_weights,
-                                 LATCHED)
+        self.create_subscription(Float64MultiArray, self.run.topic('policy_weights'),
+                                 self.on_weights, LATCHED)
         self.diag = Diagnostics(self, f'actor_node {self.cfg["actor_id"]}',
                                 f'{self.cfg["num_envs"]} arms')
         self.create_timer(1.0, self.on_tick)
@@ -98,6 +100,8 @@ class ActorNode(Node):
         """Load a new policy version; in sync mode, resume acting when it is the awaited one."""
         try:
             header, layout, vec = messages.unpack_weights(*table_msg.from_msg(msg))
+            if self.run.foreign(header['run'], self.run.topic('policy_weights')):
+                return
             self.policy.load(layout, vec)
         except ValueError as exc:
             self.counters['weights_dropped'] += 1
@@ -128,6 +132,8 @@ class ActorNode(Node):
         try:
             tr = (transition.from_cdr(msg) if isinstance(msg, bytes)
                   else transition.from_msg(msg))
+            if self.run.foreign(tr.run, 'pg_node/transition'):
+                return
             if tr.obs.shape[1] != self.obs_dim:
                 raise ValueError(f'observations of size {tr.obs.shape[1]}, expected '
                                  f'{self.obs_dim}')
@@ -208,7 +214,7 @@ class ActorNode(Node):
         act, logp = self.policy.sample(tr.obs, self.rng)
         cmd = np.clip(act, self.spec.ctrl_low, self.spec.ctrl_high)
         # the simulator waits for the command: send it first, then keep the step
-        self.last_cmd[g] = command.to_cdr(cmd, tr.seq)
+        self.last_cmd[g] = command.to_cdr(cmd, tr.seq, self.run.token)
         self.pub_cmd.publish(self.last_cmd[g])
         self.bufs[g].add_action(tr.obs, act, logp, tr.episode_step, tr.episode_id, tr.seq)
         self.counters['commands'] += 1
@@ -218,7 +224,7 @@ class ActorNode(Node):
         """Publish the full rollout; in sync mode, wait for the next policy version."""
         ro = concat_arms([b.finish() for b in self.bufs])
         self.last_rollout = table_msg.to_msg(*messages.pack_rollout(
-            ro, self.buf_version, self.cfg['actor_id'], self.rollout_seq))
+            ro, self.buf_version, self.cfg['actor_id'], self.rollout_seq, self.run.token))
         self.rollout_seq += 1
         self.pub_rollout.publish(self.last_rollout)
         self.last_rollout_time = time.monotonic()
@@ -240,7 +246,8 @@ class ActorNode(Node):
             self.counters['rollouts_resent'] += 1
         waiting = 'weights' if self.version < 0 else (
             f'version {self.wait_for}' if self.wait_for is not None else 'nothing')
-        self.diag.publish({**self.counters, 'policy_version': self.version,
+        self.diag.publish({**self.counters, 'foreign_messages': self.run.dropped,
+                           'run_id': self.run.run_id, 'policy_version': self.version,
                            'waiting_for': waiting,
                            'steps_per_second': round(self.steps.rate(), 1)},
                           message=f'policy version {self.version}')

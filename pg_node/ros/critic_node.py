@@ -35,7 +35,7 @@ from pg_node.rl.rollout_buffer import RolloutArrays
 from pg_node.rl.weights import load_flat_state
 from pg_node.ros import messages
 from pg_node.ros import table_msg
-from pg_node.ros.node_utils import Diagnostics, LATCHED, RateCounter, RELIABLE, run
+from pg_node.ros.node_utils import Diagnostics, LATCHED, RateCounter, RELIABLE, run, RunGuard
 from pg_node.ros.parameters import declare_params
 from rclpy.node import Node
 from std_msgs.msg import Float64MultiArray
@@ -67,11 +67,13 @@ class CriticNode(Node):
         self.steps = RateCounter()
         self.last_stats = {}
         self.pending_fit = None            # (obs, returns) of the batch V has not learned yet
-        self.pub_batch = self.create_publisher(Float64MultiArray, '/pg_node/batch', RELIABLE)
-        self.create_subscription(Float64MultiArray, '/pg_node/rollout', self.on_rollout,
+        self.run = RunGuard(self, self.cfg['run_id'])
+        self.pub_batch = self.create_publisher(Float64MultiArray, self.run.topic('batch'),
+                                               RELIABLE)
+        self.create_subscription(Float64MultiArray, self.run.topic('rollout'), self.on_rollout,
                                  RELIABLE)
         if self.cfg['estimator'] == 'optimal_baseline':
-            self.create_subscription(Float64MultiArray, '/pg_node/policy_weights',
+            self.create_subscription(Float64MultiArray, self.run.topic('policy_weights'),
                                      self.on_weights, LATCHED)
         self.diag = Diagnostics(self, 'critic_node', self.cfg['estimator'])
         self.create_timer(1.0, self.on_tick)
@@ -99,9 +101,11 @@ class CriticNode(Node):
     def on_weights(self, msg: Float64MultiArray):
         """Keep the newest policy (for the optimal baseline's score norms)."""
         try:
-            _, layout, vec = messages.unpack_weights(*table_msg.from_msg(msg))
+            header, layout, vec = messages.unpack_weights(*table_msg.from_msg(msg))
         except ValueError as exc:
             self.get_logger().warning(f'dropped policy weights: {exc}', throttle_duration_sec=1.0)
+            return
+        if self.run.foreign(header['run'], self.run.topic('policy_weights')):
             return
         self.policy_weights = (layout, vec)
         if self.policy is not None:
@@ -111,6 +115,8 @@ class CriticNode(Node):
         """Check a rollout, drop duplicates, and annotate once its group is complete."""
         try:
             header, ro = messages.unpack_rollout(*table_msg.from_msg(msg))
+            if self.run.foreign(header['run'], self.run.topic('rollout')):
+                return
             if self.critic is not None and ro.obs.shape[-1] != self.critic.value_fn.obs_dim:
                 raise ValueError(f'observations of size {ro.obs.shape[-1]}, expected '
                                  f'{self.critic.value_fn.obs_dim}')
@@ -175,7 +181,7 @@ class CriticNode(Node):
         header = {'version': version, 'n_actors': len(parts), 'batch_seq': self.batches,
                   'n_steps': ro.n_steps, 'num_envs': ro.num_envs,
                   'value_loss': stats['value_loss'],
-                  'explained_variance': stats['explained_variance']}
+                  'explained_variance': stats['explained_variance'], 'run': self.run.token}
         msg = table_msg.to_msg(*messages.pack_batch(batch, header))
         self.pub_batch.publish(msg)
         # V learns from the rollout only after the learner and then the actors are served
@@ -220,7 +226,9 @@ class CriticNode(Node):
 
     def on_tick(self):
         """Publish diagnostics."""
-        self.diag.publish({**self.counters, 'steps_per_second': round(self.steps.rate(), 1),
+        self.diag.publish({**self.counters, 'foreign_messages': self.run.dropped,
+                           'run_id': self.run.run_id,
+                           'steps_per_second': round(self.steps.rate(), 1),
                            **{k: round(v, 4) for k, v in self.last_stats.items()}},
                           message=f'{self.batches} batches')
 

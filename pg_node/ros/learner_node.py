@@ -34,14 +34,14 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticStatus
 import numpy as np
-from pg_node.bag.recorder import EPISODE_QOS, EPISODE_TOPIC, EpisodeRecorder
+from pg_node.bag.recorder import EPISODE_QOS, EpisodeRecorder
 from pg_node.common.params import params_for
 from pg_node.common.paths import resolve_model
 from pg_node.rl.learner import EpisodeStats, Learner
 from pg_node.rl.logger import TensorBoardLog
 from pg_node.ros import messages
 from pg_node.ros import table_msg
-from pg_node.ros.node_utils import Diagnostics, LATCHED, RateCounter, RELIABLE, run
+from pg_node.ros.node_utils import Diagnostics, LATCHED, RateCounter, RELIABLE, run, RunGuard
 from pg_node.ros.parameters import declare_params
 from rclpy.node import Node
 from std_msgs.msg import Float64, Float64MultiArray
@@ -51,6 +51,8 @@ METRICS = ('episode_return', 'episode_length', 'policy_loss', 'value_loss', 'ent
            'explained_variance', 'approx_kl', 'grad_norm', 'steps_per_second',
            'policy_version', 'env_steps', 'policy_lag', 'rejected_batches', 'skipped_updates')
 PROGRESS_FIELDS = ('wall_seconds',) + METRICS
+#: seconds without a batch after which the learner says it waits (a batch takes milliseconds)
+GAP_WARNING = 3.0
 
 
 class LearnerNode(Node):
@@ -79,8 +81,11 @@ class LearnerNode(Node):
         self.stats = EpisodeStats()
         self.steps = RateCounter()
         self.counters = {'batches': 0, 'rejected_batches': 0, 'dropped_batches': 0,
-                         'repeated_batches': 0, 'skipped_updates': 0, 'sim_restarts_seen': 0}
+                         'repeated_batches': 0, 'skipped_updates': 0, 'sim_restarts_seen': 0,
+                         'gaps': 0}
         self.last_batch = None
+        self.last_batch_time = None            # time.monotonic() of the newest batch learned
+        self.gap_reported = False
         self.last_seq = {}                     # actor -> last transition number learned
         # progress.csv's clock goes on across a resume: the checkpoint keeps its reading
         self.t0 = time.monotonic() - (state or {}).get('wall_seconds', 0.0)
@@ -94,7 +99,9 @@ class LearnerNode(Node):
             while (self.run_dir / f'bag_{k}').exists():
                 k += 1
             bag_dir = self.run_dir / f'bag_{k}'
-        self.pub_episode = self.create_publisher(DiagnosticStatus, EPISODE_TOPIC, EPISODE_QOS)
+        self.run = RunGuard(self, self.cfg['run_id'])
+        self.pub_episode = self.create_publisher(DiagnosticStatus, self.run.topic('episode'),
+                                                 EPISODE_QOS)
         self.recorder = EpisodeRecorder(bag_dir, model_path, record_arms=self.cfg['record_arms'],
                                         split_max_episodes=self.cfg['bag_split_episodes'],
                                         on_summary=self.pub_episode.publish)
@@ -106,11 +113,13 @@ class LearnerNode(Node):
         self.progress = csv.DictWriter(self.progress_file, PROGRESS_FIELDS)
         if new:
             self.progress.writeheader()
-        self.pub_weights = self.create_publisher(Float64MultiArray, '/pg_node/policy_weights',
-                                                 LATCHED)
-        self.pub_metrics = {name: self.create_publisher(Float64, f'/pg_node/metrics/{name}', 10)
+        self.pub_weights = self.create_publisher(Float64MultiArray,
+                                                 self.run.topic('policy_weights'), LATCHED)
+        self.pub_metrics = {name: self.create_publisher(Float64, self.run.topic(f'metrics/{name}'),
+                                                        10)
                             for name in METRICS}
-        self.create_subscription(Float64MultiArray, '/pg_node/batch', self.on_batch, RELIABLE)
+        self.create_subscription(Float64MultiArray, self.run.topic('batch'), self.on_batch,
+                                 RELIABLE)
         self.diag = Diagnostics(self, 'learner_node', self.cfg['algo'])
         self.create_timer(1.0, self.on_tick)
         self.publish_weights()
@@ -122,7 +131,7 @@ class LearnerNode(Node):
         """Publish the current policy (latched)."""
         layout, vec = self.learner.weights()
         self.pub_weights.publish(table_msg.to_msg(*messages.pack_weights(
-            layout, vec, self.learner.version, self.learner.env_steps)))
+            layout, vec, self.learner.version, self.learner.env_steps, self.run.token)))
 
     def on_batch(self, msg: Float64MultiArray):
         """Learn from a batch of the right version; publish, log and checkpoint."""
@@ -135,6 +144,8 @@ class LearnerNode(Node):
         except ValueError as exc:
             self.counters['dropped_batches'] += 1
             self.get_logger().warning(f'dropped a batch: {exc}', throttle_duration_sec=1.0)
+            return
+        if self.run.foreign(header['run'], self.run.topic('batch')):
             return
         key = (header['version'], header['batch_seq'])
         if key == self.last_batch:
@@ -151,6 +162,7 @@ class LearnerNode(Node):
                 f'{self.learner.version} ({self.cfg["sync_mode"]} mode, lag allowed '
                 f'{max_lag})', throttle_duration_sec=1.0)
             return
+        self.note_batch_after_gap()
         stats = self.learner.learn(batch.obs, batch.act, batch.logp, batch.adv)
         self.last_batch = key
         self.counters['batches'] += 1
@@ -240,13 +252,44 @@ class LearnerNode(Node):
         self.progress_file.close()
         self.tensorboard.close()
 
+    def note_batch_after_gap(self):
+        """Say that batches come again after a gap that :meth:`watch_gap` reported."""
+        now = time.monotonic()
+        if self.gap_reported:
+            self.get_logger().info(
+                f'a batch again after {now - self.last_batch_time:.1f} s without one (policy '
+                f'version {self.learner.version}, repeated batches so far '
+                f"{self.counters['repeated_batches']}): training goes on")
+            self.gap_reported = False
+        self.last_batch_time = now
+
+    def watch_gap(self):
+        """
+        Say once when no batch came for a while: a worker host unreachable, a node restarting.
+
+        The actors re-send their rollouts and the critic its batches, so a gap heals by
+        itself; the log says when it began and (:meth:`note_batch_after_gap`) when it ended.
+        """
+        if self.last_batch_time is None or self.done or self.gap_reported:
+            return
+        waited = time.monotonic() - self.last_batch_time
+        if waited >= GAP_WARNING:
+            self.gap_reported = True
+            self.counters['gaps'] += 1
+            self.get_logger().warning(
+                f'no batch for {waited:.1f} s at policy version {self.learner.version}: '
+                'waiting for the actors (a lost link to a worker host, or a node restarting, '
+                'heals by itself: rollouts and batches are sent again)')
+
     def on_tick(self):
         """Publish steps per second and diagnostics."""
+        self.watch_gap()
         rate = self.steps.rate()
         self.last_metrics['steps_per_second'] = rate
         self.pub_metrics['steps_per_second'].publish(Float64(data=rate))
         self.progress_file.flush()
-        self.diag.publish({**self.counters, 'policy_version': self.learner.version,
+        self.diag.publish({**self.counters, 'foreign_messages': self.run.dropped,
+                           'run_id': self.run.run_id, 'policy_version': self.learner.version,
                            'env_steps': self.learner.env_steps,
                            'steps_per_second': round(rate, 1)},
                           message=f'version {self.learner.version}, '

@@ -21,6 +21,10 @@ other than 0/1, ids that are not whole, and real values beyond
 ``version, env_steps``; one row whose fields are the policy's tensors in ``state_dict``
 order, each labelled ``name[shape]`` (e.g. ``mu.weight[2x64]``) with its element count as
 width.
+
+Every header ends with ``run``, the token of the run that sent it
+(:func:`pg_node.common.run.run_token`); a header without it (one value shorter) is read as
+token 0, the empty run id's. Receivers compare it with their own run's (:func:`foreign`).
 """
 from dataclasses import dataclass
 import functools
@@ -31,10 +35,10 @@ import numpy as np
 from pg_node.rl.rollout_buffer import RolloutArrays
 from pg_node.ros import table_msg
 
-ROLLOUT_HEADER = ('version', 'actor_id', 'rollout_seq', 'n_steps', 'num_envs')
+ROLLOUT_HEADER = ('version', 'actor_id', 'rollout_seq', 'n_steps', 'num_envs', 'run')
 BATCH_HEADER = ('version', 'n_actors', 'batch_seq', 'n_steps', 'num_envs', 'value_loss',
-                'explained_variance')
-WEIGHTS_HEADER = ('version', 'env_steps')
+                'explained_variance', 'run')
+WEIGHTS_HEADER = ('version', 'env_steps', 'run')
 BOOL_FIELDS = ('terminated', 'truncated')
 INT_FIELDS = ('ep_step', 'episode_id', 'seq', 'actor')
 
@@ -50,10 +54,16 @@ def _batch_widths(obs_dim=None, act_dim=None):
             'actor': 1}
 
 
+def _header_size(names, data_offset: int) -> int:
+    """Return the header size of a message: with its ``run`` token, or one shorter."""
+    return len(names) - 1 if data_offset == len(names) - 1 else len(names)
+
+
 def _header(names, values) -> Dict[str, float]:
     out = dict(zip(names, (float(v) for v in values)))
+    out.setdefault('run', 0.0)          # sent without a token: the empty run id's
     for key in ('version', 'actor_id', 'rollout_seq', 'n_steps', 'num_envs', 'n_actors',
-                'batch_seq', 'env_steps'):
+                'batch_seq', 'env_steps', 'run'):
         if key in out:
             v = out[key]
             if not np.isfinite(v) or v != round(v) or v < 0:
@@ -75,16 +85,22 @@ def _rows(a):
     return a.reshape(a.shape[0] * a.shape[1], *a.shape[2:])
 
 
-def pack_rollout(ro: RolloutArrays, version: int, actor_id: int, rollout_seq: int):
-    """Return the packed ``/pg_node/rollout`` table of a finished rollout."""
-    header = (version, actor_id, rollout_seq, ro.n_steps, ro.num_envs)
+def foreign(header: Dict[str, float], token: int) -> bool:
+    """Return whether a message's header is of another run than the one of ``token``."""
+    return header['run'] != token
+
+
+def pack_rollout(ro: RolloutArrays, version: int, actor_id: int, rollout_seq: int,
+                 run: int = 0):
+    """Return the packed ``/pg_node/rollout`` table of a finished rollout of run ``run``."""
+    header = (version, actor_id, rollout_seq, ro.n_steps, ro.num_envs, run)
     return table_msg.pack(header, {k: _rows(v) for k, v in ro.as_dict().items()})
 
 
 def unpack_rollout(dims, offset, data, obs_dim=None, act_dim=None
                    ) -> Tuple[Dict[str, float], RolloutArrays]:
     """Return ``(header, rollout)``; ValueError if the layout or values are wrong."""
-    head, table = table_msg.unpack(dims, offset, data, len(ROLLOUT_HEADER),
+    head, table = table_msg.unpack(dims, offset, data, _header_size(ROLLOUT_HEADER, offset),
                                    _rollout_widths(obs_dim, act_dim))
     header = _header(ROLLOUT_HEADER, head)
     fields = _fields(table, header['n_steps'], header['num_envs'])
@@ -110,15 +126,15 @@ class Batch:
 
 
 def pack_batch(batch: Batch, header: Dict[str, float]):
-    """Return the packed ``/pg_node/batch`` table."""
-    values = [header[k] for k in BATCH_HEADER]
+    """Return the packed ``/pg_node/batch`` table (``header['run']``: 0 if missing)."""
+    values = [header.get(k, 0) if k == 'run' else header[k] for k in BATCH_HEADER]
     return table_msg.pack(values, {k: _rows(getattr(batch, k)) for k in _batch_widths()})
 
 
 def unpack_batch(dims, offset, data, obs_dim=None, act_dim=None
                  ) -> Tuple[Dict[str, float], Batch]:
     """Return ``(header, batch)``; ValueError if the layout or values are wrong."""
-    head, table = table_msg.unpack(dims, offset, data, len(BATCH_HEADER),
+    head, table = table_msg.unpack(dims, offset, data, _header_size(BATCH_HEADER, offset),
                                    _batch_widths(obs_dim, act_dim))
     header = _header(BATCH_HEADER, head)
     return header, Batch(**_fields(table, header['n_steps'], header['num_envs']))
@@ -127,7 +143,8 @@ def unpack_batch(dims, offset, data, obs_dim=None, act_dim=None
 _LABEL = re.compile(r'^(.+)\[([0-9x]*)\]$')
 
 
-def pack_weights(layout: List[Tuple[str, tuple]], vec, version: int, env_steps: int):
+def pack_weights(layout: List[Tuple[str, tuple]], vec, version: int, env_steps: int,
+                 run: int = 0):
     """Return the packed ``/pg_node/policy_weights`` table of a flattened state."""
     vec = np.asarray(vec, dtype=np.float64).reshape(-1)
     dims = _weights_dims(tuple((str(name), tuple(int(d) for d in shape))
@@ -135,7 +152,7 @@ def pack_weights(layout: List[Tuple[str, tuple]], vec, version: int, env_steps: 
     if dims[0][2] != vec.size:
         raise ValueError(f'weights vector has {vec.size} values, layout needs {dims[0][2]}')
     # one row: the table is the vector itself (what table_msg.pack makes of these fields)
-    return list(dims), len(WEIGHTS_HEADER), np.concatenate([(version, env_steps), vec])
+    return list(dims), len(WEIGHTS_HEADER), np.concatenate([(version, env_steps, run), vec])
 
 
 @functools.lru_cache(maxsize=8)
@@ -150,7 +167,8 @@ def _weights_dims(layout: tuple) -> tuple:
 def unpack_weights(dims, offset, data):
     """Return ``(header, layout, vector)`` of a weights message."""
     widths = {str(d[0]): None for d in dims[1:]}
-    head, table = table_msg.unpack(dims, offset, data, len(WEIGHTS_HEADER), widths)
+    head, table = table_msg.unpack(dims, offset, data, _header_size(WEIGHTS_HEADER, offset),
+                                   widths)
     layout = _weights_layout(tuple((label, block.shape[1]) for label, block in table.items()),
                              table.matrix.shape[0])
     vec = table.matrix[0].copy() if layout else np.zeros(0)    # the one row, in field order

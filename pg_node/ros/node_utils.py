@@ -14,6 +14,7 @@ from typing import Callable, Dict, Iterator, List, Optional, Union
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from pg_node.common.params import ConfigError
 from pg_node.common.paths import SUPERVISOR_ENV
+from pg_node.common.run import run_token, run_topic
 import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
@@ -48,6 +49,41 @@ class Diagnostics:
         msg.header.stamp = self.node.get_clock().now().to_msg()
         msg.status = [status]
         self.pub.publish(msg)
+
+
+class RunGuard:
+    """
+    The run a node belongs to (:mod:`pg_node.common.run`): its shared topics, and a check.
+
+    :meth:`foreign` drops a message that carries another run's token: it is counted
+    (``dropped``, the node's ``foreign_messages`` in ``/diagnostics``) and logged once per
+    topic and token, naming both runs, so a stray publisher shows in the log without
+    flooding it.
+    """
+
+    def __init__(self, node: Node, run_id: str):
+        self.node = node
+        self.run_id = run_id
+        self.token = run_token(run_id)
+        self.dropped = 0
+        self._told = set()
+
+    def topic(self, name: str) -> str:
+        """Return the absolute name of the run's shared topic ``name``."""
+        return run_topic(self.run_id, name)
+
+    def foreign(self, token: int, topic: str) -> bool:
+        """Return whether a message of ``token`` on ``topic`` is another run's (and count it)."""
+        if token == self.token:
+            return False
+        self.dropped += 1
+        if (topic, token) not in self._told:
+            self._told.add((topic, token))
+            self.node.get_logger().warning(
+                f'dropped a message on {topic} of another run (run token {token}; this run, '
+                f'{self.run_id!r}, has {self.token}): not learned from or acted on; counted '
+                'in /diagnostics as foreign_messages, not logged again for this sender')
+        return True
 
 
 class RateCounter:

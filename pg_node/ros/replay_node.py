@@ -37,6 +37,10 @@ message; keep-last: a subscriber slower than the replay may have missed older on
 acknowledged in time, or best effort (not confirmed).
 
 Topics: ``topics`` limits playback to those names; ``remap`` takes ``from:=to`` pairs.
+Command topics (a name ending in ``/commands``: ``/pg_node/commands`` in pg_node's bags,
+``/arm_controller/commands`` in older ones, what a ros2_control controller takes) are left
+out, with a warning, unless ``commands`` is true or ``topics`` names them: a bag played on a
+network with a real arm must not drive it.
 Topics whose type is not installed, or whose messages are not CDR, are skipped and listed
 in a warning at start.
 
@@ -86,6 +90,8 @@ PARAMETERS = (
      'topics to play (empty: all)'),
     ('remap', [], ParameterType.PARAMETER_STRING_ARRAY,
      'topic remappings, each "from:=to"'),
+    ('commands', False, ParameterType.PARAMETER_BOOL,
+     'also play command topics (names ending in /commands), which a controller would obey'),
     ('loop', False, ParameterType.PARAMETER_BOOL, 'start over at the end of the bag'),
     ('clock', 'auto', ParameterType.PARAMETER_STRING,
      'auto: replay a recorded /clock, else publish log time; log_time; off'),
@@ -186,6 +192,10 @@ class ReplayNode(Node):
         self.publishers_ = {}
         for name, info in topics.items():
             if wanted and name not in wanted:
+                continue
+            if is_command_topic(name) and not (p['commands'] or name in wanted):
+                self.skipped[name] = ('a command topic, which a controller would obey '
+                                      '(--commands, or naming it in --topics, plays it)')
                 continue
             if name == '/clock' and clock_mode == 'log_time':
                 self.skipped[name] = 'a recorded /clock (clock:=log_time publishes its own)'
@@ -476,6 +486,18 @@ def resolve_bag(path: str) -> str:
     return str(Path(path) / 'bag') if (Path(path) / 'bag').is_dir() else path
 
 
+def is_command_topic(name: str) -> bool:
+    """
+    Return whether a topic carries commands a controller would act on.
+
+    >>> is_command_topic('/pg_node/commands'), is_command_topic('/arm_controller/commands')
+    (True, True)
+    >>> is_command_topic('/joint_states')
+    False
+    """
+    return name.rstrip('/').rsplit('/', 1)[-1] == 'commands'
+
+
 def build_parser() -> argparse.ArgumentParser:
     """Return the argparse parser of ``python -m pg_node replay``."""
     parser = argparse.ArgumentParser(
@@ -489,6 +511,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--start-offset', type=float, help='seconds of the bag to skip')
     parser.add_argument('--topics', nargs='+', help='play only these topics')
     parser.add_argument('--remap', nargs='+', metavar='FROM:=TO', help='rename topics')
+    parser.add_argument('--commands', action='store_true', default=None,
+                        help='also play command topics (left out by default: a controller '
+                             'on the network would obey them)')
     parser.add_argument('--loop', '-l', action='store_true', default=None)
     parser.add_argument('--clock', choices=('auto', 'log_time', 'off'))
     parser.add_argument('--clock-rate', type=float, help='Hz of bag time (log_time clock)')
@@ -543,7 +568,8 @@ def main(args=None) -> int:
     if opts.bag:
         opts.bag = resolve_bag(opts.bag)
     values = {'bag': opts.bag, 'rate': opts.rate, 'start_offset': opts.start_offset,
-              'topics': opts.topics, 'remap': opts.remap, 'loop': opts.loop,
+              'topics': opts.topics, 'remap': opts.remap, 'commands': opts.commands,
+              'loop': opts.loop,
               'clock': opts.clock, 'clock_rate': opts.clock_rate,
               'start_paused': opts.start_paused, 'keep_all': opts.keep_all,
               'wait_for_subscribers': opts.wait_for_subscribers,

@@ -93,10 +93,11 @@ import numpy as np
 from pg_node.bag.ros_types import float64_field
 from pg_node.common.params import params_for
 from pg_node.common.paths import resolve_model
+from pg_node.common.run import COMMANDS
 from pg_node.ros import command
 from pg_node.ros import table_msg
 from pg_node.ros import transition
-from pg_node.ros.node_utils import run
+from pg_node.ros.node_utils import run, RunGuard
 from pg_node.ros.parameters import declare_params
 from pg_node.sim.arm_task import arm_groups, ArmTask
 from rclpy.event_handler import PublisherEventCallbacks
@@ -138,6 +139,7 @@ class SimNode(Node):
                             reward_dist_weight=p['reward_dist_weight'],
                             reward_control_weight=p['reward_control_weight'])
         self.params = p
+        self.run = RunGuard(self, p['run_id'])
         n, spec = self.task.num_envs, self.task.spec
         self.joint_names = [f'arm{i}/{name}' for i in range(n) for name in spec.joint_names]
         self.offsets = self.grid_offsets(p['marker_spacing'])
@@ -176,8 +178,7 @@ class SimNode(Node):
                                                     reliable_latched)
         self.pub_markers = self.create_publisher(MarkerArray, 'pg_node/markers', 1)
         self.pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
-        self.create_subscription(Float64MultiArray, 'arm_controller/commands',
-                                 self.on_command, 10, raw=True)
+        self.create_subscription(Float64MultiArray, COMMANDS, self.on_command, 10, raw=True)
         self.create_service(Trigger, '~/reset_world', self.on_reset_world)
         self.create_service(SetBool, '~/set_pause', self.on_set_pause)
         self.create_service(Trigger, '~/step_simulation', self.on_step_simulation)
@@ -247,10 +248,13 @@ class SimNode(Node):
                                           throttle_duration_sec=1.0)
                 return
         cmd = np.asarray(msg.data, dtype=np.float64)
-        g, answers, arms = None, None, slice(0, self.task.num_envs)
+        g, arms = None, slice(0, self.task.num_envs)
+        answers = command.transition_of(msg)
+        # an actor's command (tagged) of another run: never a control step, in any mode
+        if answers is not None and self.run.foreign(command.run_of(msg), COMMANDS):
+            return
         if self.mode == 'lock_step':
             # the group whose transition it answers (seq k * G + g); untagged: all arms
-            answers = command.transition_of(msg)
             if answers is not None:
                 g = answers % len(self.groups)
                 arms = self.groups[g]
@@ -357,7 +361,7 @@ class SimNode(Node):
             truncated=truncated, final_obs=final_obs,
             episode_id=self.task.episode_id[arms].copy(),
             episode_step=self.task.episode_step[arms].copy(), first_arm=arms.start,
-            groups=len(self.groups))
+            groups=len(self.groups), run=self.run.token)
 
     def next_seq(self, g: int) -> int:
         """Return the seq of group ``g``'s next message: ``k * G + g`` for its ``k``-th."""
@@ -510,7 +514,8 @@ class SimNode(Node):
         status.level = DiagnosticStatus.WARN if dropped else DiagnosticStatus.OK
         status.message = ('paused' if self.paused else self.mode) + (
             f', {dropped} commands dropped' if dropped else '')
-        values = dict(self.counters, mode=self.mode, paused=self.paused,
+        values = dict(self.counters, foreign_messages=self.run.dropped, run_id=self.run.run_id,
+                      mode=self.mode, paused=self.paused,
                       sim_time=round(self.sim_time, 6), steps_per_second=round(rate, 1),
                       num_envs=self.task.num_envs)
         if self.mode == 'lock_step':
@@ -530,17 +535,19 @@ class SimNode(Node):
     # --- services -------------------------------------------------------------------------
 
     def on_reset_world(self, request, response):
-        """Start new episodes in every arm and publish them."""
+        """Start new episodes in every arm and publish them (logged: it cuts episodes short)."""
         self.publish_reset(self.task.reset())
         response.success = True
         response.message = f'new episodes {self.task.episode_id.tolist()}'
+        self.get_logger().info(f'~/reset_world called: {response.message}')
         return response
 
     def on_set_pause(self, request, response):
-        """Pause (``data=True``) or resume the simulation."""
+        """Pause (``data=True``) or resume the simulation (logged)."""
         self.paused = bool(request.data)
         response.success = True
         response.message = 'paused' if self.paused else 'running'
+        self.get_logger().info(f'~/set_pause called: {response.message}')
         return response
 
     def on_step_simulation(self, request, response):

@@ -13,6 +13,9 @@ its arms in ``G`` groups (``lock_step_groups``). ``data`` is a header followed b
   message's first arm and ``data[2]`` is ``G``. Group ``g``'s messages have the ``seq``
   numbers ``k * G + g`` (``k``: its control steps and resets so far), so each group counts
   up by ``G`` and ``seq % G`` names the group;
+* the header's last value is ``run``, the token of the simulator's run
+  (:func:`pg_node.common.run.run_token`): ``data_offset`` is then 2 (``seq run``) or 4
+  (``seq first_arm G run``); a header without it (1 or 3 values) is read as token 0;
 * ``layout.dim[0]``: ``label='env'``, ``size=N``, ``stride=N*W``;
 * ``layout.dim[1:]``: one entry per field of a row, in row order, ``label`` = field name,
   ``size`` = its width, ``stride`` = its width too; ``W`` is the sum of the widths.
@@ -46,8 +49,8 @@ import math
 import numpy as np
 from pg_node.ros import table_msg
 
-HEADER_SIZE = 1                 # seq
-GROUP_HEADER_SIZE = 3           # seq, first arm, number of groups
+HEADER_SIZE = 2                 # seq, run
+GROUP_HEADER_SIZE = 4           # seq, first arm, number of groups, run
 ENV_LABEL = 'env'
 # field name -> width; None is the observation size
 FIELDS = (
@@ -77,6 +80,7 @@ class Transition:
     episode_step: np.ndarray
     first_arm: int = 0
     groups: int = 1
+    run: int = 0
 
     @property
     def num_envs(self) -> int:
@@ -112,7 +116,7 @@ def pack(tr: Transition):
             raise ValueError(f'field {name!r} has {col.shape[1]} values per env, '
                              f'expected {size}')
         fields[name] = col
-    header = [tr.seq, tr.first_arm, tr.groups] if tr.groups > 1 else [tr.seq]
+    header = ([tr.seq, tr.first_arm, tr.groups] if tr.groups > 1 else [tr.seq]) + [tr.run]
     return table_msg.pack(header, fields, rows_label=ENV_LABEL)
 
 
@@ -127,20 +131,22 @@ def unpack(dims, data_offset: int, data) -> Transition:
     dims = [(str(label), int(size), int(stride)) for label, size, stride in dims]
     obs_dim = dims[1][1] if len(dims) > 1 and dims[1][0] == 'obs' else None
     widths = {name: obs_dim if size is None else size for name, size in FIELDS}
-    header_size = GROUP_HEADER_SIZE if data_offset == GROUP_HEADER_SIZE else HEADER_SIZE
+    # with the run token (2 or 4 values) or without it (1 or 3: token 0)
+    header_size = data_offset if data_offset in (1, 2, 3, 4) else HEADER_SIZE
     header, table = table_msg.unpack(dims, data_offset, data, header_size, widths,
                                      rows_label=ENV_LABEL)
     if dims[0][1] < 1:
         raise ValueError('a transition needs at least one env (dim size 0)')
     values = header.tolist()
     if not all(math.isfinite(v) and v == round(v) for v in values):
-        raise ValueError('seq, first arm and groups must be whole numbers')
-    seq, first_arm, groups = (int(v) for v in values) if header_size > 1 else (
-        int(values[0]), 0, 1)
-    if first_arm < 0 or groups < 1:
-        raise ValueError(f'first arm {first_arm} < 0 or groups {groups} < 1')
+        raise ValueError('seq, first arm, groups and run must be whole numbers')
+    values = [int(v) for v in values]
+    run = values.pop() if header_size in (HEADER_SIZE, GROUP_HEADER_SIZE) else 0
+    seq, first_arm, groups = values if len(values) == 3 else (values[0], 0, 1)
+    if first_arm < 0 or groups < 1 or run < 0:
+        raise ValueError(f'first arm {first_arm} < 0, groups {groups} < 1 or run {run} < 0')
     fields = table_msg.check_fields(table, BOOL_FIELDS, INT_FIELDS)
-    return Transition(seq=seq, first_arm=first_arm, groups=groups, **fields)
+    return Transition(seq=seq, first_arm=first_arm, groups=groups, run=run, **fields)
 
 
 def to_cdr(tr: Transition) -> bytes:

@@ -17,3 +17,12 @@ def positive_float(text: str) -> float:
     if not value > 0 or not math.isfinite(value):
         raise argparse.ArgumentTypeError(f'must be > 0, got {text}')
     return value
+
+
+def run_id_arg(text: str) -> str:
+    """Return ``text`` if it can name a run (:mod:`pg_node.common.run`), else a type error."""
+    from pg_node.common.run import check_run_id
+    try:
+        return check_run_id(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f'{text!r}: {exc}') from None

@@ -175,6 +175,7 @@ def lock_step_latency(n: int, steps: int, warmup: int = 200, timeout: float = 60
     number of round trips and the client-side steps/s. ``ros_args`` are added to the
     probe's ``--ros-args`` (e.g. ``-p marker_rate:=0.0``).
     """
+    from pg_node.common.run import COMMANDS
     from pg_node.ros import command
     from pg_node.ros.node_utils import make_executor
     import rclpy
@@ -191,7 +192,7 @@ def lock_step_latency(n: int, steps: int, warmup: int = 200, timeout: float = 60
         context = rclpy.Context()
         rclpy.init(context=context, domain_id=domain)
         node = rclpy.create_node('bench_latency_client', context=context)
-        pub = node.create_publisher(Float64MultiArray, '/arm_controller/commands', 10)
+        pub = node.create_publisher(Float64MultiArray, '/' + COMMANDS, 10)
         act = np.full((n, 2), 0.1)
         state = {'count': 0, 'last_seq': None}
 

@@ -16,6 +16,12 @@ the graph every half second, so metrics that appear later are picked up), to
 ``--duration S`` quits after S seconds; ``--once`` listens for ``--duration`` seconds
 (default 3) and prints the view once, without the live screen, for scripts and tests.
 Works as well on a bag replayed with ``python -m pg_node replay``.
+
+Runs (:mod:`pg_node.common.run`): a run's topics are ``/<run_id>/pg_node/...``. ``--run
+NAME`` watches that run; without it the monitor watches the one run it finds on the graph
+and, when it finds several, names them and asks for ``--run`` (with ``--once``: exit code
+2). The nodes table shows the watched run's statuses (their ``run_id`` value) and those of
+nodes of no run (``policy_node``).
 """
 import argparse
 from collections import deque
@@ -25,14 +31,15 @@ import threading
 import time
 from typing import Deque, Dict, Tuple
 
-from pg_node.tools.args import positive_float
+from pg_node.common.run import run_label, run_of_topic, run_topic
+from pg_node.tools.args import positive_float, run_id_arg
 
-METRICS_PREFIX = '/pg_node/metrics/'
-EPISODE_TOPIC = '/pg_node/episode'
 ORDER = ('episode_return', 'episode_length', 'eval_return', 'policy_loss', 'value_loss',
          'entropy', 'explained_variance', 'approx_kl', 'grad_norm', 'steps_per_second',
          'policy_version', 'env_steps')
 BARS = '▁▂▃▄▅▆▇█'
+#: seconds of discovery before the monitor takes the only run it found as the one to watch
+SETTLE = 1.5
 LEVELS = {0: ('OK', 'green'), 1: ('WARN', 'yellow'), 2: ('ERROR', 'red'), 3: ('STALE', 'dim')}
 
 
@@ -77,6 +84,8 @@ class MonitorState:
         self.statuses: Dict[str, tuple] = {}
         self.lock = threading.Lock()
         self.started = time.monotonic()
+        self.run = None             # the run watched (None: not chosen yet)
+        self.runs = set()           # the runs seen on the graph
 
     def on_metric(self, name: str, value: float, now: float = None):
         """Record one metric value."""
@@ -102,8 +111,26 @@ class MonitorState:
         now = now if now is not None else time.monotonic()
         with self.lock:
             for s in array.status:
+                run = next((kv.value for kv in s.values if kv.key == 'run_id'), None)
+                if run is not None and run != self.run:
+                    continue            # a node of another run (or of none chosen yet)
                 level = s.level[0] if isinstance(s.level, bytes) else int(s.level)
                 self.statuses[s.name] = (level, s.message, s.hardware_id, now)
+
+    def choice(self) -> str:
+        """Return what the monitor says about runs: the one watched, or the ones to pick."""
+        if self.run is not None:
+            return f'run {run_label(self.run)}: {run_topic(self.run, "...")}'
+        if len(self.runs) > 1:
+            return (f'several runs on this ROS domain: '
+                    f'{", ".join(map(run_label, sorted(self.runs)))}; choose one with --run NAME')
+        return 'no pg_node run heard yet'
+
+    def choose(self, run: str):
+        """Watch ``run``: the statuses heard so far may be of another run."""
+        with self.lock:
+            self.run = run
+            self.statuses.clear()
 
     def render(self, now: float = None):
         """Return the view as a rich renderable."""
@@ -115,7 +142,7 @@ class MonitorState:
             returns = list(self.episode_returns)
             episodes, cut = self.episodes, self.cut_short
             statuses = dict(self.statuses)
-        train = Table(title='training', title_justify='left', expand=False)
+        train = Table(title=f'training ({self.choice()})', title_justify='left', expand=False)
         for col, justify in (('metric', 'left'), ('value', 'right'), ('recent', 'left'),
                              ('age (s)', 'right')):
             train.add_column(col, justify=justify)
@@ -125,7 +152,7 @@ class MonitorState:
             train.add_row(name, _fmt(series[-1][1]), sparkline([v for _, v in series]),
                           f'{now - series[-1][0]:.1f}')
         if not names:
-            train.add_row('(no /pg_node/metrics/* heard yet)', '', '', '')
+            train.add_row('(no metrics heard yet)', '', '', '')
         eps = Table(title='episodes', title_justify='left')
         for col in ('summaries', 'mean return (recent)', 'recent returns', 'cut short'):
             eps.add_column(col)
@@ -147,10 +174,10 @@ class MonitorState:
 class MonitorNode:
     """The ROS side: subscriptions feeding a :class:`MonitorState`."""
 
-    def __init__(self, state: MonitorState, context=None):
-        """Create the node and the fixed subscriptions; metric topics are found later."""
+    def __init__(self, state: MonitorState, context=None, run=None):
+        """Create the node; the run's topics are subscribed once the run is known."""
         import rclpy
-        from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+        from diagnostic_msgs.msg import DiagnosticArray
         from rclpy.qos import QoSProfile, ReliabilityPolicy
         self.state = state
         self.node = rclpy.create_node('pg_node_monitor', context=context,
@@ -158,19 +185,37 @@ class MonitorNode:
         self.qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT)
         self.node.create_subscription(DiagnosticArray, '/diagnostics',
                                       state.on_diagnostics, self.qos)
-        self.node.create_subscription(DiagnosticStatus, EPISODE_TOPIC, state.on_episode,
-                                      self.qos)
         self.subscribed = set()
+        self.started = time.monotonic()
+        if run is not None:
+            self.watch(run)
         self.discover()
         self.node.create_timer(0.5, self.discover)
 
+    def watch(self, run: str):
+        """Watch ``run``: subscribe its episode summaries; its metrics come in discover."""
+        from diagnostic_msgs.msg import DiagnosticStatus
+        self.state.choose(run)
+        self.node.create_subscription(DiagnosticStatus, run_topic(run, 'episode'),
+                                      self.state.on_episode, self.qos)
+
     def discover(self):
-        """Subscribe to metric topics that appeared on the graph."""
+        """Note the runs on the graph, pick the only one if none was chosen, find metrics."""
         from std_msgs.msg import Float64
-        for name, types in self.node.get_topic_names_and_types():
-            if (name.startswith(METRICS_PREFIX) and name not in self.subscribed
+        topics = self.node.get_topic_names_and_types()
+        self.state.runs |= {run for name, _ in topics
+                            for run in [run_of_topic(name, 'episode')] if run is not None}
+        # the only run, once discovery had time to show the others too
+        if (self.state.run is None and len(self.state.runs) == 1
+                and time.monotonic() - self.started >= SETTLE):
+            self.watch(next(iter(self.state.runs)))
+        if self.state.run is None:
+            return
+        prefix = run_topic(self.state.run, 'metrics/')
+        for name, types in topics:
+            if (name.startswith(prefix) and name not in self.subscribed
                     and 'std_msgs/msg/Float64' in types):
-                metric = name[len(METRICS_PREFIX):]
+                metric = name[len(prefix):]
                 self.node.create_subscription(
                     Float64, name, lambda msg, m=metric: self.state.on_metric(m, msg.data),
                     self.qos)
@@ -189,6 +234,8 @@ def main(argv=None) -> int:
                         help='seconds after which a diagnostic status is STALE')
     parser.add_argument('--refresh', type=positive_float, default=4.0,
                         help='screen updates per second')
+    parser.add_argument('--run', type=run_id_arg,
+                        help='the run to watch (default: the only one on the graph)')
     args = parser.parse_args(argv)
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
@@ -197,7 +244,7 @@ def main(argv=None) -> int:
     context = rclpy.Context()
     rclpy.init(context=context)
     state = MonitorState(stale=args.stale)
-    mon = MonitorNode(state, context=context)
+    mon = MonitorNode(state, context=context, run=args.run)
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(mon.node)
     duration = args.duration if args.duration is not None else (3.0 if args.once else None)
@@ -222,6 +269,9 @@ def main(argv=None) -> int:
     finally:
         mon.node.destroy_node()
         rclpy.try_shutdown(context=context)
+    if state.run is None and len(state.runs) > 1:
+        print(f'monitor: {state.choice()}', file=sys.stderr)
+        return 2
     return 0
 
 

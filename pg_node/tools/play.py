@@ -8,8 +8,14 @@ that began before the policy's first command are left out. ``--gif out.gif`` dra
 ``--gif-episodes`` episodes of arm 0 with MuJoCo's offscreen renderer, in this process (which
 never trains: no torch optimiser runs beside the OpenGL context), from the observations the
 simulator published: the angles from ``cos q``/``sin q``, the goal from the target field.
+
+The two nodes run in a namespace of their own (``/play_<pid>``), where ``policy_node``
+publishes ``arm_controller/commands`` as on a robot and the simulator, the robot's stand-in,
+takes them there; and on this machine only (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``
+unless the environment sets it): a real controller on the lab network never hears them.
 """
 import argparse
+import os
 from pathlib import Path
 import sys
 import tempfile
@@ -147,12 +153,16 @@ def main(argv=None) -> int:
     from std_msgs.msg import Float64MultiArray
     log_dir = Path(args.log_dir or tempfile.mkdtemp(prefix='pg_node_play_'))
     log_dir.mkdir(parents=True, exist_ok=True)
+    from pg_node.common.run import COMMANDS, CONTROLLER_COMMANDS
+    from pg_node.tools.train import discovery_env
+    os.environ.update(discovery_env(network=False)[0])
     env = processes.child_env()
+    namespace = f'/play_{os.getpid()}'
     episodes = Episodes(card['observation']['layout'])
     rclpy.init()
-    node = rclpy.create_node('pg_node_play')
+    node = rclpy.create_node('pg_node_play', namespace=namespace)
     commands, ready = [], []
-    node.create_subscription(Float64MultiArray, 'arm_controller/commands',
+    node.create_subscription(Float64MultiArray, CONTROLLER_COMMANDS,
                              lambda m: commands.append(1), 10)
     node.create_subscription(
         DiagnosticArray, '/diagnostics',
@@ -169,8 +179,9 @@ def main(argv=None) -> int:
     try:
         with processes.terminate_as_interrupt():
             procs['policy_node'] = processes.start_logged(
-                [sys.executable, '-m', 'pg_node.ros.policy_node', '--ros-args', '-p',
-                 f'policy:={source}'], log_dir / 'policy_node.log', env)
+                [sys.executable, '-m', 'pg_node.ros.policy_node', '--ros-args', '-r',
+                 f'__ns:={namespace}', '-p', f'policy:={source}'],
+                log_dir / 'policy_node.log', env)
             # the simulator starts once the policy is loaded (torch's import alone can take
             # seconds), so that the first episodes are not spent without commands
             deadline = time.monotonic() + 120
@@ -179,6 +190,7 @@ def main(argv=None) -> int:
                 rclpy.spin_once(node, timeout_sec=0.1)
             procs['sim_node'] = processes.start_logged(
                 [sys.executable, '-m', 'pg_node.ros.sim_node', '--ros-args',
+                 '-r', f'__ns:={namespace}', '-r', f'{COMMANDS}:={CONTROLLER_COMMANDS}',
                  '-p', 'mode:=real_time', '-p', f'num_envs:={args.arms}', '-p',
                  f'seed:={args.seed}', '-p', f'model:={_model_param(card, log_dir)}',
                  '-p', f'real_time_factor:={args.real_time_factor}'],

@@ -42,6 +42,7 @@ import sys
 import time
 
 from pg_node.common.params import ConfigError, load_config, SHARED
+from pg_node.common.run import COMMANDS, pair_namespace, run_id_for_dir, run_topic
 from pg_node.tools.processes import terminate_as_interrupt
 
 NODES = ('sim_node', 'actor_node', 'critic_node', 'learner_node')
@@ -161,7 +162,8 @@ class Injector:
         self.node = rclpy.create_node('pg_node_soak', context=self.ctx)
         self.ex = SingleThreadedExecutor(context=self.ctx)
         self.ex.add_node(self.node)
-        self.ns = '' if cfg[SHARED]['num_actors'] == 1 else '/arm0/'
+        run_id = cfg[SHARED]['run_id']
+        self.ns = pair_namespace(run_id, 0, cfg[SHARED]['num_actors']).rstrip('/') + '/'
         import mujoco
         from pg_node.common.paths import resolve_model
         nu = mujoco.MjModel.from_xml_path(str(resolve_model(cfg[SHARED]['model']))).nu
@@ -175,14 +177,14 @@ class Injector:
                             * cfg[SHARED]['num_actors'])
         self.env_steps = None       # the learner's newest env_steps metric
         self.learner_lost = 0
-        self.node.create_subscription(Float64, '/pg_node/metrics/env_steps',
+        self.node.create_subscription(Float64, run_topic(run_id, 'metrics/env_steps'),
                                       self.on_env_steps, 100)
-        self.pub_cmd = self.node.create_publisher(Float64MultiArray,
-                                                  self.ns + 'arm_controller/commands', 10)
-        self.pub_rollout = self.node.create_publisher(Float64MultiArray, '/pg_node/rollout',
-                                                      RELIABLE)
-        self.pub_batch = self.node.create_publisher(Float64MultiArray, '/pg_node/batch',
-                                                    RELIABLE)
+        self.pub_cmd = self.node.create_publisher(Float64MultiArray, self.ns + COMMANDS, 10)
+        self.pub_rollout = self.node.create_publisher(
+            Float64MultiArray, run_topic(run_id, 'rollout'), RELIABLE)
+        self.pub_batch = self.node.create_publisher(Float64MultiArray,
+                                                    run_topic(run_id, 'batch'), RELIABLE)
+        self.weights_topic = run_topic(run_id, 'policy_weights')
         self.latched_pubs = []
 
     def on_env_steps(self, msg):
@@ -268,7 +270,7 @@ class Injector:
             pub.publish(self._msg([float('nan')] * 12, offset=5))
             sent[kind] = 1
         for kind, topic, n in (('transitions', self.ns + 'pg_node/transition', 5),
-                               ('weights', '/pg_node/policy_weights', 1)):
+                               ('weights', self.weights_topic, 1)):
             # latched subscribers need a latched publisher
             pub = self.node.create_publisher(self.Msg, topic, self.latched)
             self.latched_pubs.append(pub)
@@ -352,13 +354,13 @@ class MemoryLog:
 def run_soak(args) -> dict:
     """Run the soak; return the report."""
     from pg_node.common.paths import default_config
-    from pg_node.tools.train import (last_progress, node_commands, sim_seeds, Supervisor,
-                                     write_params)
+    from pg_node.tools.train import (discovery_env, last_progress, node_commands, sim_seeds,
+                                     Supervisor, write_params)
     run_dir = Path(os.path.abspath(args.run_dir or os.path.join(
         'runs', 'soak-' + datetime.now().strftime('%Y%m%d-%H%M%S'))))
     cfg = load_config(args.config or default_config(),
-                      list(args.overrides) + ['total_steps=1000000000000',
-                                              f'run_dir={run_dir}'])
+                      [f'run_id={run_id_for_dir(str(run_dir))}'] + list(args.overrides)
+                      + ['total_steps=1000000000000', f'run_dir={run_dir}'])
     run_dir.mkdir(parents=True, exist_ok=True)
     params = run_dir / 'params.yaml'
     write_params(cfg, params)
@@ -370,7 +372,8 @@ def run_soak(args) -> dict:
                  'critic_node': cfg['actor_node']['rollout_resend_timeout'] + 3.0,
                  'learner_node': cfg['actor_node']['rollout_resend_timeout'] + 3.0}
     commands = node_commands(params, cfg)
-    sup = Supervisor(run_dir, commands, max_restarts=1000, seeds=sim_seeds(cfg))
+    env, _ = discovery_env(network=False)
+    sup = Supervisor(run_dir, commands, max_restarts=1000, seeds=sim_seeds(cfg), env=env)
     injector = Injector(cfg)
     memory = MemoryLog(args.warmup)
     progress = run_dir / 'progress.csv'

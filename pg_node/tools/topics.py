@@ -11,15 +11,45 @@ publishers and of subscribers (its own listener not counted), messages received 
 Hz (over the time between the first and the last message received). The table fits the
 terminal (80 columns: each type goes under its topic) without cutting a name. ``--json``
 prints the same as JSON.
+
+Several training runs on one domain each have their topics under ``/<run_id>/``
+(:mod:`pg_node.common.run`): the table's title names the runs found, and ``--run NAME``
+lists (and listens to) only that run's topics and ``/diagnostics``.
 """
 import argparse
 import json
 import sys
 import time
 
+from pg_node.common.run import run_label, run_namespace, run_of_topic
+from pg_node.tools.args import run_id_arg
 
-def survey(discovery=1.0, duration=2.0, include_hidden=False, context=None):
-    """Return one dict per topic: name, types, publishers, subscribers, count, rate_hz."""
+
+def in_run(name: str, run) -> bool:
+    """
+    Return whether topic ``name`` is shown for ``run`` (None: every topic).
+
+    >>> in_run('/exp1/pg_node/rollout', 'exp1'), in_run('/exp2/joint_states', 'exp1')
+    (True, False)
+    >>> in_run('/diagnostics', 'exp1'), in_run('/exp2/joint_states', None)
+    (True, True)
+    """
+    return run is None or name == '/diagnostics' or name.startswith(
+        run_namespace(run).rstrip('/') + '/')
+
+
+def runs_in(names) -> list:
+    """Return the run ids whose episode topic is among the topic ``names``, sorted."""
+    return sorted({run for name in names for run in [run_of_topic(name, 'episode')]
+                   if run is not None})
+
+
+def survey(discovery=1.0, duration=2.0, include_hidden=False, context=None, run=None):
+    """
+    Return one dict per topic: name, types, publishers, subscribers, count, rate_hz.
+
+    ``run``: only that run's topics and ``/diagnostics`` (:func:`in_run`).
+    """
     from pg_node.bag import ros_types
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
@@ -38,7 +68,7 @@ def survey(discovery=1.0, duration=2.0, include_hidden=False, context=None):
 
     def refresh():
         for name, types in node.get_topic_names_and_types():
-            if name in topics or (not include_hidden and any(
+            if name in topics or not in_run(name, run) or (not include_hidden and any(
                     part.startswith('_') for part in name.split('/'))):
                 continue
             topics[name] = types
@@ -82,7 +112,17 @@ def survey(discovery=1.0, duration=2.0, include_hidden=False, context=None):
             rclpy.try_shutdown(context=context)
 
 
-def table(rows, width: int = 80):
+def title(rows, run=None) -> str:
+    """Return the table's title: the run shown, or the runs found."""
+    if run is not None:
+        return f'ROS 2 topics of run {run_label(run)}'
+    runs = runs_in(r['name'] for r in rows)
+    if len(runs) > 1:
+        return f'ROS 2 topics (runs: {", ".join(map(run_label, runs))}; --run NAME shows one)'
+    return 'ROS 2 topics' + (f' (run {run_label(runs[0])})' if runs else '')
+
+
+def table(rows, width: int = 80, caption: str = 'ROS 2 topics'):
     """
     Return a rich Table of :func:`survey` rows that fits ``width`` columns without cutting.
 
@@ -105,7 +145,7 @@ def table(rows, width: int = 80):
     # SIMPLE box: no vertical lines, one space of padding each side of a cell
     one_line = name_w + type_w + sum(widths) + 2 * (2 + len(numbers))
     stacked = one_line > width
-    out = Table(title='ROS 2 topics', header_style='bold', box=box.SIMPLE, pad_edge=False)
+    out = Table(title=caption, header_style='bold', box=box.SIMPLE, pad_edge=False)
     if stacked:
         out.add_column('topic\n  type', no_wrap=True)
     else:
@@ -129,9 +169,11 @@ def main(argv=None) -> int:
                         help='seconds to wait for discovery first')
     parser.add_argument('--include-hidden', action='store_true')
     parser.add_argument('--json', action='store_true', help='print JSON')
+    parser.add_argument('--run', type=run_id_arg,
+                        help="only this run's topics (and /diagnostics)")
     args = parser.parse_args(argv)
     try:
-        rows = survey(args.discovery, args.duration, args.include_hidden)
+        rows = survey(args.discovery, args.duration, args.include_hidden, run=args.run)
     except KeyboardInterrupt:
         return 130
     if args.json:
@@ -139,7 +181,7 @@ def main(argv=None) -> int:
     else:
         from rich.console import Console
         console = Console()
-        console.print(table(rows, console.width))
+        console.print(table(rows, console.width, title(rows, args.run)))
     return 0
 
 

@@ -30,13 +30,19 @@ from pathlib import Path
 import subprocess
 import sys
 import time
-from typing import Optional
+from typing import List, Optional
 
 from pg_node.common.params import ConfigError, load_config, SHARED
 from pg_node.common.paths import preset_names
+from pg_node.common.run import pair_namespace, run_id_for_dir, run_namespace
+from pg_node.tools.args import run_id_arg
 from pg_node.tools.processes import (child_env, process_usage, shutting_down, signal_process,
                                      STOP_WAITS, terminate_as_interrupt)
 import yaml
+
+
+#: what one host runs of a run (``--part``)
+PARTS = ('all', 'learner', 'workers')
 
 
 def parse_args(argv):
@@ -58,6 +64,24 @@ def parse_args(argv):
     parser.add_argument('--max-restarts', type=int, default=3,
                         help='restarts allowed per node (default: %(default)s)')
     parser.add_argument('--no-progress', action='store_true', help='no progress bar')
+    parser.add_argument('--run-id', type=run_id_arg,
+                        help="the run's name on the ROS network: its nodes and topics live "
+                             'under /<run id>, and messages of other runs are dropped '
+                             "(default: from the run dir's name)")
+    parser.add_argument('--network', action='store_true',
+                        help='let the graph reach other machines (ROS_AUTOMATIC_DISCOVERY_RANGE'
+                             '=SUBNET); default: this machine only (LOCALHOST). A value of '
+                             'that variable in the environment wins over both')
+    parser.add_argument('--part', choices=PARTS, default='all',
+                        help='one run on many hosts: learner (the critic and the learner, on '
+                             'one host) or workers (simulator/actor pairs, on each other host); '
+                             'default: all of it here. Needs --run-id, the same on every host')
+    parser.add_argument('--actors', metavar='IDS',
+                        help="with --part workers: this host's actor ids, e.g. 2,3 or 0-3 "
+                             '(default: every actor of num_actors)')
+    parser.add_argument('--wait-learner', type=float, default=120.0, metavar='SECONDS',
+                        help='with --part workers: how long to wait for the learner host to '
+                             'announce the run (default: %(default)s)')
     parser.add_argument('--separate', action='store_true',
                         help='run every node as a process of its own (default: each '
                              'simulator and its actor in one process, sim_and_actor, and '
@@ -76,11 +100,46 @@ def resolve_config(args) -> dict:
         overrides.append(f'seed={args.seed}')
     run_dir = args.run_dir or os.path.join('runs', datetime.now().strftime('%Y%m%d-%H%M%S'))
     overrides.append(f'run_dir={os.path.abspath(run_dir)}')
+    if getattr(args, 'run_id', None) is not None:
+        overrides.append(f'run_id={args.run_id}')
     try:
         path = config_file(args.config) if args.config else default_config()
     except FileNotFoundError as exc:
         raise ConfigError(str(exc)) from None
-    return load_config(path, overrides)
+    cfg = load_config(path, overrides)
+    if not cfg[SHARED]['run_id']:
+        # a run always has an identity on the network: its directory's name by default
+        cfg = load_config(path, overrides + [f'run_id={run_id_for_dir(run_dir)}'])
+    return cfg
+
+
+#: Jazzy's discovery range: LOCALHOST keeps a graph on this machine, SUBNET opens it
+DISCOVERY_RANGE = 'ROS_AUTOMATIC_DISCOVERY_RANGE'
+
+
+#: what each discovery range reaches, in the words ``train`` prints
+REACH = {'LOCALHOST': 'this machine only', 'SUBNET': 'this machine and its subnet',
+         'OFF': 'no automatic discovery (ROS_STATIC_PEERS only)'}
+
+
+def discovery_env(network: bool, environ=os.environ, asked: str = '--network'):
+    """
+    Return ``({'ROS_AUTOMATIC_DISCOVERY_RANGE': value}, why)`` for the nodes' environment.
+
+    The user's own setting of the variable wins; otherwise ``LOCALHOST`` (this machine
+    only), or ``SUBNET`` with ``network`` (which the option ``asked`` asked for).
+
+    >>> discovery_env(False, {})
+    ({'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST'}, 'default; --network opens it')
+    >>> discovery_env(True, {'ROS_AUTOMATIC_DISCOVERY_RANGE': 'OFF'})[1]
+    'set in the environment'
+    """
+    given = environ.get(DISCOVERY_RANGE, '').strip()
+    if given:
+        return {DISCOVERY_RANGE: given}, 'set in the environment'
+    if network:
+        return {DISCOVERY_RANGE: 'SUBNET'}, asked
+    return {DISCOVERY_RANGE: 'LOCALHOST'}, 'default; --network opens it'
 
 
 def write_params(cfg: dict, path: Path):
@@ -106,34 +165,44 @@ def learner_process(compose: bool = False) -> str:
     return TRAINING_PROCESSES[compose][-1][0]
 
 
-def node_commands(params: Path, cfg: dict, compose: bool = False) -> dict:
+def node_commands(params: Path, cfg: dict, compose: bool = False, part: str = 'all',
+                  actors: Optional[List[int]] = None) -> dict:
     """
     Return ``{process name: command}`` for the whole graph.
 
-    With ``num_actors`` > 1 each simulator/actor pair runs in its own namespace ``/arm<i>``
-    (its topics become ``/arm<i>/pg_node/transition``...), actor ``i`` gets ``actor_id`` i,
+    Every node runs in the run's namespace ``/<run_id>`` (:mod:`pg_node.common.run`). With
+    ``num_actors`` > 1 each simulator/actor pair runs in its own namespace
+    ``/<run_id>/arm<i>`` (its topics become ``/<run_id>/arm<i>/pg_node/transition``...),
+    actor ``i`` gets ``actor_id`` i,
     and simulator ``i`` seeds its arms from ``seed + i * num_envs`` so that no two arms of
     the run draw the same episodes. With ``compose`` each pair is one process,
     ``sim_and_actor`` (``sim_and_actor_<i>``), holding both nodes, and the critic and the
-    learner are one, ``critic_and_learner``.
+    learner are one, ``critic_and_learner``. ``part``: ``learner`` leaves the pairs out,
+    ``workers`` the critic and the learner, and starts the pairs of ``actors`` only (default:
+    all).
     """
     base = [sys.executable, '-m']
-    ros = ['--ros-args', '--params-file', str(params)]
+    run_ns = run_namespace(cfg[SHARED]['run_id'])
+    ros = ['--ros-args', '--params-file', str(params), '-r', f'__ns:={run_ns}']
     n = cfg[SHARED]['num_actors']
-    cmds = {name: base + [module] + ros for name, module in TRAINING_PROCESSES[compose]}
+    cmds = ({} if part == 'workers' else
+            {name: base + [module] + ros for name, module in TRAINING_PROCESSES[compose]})
     pair = PAIR_PROCESSES[compose]
+    if part == 'learner':
+        return cmds
     if n == 1:
         for name, module in pair:
             cmds[name] = base + [module] + ros
         return cmds
-    for i in range(n):
+    for i in (range(n) if actors is None else actors):
         # a later parameter file wins, and only a node's full name reaches one namespace
+        ns = pair_namespace(cfg[SHARED]['run_id'], i, n)
         ns_file = params.with_name(f'params_arm{i}.yaml')
         ns_file.write_text(yaml.safe_dump({
-            f'/arm{i}/sim_node': {'ros__parameters': {
+            f'{ns}/sim_node': {'ros__parameters': {
                 'seed': sim_seeds(cfg)[f'sim_node_{i}']}},
-            f'/arm{i}/actor_node': {'ros__parameters': {'actor_id': i}}}))
-        extra = ['--params-file', str(ns_file), '-r', f'__ns:=/arm{i}']
+            f'{ns}/actor_node': {'ros__parameters': {'actor_id': i}}}))
+        extra = ['--params-file', str(ns_file), '-r', f'__ns:={ns}']
         for name, module in pair:
             cmds[f'{name}_{i}'] = base + [module] + ros + extra
     return cmds
@@ -175,7 +244,7 @@ class Supervisor:
 
     def __init__(self, run_dir: Path, commands: dict, max_restarts: int,
                  total_steps: Optional[int] = None, seeds: Optional[dict] = None,
-                 learner: str = 'learner_node'):
+                 learner: str = 'learner_node', env: Optional[dict] = None):
         self.run_dir = run_dir
         self.learner = learner      # the process the learner runs in
         self.commands = commands
@@ -192,6 +261,7 @@ class Supervisor:
         (run_dir / 'logs').mkdir(parents=True, exist_ok=True)
         self.env = child_env()
         self.env.setdefault('AMENT_PREFIX_PATH', sys.prefix)
+        self.env.update(env or {})
 
     def start(self, name: str):
         """
@@ -518,11 +588,29 @@ def supervise(sup: Supervisor, view: ProgressView) -> str:
     return state
 
 
+def check_part(args, cfg: dict) -> Optional[List[int]]:
+    """Return the actor ids of a worker host (None for other parts); ConfigError if bad."""
+    if args.part != 'all' and args.run_id is None:
+        raise ConfigError(f'--part {args.part} needs --run-id NAME, the same on every host '
+                          'of the run')
+    if args.actors is not None and args.part != 'workers':
+        raise ConfigError('--actors is for --part workers')
+    if args.part != 'workers':
+        return None
+    n = cfg[SHARED]['num_actors']
+    from pg_node.tools.hosts import parse_actors
+    try:
+        return parse_actors(args.actors or f'0-{n - 1}', n)
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
+
+
 def main(argv=None) -> int:
     """Run ``python -m pg_node train``."""
     args = parse_args(argv)
     try:
         cfg = resolve_config(args)
+        actors = check_part(args, cfg)
     except ConfigError as exc:
         print(f'configuration error: {exc}', file=sys.stderr)
         return 2
@@ -533,16 +621,33 @@ def main(argv=None) -> int:
     total = cfg['learner_node']['total_steps']
     n_act = cfg[SHARED]['num_actors']
     algo = f"{cfg['learner_node']['algo']} (phi = {cfg['critic_node']['estimator']})"
+    part = {'all': '', 'learner': ' (this host: the critic and the learner)',
+            'workers': f' (this host: actors {",".join(map(str, actors or []))})'}[args.part]
     print(f'pg_node: training {algo}, {n_act} x {cfg[SHARED]["num_envs"]} x '
-          f'{cfg[SHARED]["model"]} ({cfg[SHARED]["sync_mode"]}), for {total} steps; '
+          f'{cfg[SHARED]["model"]} ({cfg[SHARED]["sync_mode"]}), for {total} steps{part}; '
           f'run dir {run_dir}', flush=True)
+    run_id = cfg[SHARED]['run_id']
+    discovery, why = discovery_env(args.network or args.part != 'all',
+                                   asked='--network' if args.network else f'--part {args.part}')
+    value = discovery[DISCOVERY_RANGE]
+    print(f'run id {run_id}: topics {run_namespace(run_id).rstrip("/")}/pg_node/..., '
+          f'graph on {REACH.get(value, value)} ({DISCOVERY_RANGE}={value}: {why})',
+          flush=True)
+    if args.part != 'all':
+        os.environ.update(discovery)        # this process's own node, beside the nodes'
+    if args.part == 'workers':
+        return run_workers(args, cfg, actors, params, discovery)
+    announcer = None
+    if args.part == 'learner':
+        from pg_node.tools.hosts import Announcer
+        announcer = Announcer(cfg)
     start = resume_point(run_dir)
     if start is not None:
         print(f"resumed from policy version {start['version']} ({start['env_steps']} steps "
               f"learned, {start['checkpoint']})", flush=True)
     compose = not args.separate
     sup = Supervisor(run_dir, node_commands(params, cfg, compose), args.max_restarts, total,
-                     sim_seeds(cfg, compose), learner_process(compose))
+                     sim_seeds(cfg, compose), learner_process(compose), env=discovery)
     view = ProgressView(run_dir / 'progress.csv', total, start, bar=not args.no_progress)
     t0 = view.t0
     state = 'running'
@@ -557,6 +662,9 @@ def main(argv=None) -> int:
     finally:
         with shutting_down():  # a second Ctrl-C must not leave nodes behind
             sup.stop_all()
+            if announcer is not None:
+                announcer.finish(state)     # the worker hosts stop their nodes and end
+                announcer.close()
         view.close()
     if state == 'failed':
         print(f'training failed: {sup.failed}; logs in {run_dir / "logs"}', file=sys.stderr)
@@ -609,4 +717,70 @@ def main(argv=None) -> int:
     print(f'run dir:    {run_dir}\nbag:        {run_dir / "bag"}\n'
           f'checkpoint: {summary.get("checkpoint", "none")}\nsummary:    '
           f'{run_dir / "summary.json"}\ncurve:      {png}')
+    return 1 if state == 'failed' else 0
+
+
+def run_workers(args, cfg: dict, actors: List[int], params: Path, discovery: dict) -> int:
+    """
+    Run this host's simulator/actor pairs of a run whose learner runs on another host.
+
+    Waits for the learner host's announcement (:mod:`pg_node.tools.hosts`), refuses to join a
+    run that no learner announces or whose configuration differs, then supervises the pairs
+    (restarting one that dies) until the learner host says the run has ended.
+    """
+    from pg_node.tools.hosts import Follower
+    run_id, run_dir = cfg[SHARED]['run_id'], Path(cfg[SHARED]['run_dir'])
+    follower = Follower(run_id)
+    state, interrupted = 'running', False
+    try:
+        print(f'waiting for the learner host of run {run_id} (at most {args.wait_learner:g} '
+              's) ...', flush=True)
+        info = follower.wait(args.wait_learner)
+        if info is None:
+            print(f'configuration error: no learner host announces run {run_id!r} on ROS '
+                  f'domain {os.environ.get("ROS_DOMAIN_ID", "0")} after '
+                  f'{args.wait_learner:g} s: start train --part learner --run-id {run_id} '
+                  'there first, or check the run id, ROS_DOMAIN_ID and discovery',
+                  file=sys.stderr)
+            return 2
+        wrong = follower.check(cfg)
+        if wrong is not None:
+            print(f'configuration error: {wrong}', file=sys.stderr)
+            return 2
+        if follower.done():
+            print(f'run {run_id} has ended on the learner host ({info["state"]}): nothing '
+                  'to do', file=sys.stderr)
+            return 1
+        compose = not args.separate
+        sup = Supervisor(run_dir, node_commands(params, cfg, compose, 'workers', actors),
+                         args.max_restarts, None, sim_seeds(cfg, compose),
+                         learner_process(compose), env=discovery)
+        print(f'joined run {run_id}: starting {", ".join(sup.commands)}; logs in '
+              f'{run_dir / "logs"}', flush=True)
+        try:
+            with terminate_as_interrupt():
+                sup.start_all()
+                while state == 'running':
+                    follower.spin(0.5)
+                    state = 'done' if follower.done() else sup.check()
+        except KeyboardInterrupt as exc:
+            interrupted = True
+            print(f'\ninterrupted{f" by {exc}" if str(exc) else ""}: stopping the nodes',
+                  file=sys.stderr)
+        finally:
+            with shutting_down():
+                sup.stop_all()
+    finally:
+        follower.close()
+    if state == 'failed':
+        print(f'worker host failed: {sup.failed}; logs in {run_dir / "logs"}', file=sys.stderr)
+    summary = {'part': 'workers', 'actors': actors, 'interrupted': interrupted,
+               'failed': state == 'failed', 'learner_host_state': (follower.info or {}).get(
+                   'state'), 'restarts': sup.restarts, 'nodes': sup.usage(),
+               'config': dict(cfg)}
+    (run_dir / 'summary.json').write_text(json.dumps(summary, indent=2, default=str))
+    if state == 'done':
+        print(f'run {run_id} has ended on the learner host '
+              f'({follower.info["state"]}); this host ran actors '
+              f'{",".join(map(str, actors))}, restarts {sup.restarts}')
     return 1 if state == 'failed' else 0
