@@ -90,7 +90,8 @@ def test_train_puts_every_node_in_the_runs_namespace(tmp_path):
             continue
         for i in range(pairs):
             cmd = cmds[f'sim_and_actor_{i}']
-            assert cmd[-2:] == ['-r', f'__ns:=/exp1/arm{i}']
+            # one namespace remap only: rcl takes the first (two put both pairs in /exp1)
+            assert [a for a in cmd if a.startswith('__ns:=')] == [f'__ns:=/exp1/arm{i}']
             own = (tmp_path / f'params_arm{i}.yaml').read_text()
             assert f'/exp1/arm{i}/sim_node:' in own and f'/exp1/arm{i}/actor_node:' in own
 

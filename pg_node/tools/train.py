@@ -182,17 +182,19 @@ def node_commands(params: Path, cfg: dict, compose: bool = False, part: str = 'a
     all).
     """
     base = [sys.executable, '-m']
-    run_ns = run_namespace(cfg[SHARED]['run_id'])
-    ros = ['--ros-args', '--params-file', str(params), '-r', f'__ns:={run_ns}']
+    ros = ['--ros-args', '--params-file', str(params)]
+    # one __ns remap per process: rcl takes the first that matches
+    in_run = ['-r', f'__ns:={run_namespace(cfg[SHARED]["run_id"])}']
     n = cfg[SHARED]['num_actors']
     cmds = ({} if part == 'workers' else
-            {name: base + [module] + ros for name, module in TRAINING_PROCESSES[compose]})
+            {name: base + [module] + ros + in_run
+             for name, module in TRAINING_PROCESSES[compose]})
     pair = PAIR_PROCESSES[compose]
     if part == 'learner':
         return cmds
     if n == 1:
         for name, module in pair:
-            cmds[name] = base + [module] + ros
+            cmds[name] = base + [module] + ros + in_run
         return cmds
     for i in (range(n) if actors is None else actors):
         # a later parameter file wins, and only a node's full name reaches one namespace
@@ -646,8 +648,8 @@ def main(argv=None) -> int:
         print(f"resumed from policy version {start['version']} ({start['env_steps']} steps "
               f"learned, {start['checkpoint']})", flush=True)
     compose = not args.separate
-    sup = Supervisor(run_dir, node_commands(params, cfg, compose), args.max_restarts, total,
-                     sim_seeds(cfg, compose), learner_process(compose), env=discovery)
+    sup = Supervisor(run_dir, node_commands(params, cfg, compose, args.part), args.max_restarts,
+                     total, sim_seeds(cfg, compose), learner_process(compose), env=discovery)
     view = ProgressView(run_dir / 'progress.csv', total, start, bar=not args.no_progress)
     t0 = view.t0
     state = 'running'
