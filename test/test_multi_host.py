@@ -55,7 +55,7 @@ def lan():
 
 @pytest.fixture(scope='module')
 def one_host(tmp_path_factory):
-    """The same run in one piece, on this machine: the reference."""
+    """Train the same run in one piece, on this machine: the reference."""
     run_dir = tmp_path_factory.mktemp('one_host') / 'run'
     done = subprocess.run(train_args(run_dir), env=env(), cwd=REPO, capture_output=True,
                           text=True, timeout=600)
@@ -120,8 +120,8 @@ def test_localhost_keeps_each_host_to_itself(lan, tmp_path):
 
 
 @pytest.mark.parametrize('discovery', ['multicast', 'static_peers'])
-def test_learner_and_two_worker_hosts_equal_the_run_on_one_host(lan, one_host, tmp_path,
-                                                                 discovery):
+def test_learner_and_two_worker_hosts_equal_the_run_on_one_host(
+        lan, one_host, tmp_path, discovery):
     """Three hosts over UDP, discovered by multicast or by static peers: the same run."""
     static = discovery == 'static_peers'
     for host in lan.hosts:
