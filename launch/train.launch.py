@@ -21,6 +21,11 @@ then stopped, as Ctrl-C does. Arguments:
   ``actor_id`` and ``use_learner:=false`` to start only a simulator/actor pair that joins a
   critic and learner running elsewhere on the same ``ROS_DOMAIN_ID`` with the same
   ``run_id`` (set ``num_actors`` on the critic/learner side);
+- ``part`` and ``actors``, as ``train --part``: one run on many hosts. ``part:=learner``
+  starts the critic and the learner only; ``part:=workers actors:=2,3`` the pairs of those
+  actor ids only, each in ``/<run_id>/arm<i>`` and seeded as ``train`` seeds it; the same
+  ``run_id``, parameter file and ``num_actors`` on every host. With ``supervised:=true``
+  the choice goes to ``train``, which checks the hosts' configurations against each other;
 - ``compose`` (default ``true``, as ``python -m pg_node train``): the simulator and the actor
   run in one process (``sim_and_actor``), the critic and the learner in another
   (``critic_and_learner``): the same four nodes, names, topics and parameters, with fewer
@@ -103,41 +108,77 @@ def _bring_up(context):
     run_dir = _value(context, 'run_dir')
     given = {k: yaml.safe_load(_value(context, k)) for k in OVERRIDES if _value(context, k)}
     run_id = _run_id(context)
+    part, actors = _value(context, 'part') or 'all', _value(context, 'actors')
+    if part not in ('all', 'learner', 'workers'):
+        raise RuntimeError(f'part {part!r}: one of all, learner, workers')
+    if part == 'workers' and not actors:
+        raise RuntimeError('part:=workers needs actors:=IDS (e.g. actors:=2,3)')
     if _value(context, 'supervised').lower() == 'true':
         train = ExecuteProcess(
             cmd=[sys.executable, '-m', 'pg_node', 'train', '--config', params,
-                 '--run-dir', run_dir, '--run-id', run_id, '--no-progress',
+                 '--run-dir', run_dir, '--run-id', run_id, '--no-progress', '--part', part,
+                 *(['--actors', actors] if actors else []),
                  *[f'{k}={v}' for k, v in given.items()]],
             output='screen', sigterm_timeout='30')
         return [train, _end_with(train, 'supervised training finished')]
     run_ns = f'/{run_id}'
-    namespace = _pair_namespace(run_ns, _value(context, 'namespace'))
-    actor_id = int(_value(context, 'actor_id'))
     shared = {k: v for k, v in given.items() if k in ('seed', 'num_envs')}
     shared['run_id'] = run_id
-    pair = {'sim_node': shared, 'actor_node': {**shared, 'actor_id': actor_id}}
+    if part == 'workers':
+        # pair i in /<run>/arm<i>, seeded as train seeds it: seed + i * num_envs
+        seed, arms = (given.get(k, _file_value(params, k)) for k in ('seed', 'num_envs'))
+        pairs = [(f'{run_ns}/arm{i}', {'seed': seed + i * arms, 'actor_id': i})
+                 for i in (int(a) for a in actors.split(','))]
+    elif part == 'all':
+        pairs = [(_pair_namespace(run_ns, _value(context, 'namespace')),
+                  {'actor_id': int(_value(context, 'actor_id'))})]
+    else:
+        pairs = []
     training = {'critic_node': {**shared, 'run_dir': run_dir},
                 'learner_node': {**given, 'run_id': run_id, 'run_dir': run_dir}}
-    use_learner = _value(context, 'use_learner').lower() == 'true'
+    use_learner = part == 'learner' or (part == 'all'
+                                        and _value(context, 'use_learner').lower() == 'true')
+    actions = []
     if _value(context, 'compose').lower() == 'true':
         # no name=: it would rename every node of the process; each node's own values go
         # in a section of its name, as a parameters dict would reach both nodes
-        actions = [Node(package='pg_node', executable='sim_and_actor', namespace=namespace,
-                        parameters=[params, _sections_file(pair)], output='screen')]
+        for namespace, own in pairs:
+            sections = {'sim_node': {**shared, 'seed': own.get('seed', shared.get('seed'))},
+                        'actor_node': {**shared, **own}}
+            sections = {n: {k: v for k, v in vals.items() if v is not None}
+                        for n, vals in sections.items()}
+            actions.append(Node(package='pg_node', executable='sim_and_actor',
+                                namespace=namespace, parameters=[params, _sections_file(sections)],
+                                output='screen'))
         if use_learner:
             both = Node(package='pg_node', executable='critic_and_learner', namespace=run_ns,
                         parameters=[params, _sections_file(training)], output='screen')
             actions += [both, _end_with(both, 'the learner has finished')]
         return actions
-    actions = [Node(package='pg_node', executable=name, name=name, namespace=namespace,
-                    parameters=[params, values], output='screen')
-               for name, values in pair.items()]
+    for namespace, own in pairs:
+        values = {'sim_node': {k: v for k, v in {**shared, 'seed': own.get(
+                      'seed', shared.get('seed'))}.items() if v is not None},
+                  'actor_node': {**shared, **own}}
+        actions += [Node(package='pg_node', executable=name, name=name, namespace=namespace,
+                         parameters=[params, vals], output='screen')
+                    for name, vals in values.items()]
     if use_learner:
         critic, learner = [Node(package='pg_node', executable=name, name=name,
                                 namespace=run_ns, parameters=[params, values], output='screen')
                            for name, values in training.items()]
         actions += [critic, learner, _end_with(learner, 'the learner has finished')]
     return actions
+
+
+def _file_value(params, key):
+    """Return a shared value of a parameter file, or of the shipped pg_node.yaml."""
+    for path in (params, os.path.join(_config_dir(), 'pg_node.yaml')):
+        with open(path) as f:
+            value = ((yaml.safe_load(f) or {}).get('/**', {}).get('ros__parameters', {})
+                     .get(key))
+        if value is not None:
+            return value
+    raise RuntimeError(f'{key} is in neither {params} nor the shipped pg_node.yaml')
 
 
 def _sections_file(values_by_node):
@@ -170,6 +211,10 @@ def generate_launch_description():
                           'starts with /'),
         ('actor_id', '0', 'id of this pair when several feed one learner'),
         ('use_learner', 'true', 'also start the critic and the learner'),
+        ('part', 'all', 'one run on many hosts: learner (the critic and the learner only) or '
+                        'workers (the simulator/actor pairs of actors:=) on this host; the '
+                        'same run_id and parameters on every host'),
+        ('actors', '', 'with part:=workers: the actor ids of this host, e.g. 2,3'),
         ('compose', 'true', 'the simulator and the actor in one process (sim_and_actor), '
                             'the critic and the learner in another (critic_and_learner); '
                             'false: a process each'),

@@ -17,7 +17,7 @@ import sys
 import time
 
 from domains import ros_domain
-from lan import dds_env, Lan, unavailable
+from pg_node.tools.lan import dds_env, Lan, unavailable
 from pg_node.tools.processes import proc_stat
 from pg_node.tools.train import read_progress
 import pytest

@@ -222,6 +222,30 @@ def test_launch_composed_process_gives_each_node_its_own_values(monkeypatch, tmp
     assert '[arm1.actor_node]: actor 1: 3 arms' in log, log
 
 
+def test_launch_splits_a_run_over_hosts_as_train_does(monkeypatch):
+    """part:=learner: the critic and the learner; part:=workers: the pairs of actors:=."""
+    actions = _bring_up(monkeypatch, part='learner', run_id='exp1')
+    assert [a.kwargs['executable'] for a in actions if type(a).__name__ == 'Node'] == [
+        'critic_and_learner']
+    actions = _bring_up(monkeypatch, part='workers', actors='1,2', run_id='exp1', seed='5',
+                        num_envs='16')
+    assert [(a.kwargs['executable'], a.kwargs['namespace']) for a in actions] == [
+        ('sim_and_actor', '/exp1/arm1'), ('sim_and_actor', '/exp1/arm2')]
+    sections = _sections(actions[1])
+    assert sections['/**/sim_node'] == {'seed': 5 + 2 * 16, 'num_envs': 16, 'run_id': 'exp1'}
+    assert sections['/**/actor_node']['actor_id'] == 2
+    # seeds from the parameter file when not given: the shipped file's seed 0 and 64 arms
+    actions = _bring_up(monkeypatch, part='workers', actors='1', run_id='exp1')
+    assert _sections(actions[0])['/**/sim_node']['seed'] == 64
+    train, _ = _bring_up(monkeypatch, supervised='true', part='workers', actors='0,1',
+                         run_id='exp1')
+    cmd = train.kwargs['cmd']
+    assert cmd[cmd.index('--part') + 1] == 'workers' and cmd[cmd.index('--actors') + 1] == '0,1'
+    for bad, words in (({'part': 'workers'}, 'needs actors'), ({'part': 'some'}, 'one of')):
+        with pytest.raises(RuntimeError, match=words):
+            _bring_up(monkeypatch, **bad)
+
+
 def test_launch_runs_the_supervised_bring_up_on_request(monkeypatch):
     actions = _bring_up(monkeypatch, supervised='true', total_steps='5000', run_dir='/tmp/r')
     train, handler = actions

@@ -96,6 +96,14 @@ def test_train_puts_every_node_in_the_runs_namespace(tmp_path):
             assert f'/exp1/arm{i}/sim_node:' in own and f'/exp1/arm{i}/actor_node:' in own
 
 
+def test_train_takes_overrides_before_and_after_options():
+    """As the README writes it: train --part workers --actors 2,3 --run-id NAME num_actors=N."""
+    from pg_node.tools.train import parse_args
+    args = parse_args(['gamma=0.5', '--part', 'workers', '--actors', '2,3', '--run-id', 'x',
+                       'num_actors=4'])
+    assert args.overrides == ['gamma=0.5', 'num_actors=4'] and args.actors == '2,3'
+
+
 def test_train_names_the_run_after_its_dir_and_keeps_dds_local(tmp_path):
     from pg_node.tools.train import discovery_env, parse_args, resolve_config
     cfg = resolve_config(parse_args(['--run-dir', str(tmp_path / '2026-12-03 exp.1')]))

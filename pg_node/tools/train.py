@@ -87,7 +87,7 @@ def parse_args(argv):
                              'simulator and its actor in one process, sim_and_actor, and '
                              'the critic and the learner in another, critic_and_learner: '
                              'faster)')
-    return parser.parse_args(argv)
+    return parser.parse_intermixed_args(argv)   # key=value before and after options
 
 
 def resolve_config(args) -> dict:

@@ -1,8 +1,9 @@
 """
 Several "hosts" on one machine: Linux network namespaces on a bridge, for DDS across hosts.
 
-Not a test module: the multi-host tests and ``bench/bench_hosts.py`` import it. Needs root
-(CI runs as root) and ``ip``; :func:`unavailable` says why not otherwise.
+For the multi-host tests (``test/test_multi_host.py``) and benchmark
+(``bench/bench_hosts.py``); nothing in training uses it. Needs root (CI runs as root) and
+``ip``; :func:`unavailable` says why not otherwise.
 
 Each host is a namespace with its loopback up and one veth to a bridge in the root namespace,
 an address in a /24 of 10.213.x.0 of its own (the bridge has none: the hosts reach each other
