@@ -5,7 +5,8 @@ Behind BENCHMARKS.md's multi-host table (issue 29). For each placement it trains
 ``--steps`` environment steps with ``python -m pg_node train`` and prints one row: steps/s
 from the first update to the last (the learner's clock), and the lock-step round trip
 (a transition published to the command answering it, every one of the run: ``sim_node``'s
-``round_trip_log``) as median and p99. Placements:
+``round_trip_log``): within rollouts as median and p99, and the hand-over at a rollout's
+end (the wait for the update, in sync mode) as median. Placements:
 
 * one host, shared memory (Fast DDS's default transports);
 * one host, UDP only (``FASTDDS_BUILTIN_TRANSPORTS=UDPv4``);
@@ -29,9 +30,11 @@ from pathlib import Path
 import subprocess
 import sys
 import tempfile
+import time
 
 import numpy as np
-from pg_node.common.params import load_config, SHARED
+from pg_node.common.params import defaults, load_config, SHARED
+from pg_node.tools.bench_tax import split_round_trips
 from pg_node.tools import processes
 from pg_node.tools.lan import dds_env, Lan, unavailable
 
@@ -50,9 +53,22 @@ def base_env():
 
 
 def trips(paths):
-    """Return median and p99 (ms) of the round trips in the .npy files, after 200 each."""
-    ms = np.concatenate([np.load(p)[200:] for p in paths if Path(p).is_file()]) / 1e6
-    return (float(np.median(ms)), float(np.percentile(ms, 99))) if ms.size else (None, None)
+    """
+    Return the round trips of the .npy files: within rollouts (p50, p99), hand-overs (p50).
+
+    Within a rollout the actor answers at once; after a rollout's last step it waits for the
+    next weights (sync) or sends the rollout first (async): that round trip is the hand-over
+    (:func:`pg_node.tools.bench_tax.split_round_trips`, the first 25 rollouts left out).
+    """
+    n_steps = defaults('actor_node')['n_steps']
+    parts = [split_round_trips(np.load(p), n_steps, skip_rollouts=25)
+             for p in paths if Path(p).is_file()]
+    inside = np.concatenate([p[0] for p in parts]) if parts else np.zeros(0)
+    ends = np.concatenate([p[1] for p in parts]) if parts else np.zeros(0)
+    if not inside.size:
+        return None, None, None
+    return (float(np.median(inside)), float(np.percentile(inside, 99)),
+            float(np.median(ends)) if ends.size else None)
 
 
 def one_host(tmp, steps, mode, shm):
@@ -78,7 +94,11 @@ def several_hosts(tmp, steps, mode, workers):
                                   '--actors', str(i), '--run-id', 'bench',
                                   f'sim_node.round_trip_log={tmp / f"trips{i}.npy"}'),
                        tmp / f'w{i}.out', env)
-        learner.wait(1800)
+        while learner.poll() is None:
+            failed = [p for p in lan.procs[1:] if p.poll() not in (None, 0)]
+            if failed:                     # a worker host refused or died: say why
+                raise RuntimeError(Path(failed[0].log.name).read_text()[-3000:])
+            time.sleep(0.5)
         for proc in lan.procs[1:]:
             proc.wait(120)                 # the worker hosts end by themselves
         if learner.returncode != 0:
@@ -129,14 +149,16 @@ def table(steps: int) -> int:
                   ('learner + 2 worker hosts, UDP',
                    lambda tmp, m: several_hosts(tmp, steps, m, 2))]
     print(f'{steps} steps a run, 64 arms per simulator, reacher2\n')
-    print('| placement | mode | steps/s | lock-step round trip p50 / p99 (ms) |')
-    print('|---|---|---|---|')
+    print('| placement | mode | steps/s | round trip within rollouts p50 / p99 (ms) | '
+          'hand-over p50 (ms) |')
+    print('|---|---|---|---|---|')
     for name, run in placements:
         for mode in ('sync', 'async'):
             with tempfile.TemporaryDirectory() as tmp:
-                rate, (p50, p99) = run(Path(tmp), mode)
+                rate, (p50, p99, hand) = run(Path(tmp), mode)
             trip = '-' if p50 is None else f'{p50:.2f} / {p99:.2f}'
-            print(f'| {name} | {mode} | {rate:,.0f} | {trip} |', flush=True)
+            over = '-' if hand is None else f'{hand:.2f}'
+            print(f'| {name} | {mode} | {rate:,.0f} | {trip} | {over} |', flush=True)
     for workers in (1, 2):
         size = bytes_per_update(workers)
         print(f'\n{workers} worker host(s): per update {size["per_update"] / 1e3:.1f} kB cross '

@@ -31,8 +31,8 @@ from pg_node.common.run import run_topic
 TRAINING, DONE, STOPPED = 'training', 'done', 'stopped'
 #: sections of the configuration a worker host must share with the learner host
 WORKER_SECTIONS = (SHARED, 'sim_node', 'actor_node')
-#: values that may differ from host to host
-HOST_KEYS = ('run_dir',)
+#: values that may differ from host to host: paths of files each host writes for itself
+HOST_KEYS = ('run_dir', 'round_trip_log')
 
 
 def shared_config(cfg: Dict[str, Dict]) -> Dict[str, Dict]:
@@ -41,7 +41,8 @@ def shared_config(cfg: Dict[str, Dict]) -> Dict[str, Dict]:
 
     >>> from pg_node.common.params import load_config
     >>> a = shared_config(load_config(None, ['run_dir=/a']))
-    >>> a == shared_config(load_config(None, ['run_dir=/b', 'gamma=0.5']))
+    >>> a == shared_config(load_config(None, ['run_dir=/b', 'gamma=0.5',
+    ...                                       'sim_node.round_trip_log=/tmp/t.npy']))
     True
     >>> a == shared_config(load_config(None, ['num_envs=8']))
     False
