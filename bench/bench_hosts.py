@@ -34,8 +34,8 @@ import time
 
 import numpy as np
 from pg_node.common.params import defaults, load_config, SHARED
-from pg_node.tools.bench_tax import split_round_trips
 from pg_node.tools import processes
+from pg_node.tools.bench_tax import split_round_trips
 from pg_node.tools.lan import dds_env, Lan, unavailable
 
 REPO = Path(__file__).resolve().parent.parent

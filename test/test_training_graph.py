@@ -151,11 +151,16 @@ def test_two_runs_on_one_domain_each_equal_their_solo_computation(tmp_path):
         assert p.returncode == 0, outs[seed][-3000:]
         assert f'run id run{seed}: topics /run{seed}/pg_node/...' in outs[seed]
         summary = json.loads((tmp_path / f'run{seed}' / 'summary.json').read_text())
+        updates = []
         ref = train_inprocess(load_config(default_config(), [f'total_steps={steps}',
                                                              f'seed={seed}']), steps,
-                              eval_episodes=20)
+                              callback=updates.append, eval_episodes=20)
         assert summary['policy_version'] == ref['policy_version']
         assert summary['eval_returns'] == ref['eval_returns']
+        # and progress.csv, update by update
+        rows = progress(tmp_path / f'run{seed}')
+        for key in ('env_steps', 'policy_loss', 'entropy'):
+            assert [r[key] for r in rows] == [float(u[key]) for u in updates], key
         # the learner heard no other run's batch (the other run's topics are elsewhere)
         log = (tmp_path / f'run{seed}' / 'logs' / 'critic_and_learner.log').read_text()
         assert 'refused a batch' not in log and 'restarted' not in log, log[-2000:]
