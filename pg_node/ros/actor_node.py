@@ -1,10 +1,10 @@
 """
 actor_node: samples torques from the Gaussian policy for every arm and gathers rollouts.
 
-Subscribes ``pg_node/transition`` (from ``sim_node``) and ``/pg_node/policy_weights`` (from
-``learner_node``, latched); publishes ``arm_controller/commands`` (one command per new
+Subscribes ``pg_node/transition`` (from ``sim_node``) and ``/<run>/pg_node/policy_weights``
+(from ``learner_node``, latched); publishes ``pg_node/commands`` (one command per new
 transition, ``num_envs x n_actuators`` values, arm-major, clipped to the control range) and,
-every ``n_steps`` control steps, the rollout on ``/pg_node/rollout`` tagged with the policy
+every ``n_steps`` control steps, the rollout on ``/<run>/pg_node/rollout`` tagged with the policy
 version that sampled it (layout in :mod:`pg_node.ros.messages`).
 
 It acts only once it holds the learner's weights. In ``sync`` mode, after sending rollout k

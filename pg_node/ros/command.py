@@ -1,7 +1,7 @@
 """
 The torque command, as ros2_control's forward command controller takes it, plus a tag.
 
-``arm_controller/commands`` is a ``std_msgs/Float64MultiArray`` of ``num_envs x n_actuators``
+A command is a ``std_msgs/Float64MultiArray`` of ``num_envs x n_actuators``
 values, arm-major. pg_node's actor adds a third dimension of size 1 whose label names the
 transition it answers (``transition 1234``): the data and its shape are unchanged for any
 other reader, and a lock-step simulator steps only on the command that answers its current

@@ -1,8 +1,8 @@
 """
 critic_node: annotates rollouts with the chosen phi and fits the value function V_w.
 
-Subscribes ``/pg_node/rollout`` (from the actors) and ``/pg_node/policy_weights`` (only the
-optimal baseline needs the policy); publishes ``/pg_node/batch`` (layout in
+Subscribes ``/<run>/pg_node/rollout`` (from the actors) and ``/<run>/pg_node/policy_weights``
+(only the optimal baseline needs the policy); publishes ``/<run>/pg_node/batch`` (layout in
 :mod:`pg_node.ros.messages`) for the learner, and ``/diagnostics``.
 
 In ``sync`` mode a batch holds one rollout of each of the ``num_actors`` actors, all sampled

@@ -1,13 +1,16 @@
 """
 learner_node: applies the A2C (or PPO) update, publishes weights, logs, checkpoints.
 
-Subscribes ``/pg_node/batch`` (from ``critic_node``); publishes ``/pg_node/policy_weights``
-(reliable, transient-local, depth 1: a late or restarted actor gets the newest), one
-``std_msgs/Float64`` topic per training metric under ``/pg_node/metrics/`` (``episode_return``,
+Subscribes ``/<run>/pg_node/batch`` (from ``critic_node``); publishes
+``/<run>/pg_node/policy_weights`` (reliable, transient-local, depth 1: a late or restarted
+actor gets the newest), one ``std_msgs/Float64`` topic per training metric under
+``/<run>/pg_node/metrics/`` (``episode_return``,
 ``episode_length``, ``policy_loss``, ``value_loss``, ``entropy``, ``explained_variance``,
 ``approx_kl``, ``grad_norm``, ``steps_per_second``, ``policy_version``, ``env_steps``,
 ``policy_lag``, ``rejected_batches``, ``skipped_updates``), each episode summary on
-``/pg_node/episode`` as the bag gets it, and ``/diagnostics``.
+``/<run>/pg_node/episode`` as the bag gets it (the bag's own topics are ``/pg_node/...``),
+and ``/diagnostics``. ``<run>``: the ``run_id`` parameter (:mod:`pg_node.common.run`); the
+empty one drops the prefix.
 
 Each accepted batch is one update and one new policy version. A batch received again (the
 same version and number: the critic re-sends when the actor's rollout comes again) is not

@@ -33,7 +33,7 @@ Topics published:
   trips since the last diagnostics (a transition published -> the command answering it
   received): how many, median and p99 in ms (``round_trip_log`` keeps every one in a file).
 
-Subscribed: ``/arm_controller/commands`` (``std_msgs/Float64MultiArray``, as ros2_control's
+Subscribed: ``pg_node/commands`` (``std_msgs/Float64MultiArray``, as ros2_control's
 forward_command_controller): ``num_envs * n_actuators`` values, arm-major (arm 0's
 actuators in model order, then arm 1's...), taken as serialised bytes (``raw=True``) and
 decoded into numpy; bytes that do not decode count as a message of another size. A
@@ -48,7 +48,10 @@ another publisher's, an untagged one or a late duplicate is ignored and counted
 (``commands_ignored``). In real-time mode any valid command is held, tag or not.
 
 No node subscribes ``joint_states``: it is an output for tools (RViz, Foxglove, the bag);
-the simulator takes input only on ``arm_controller/commands`` and its services.
+the simulator takes input only on ``pg_node/commands`` (training's own name, never a real
+controller's ``arm_controller/commands``; ``play`` remaps it there, as the robot's stand-in)
+and its services. A command tagged with another run's token (:mod:`pg_node.ros.command`) is
+dropped and counted (``foreign_messages``).
 
 Modes (parameter ``mode``):
 
@@ -72,7 +75,7 @@ command; refused when not paused). While paused, lock-step commands are held, no
 
 Topic names other than ``/diagnostics`` are relative: started in a namespace
 (``--ros-args -r __ns:=/arm1``) the node publishes ``/arm1/joint_states``,
-``/arm1/pg_node/transition``... and listens on ``/arm1/arm_controller/commands``, so several
+``/arm1/pg_node/transition``... and listens on ``/arm1/pg_node/commands``, so several
 simulator/actor pairs can share one graph; in the root namespace the names are as above.
 
 Parameters: :data:`pg_node.common.params.SIM_PARAMS` (and the shared ``model``, ``num_envs``,
