@@ -1,5 +1,5 @@
 """
-One run on many machines, for real: hosts are network namespaces on a bridge (``test/lan.py``).
+One run on many machines, for real: hosts are network namespaces on a bridge (``pg_node/tools/lan.py``).
 
 A learner host runs ``train --part learner``, each worker host ``train --part workers
 --actors i``, with the same configuration and run id; Fast DDS's shared memory is off, so
@@ -16,7 +16,7 @@ import subprocess
 import sys
 import time
 
-from domains import ros_domain
+from domains import ros_domains
 from pg_node.tools.lan import dds_env, Lan, unavailable
 from pg_node.tools.processes import proc_stat
 from pg_node.tools.train import read_progress
@@ -27,7 +27,7 @@ from rosbags.typesys import get_typestore, Stores
 pytestmark = [pytest.mark.e2e, pytest.mark.slow]
 
 REPO = Path(__file__).resolve().parent.parent
-DOMAIN_ID = ros_domain(base=170, spread=60)
+DOMAIN_ID, PROBE_DOMAIN = ros_domains(2, base=170, spread=30)
 CONFIG = ['num_actors=2', 'num_envs=16']
 STEPS = 20_480                  # 80 updates of 2 x 16 arms x 8 steps
 
@@ -61,6 +61,38 @@ def one_host(tmp_path_factory):
                           text=True, timeout=600)
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
     return json.loads((run_dir / 'summary.json').read_text())
+
+
+# ``python -c CHATTER pub|sub TAG``: publish "TAG i" at 20 Hz, or print each message heard
+CHATTER = """
+import sys, rclpy
+from rclpy.executors import ExternalShutdownException
+from std_msgs.msg import String
+mode, tag = sys.argv[1:3]
+rclpy.init()
+node = rclpy.create_node(f'{mode}_{tag}')
+if mode == 'pub':
+    pub = node.create_publisher(String, 'chatter', 10)
+    node.create_timer(0.05, lambda: pub.publish(String(data=tag)))
+else:
+    node.create_subscription(String, 'chatter', lambda m: print('got', m.data, flush=True), 10)
+try:
+    rclpy.spin(node)
+except (KeyboardInterrupt, ExternalShutdownException):
+    pass
+"""
+
+
+def chatter(host, mode, tag, tmp_path, host_env):
+    """Start a CHATTER publisher or subscriber in ``host``."""
+    return host.popen([sys.executable, '-c', CHATTER, mode, tag], tmp_path / f'{mode}_{tag}.out',
+                      host_env)
+
+
+def heard(proc, tag):
+    """Return how many messages of ``tag`` a CHATTER subscriber printed so far."""
+    proc.log.seek(0)
+    return proc.log.read().count(f'got {tag}')
 
 
 def start_hosts(lan, tmp_path, run_id, steps=STEPS, static_peers=False):
@@ -119,6 +151,17 @@ def test_localhost_keeps_each_host_to_itself(lan, tmp_path):
     assert lcode == 0, lout[-2000:]
 
 
+def test_localhost_is_no_firewall(lan, tmp_path):
+    """A LOCALHOST node hears another host that names it in its ROS_STATIC_PEERS."""
+    listener = chatter(lan.hosts[0], 'sub', 'B', tmp_path, dds_env(env(), discovery='LOCALHOST'))
+    chatter(lan.hosts[1], 'pub', 'B', tmp_path,
+            dds_env(env(), discovery='LOCALHOST', static_peers=[lan.hosts[0].address]))
+    end = time.monotonic() + 30
+    while heard(listener, 'B') < 5:
+        assert time.monotonic() < end, 'the named host was not heard in 30 s'
+        time.sleep(0.2)
+
+
 @pytest.mark.parametrize('discovery', ['multicast', 'static_peers'])
 def test_learner_and_two_worker_hosts_equal_the_run_on_one_host(
         lan, one_host, tmp_path, discovery):
@@ -126,13 +169,21 @@ def test_learner_and_two_worker_hosts_equal_the_run_on_one_host(
     static = discovery == 'static_peers'
     for host in lan.hosts:
         host.multicast(not static)          # static peers need no multicast at all
+    # a probe on a domain of its own (static peers' unicast does not reach it): SUBNET
+    # nodes in two hosts hear each other by multicast, and only by multicast
+    probe = dds_env(dict(env(), ROS_DOMAIN_ID=str(PROBE_DOMAIN)), discovery='SUBNET')
     try:
+        listener = chatter(lan.hosts[2], 'sub', 'M', tmp_path, probe)
+        chatter(lan.hosts[1], 'pub', 'M', tmp_path, probe)
         learner, workers = start_hosts(lan, tmp_path, f'mh_{discovery}', static_peers=static)
         code, out = finish(learner, 600)
+        # the run took some seconds (13 s here): discovery takes well under one
+        multicast_heard = heard(listener, 'M')
     finally:
         for host in lan.hosts:
             host.multicast(True)
     assert code == 0, out[-3000:]
+    assert (multicast_heard == 0) == static, f'{multicast_heard} probe messages heard'
     # the worker hosts end by themselves once the learner host has announced the end
     for i, w in enumerate(workers):
         wcode, wout = finish(w, 60)
