@@ -214,6 +214,18 @@ def test_monitor_refuses_a_negative_time(option, capsys):
     assert f'argument {option}: must be > 0, got -1' in capsys.readouterr().err
 
 
+def test_a_run_picked_as_the_only_one_is_ambiguous_once_another_shows_up():
+    state = MonitorState()
+    state.runs = {'exp_a'}
+    state.choose('exp_a')                       # what discovery does with the only run
+    assert not state.ambiguous() and 'several' not in state.choice()
+    state.runs.add('exp_b')                     # heard later: a slow discovery
+    assert state.ambiguous()
+    assert 'run exp_a' in state.choice() and 'exp_a, exp_b; choose one' in state.choice()
+    state.asked = True                          # --run exp_a: the user chose
+    assert not state.ambiguous() and 'several' not in state.choice()
+
+
 @pytest.mark.e2e
 def test_monitor_and_topics_tell_two_runs_apart(publisher):
     """Two runs on one domain: monitor asks which and shows the chosen one; topics names both."""

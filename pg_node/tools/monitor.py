@@ -86,6 +86,7 @@ class MonitorState:
         self.started = time.monotonic()
         self.run = None             # the run watched (None: not chosen yet)
         self.runs = set()           # the runs seen on the graph
+        self.asked = False          # the user named the run (--run)
 
     def on_metric(self, name: str, value: float, now: float = None):
         """Record one metric value."""
@@ -119,12 +120,23 @@ class MonitorState:
 
     def choice(self) -> str:
         """Return what the monitor says about runs: the one watched, or the ones to pick."""
+        several = self.several()
         if self.run is not None:
-            return f'run {run_label(self.run)}: {run_topic(self.run, "...")}'
+            watched = f'run {run_label(self.run)}: {run_topic(self.run, "...")}'
+            # picked as the only run, and another one showed up later
+            return watched if self.asked or len(self.runs) < 2 else f'{watched}; {several}'
         if len(self.runs) > 1:
-            return (f'several runs on this ROS domain: '
-                    f'{", ".join(map(run_label, sorted(self.runs)))}; choose one with --run NAME')
+            return several
         return 'no pg_node run heard yet'
+
+    def several(self) -> str:
+        """Return the line that names the runs heard and asks for one."""
+        return (f'several runs on this ROS domain: '
+                f'{", ".join(map(run_label, sorted(self.runs)))}; choose one with --run NAME')
+
+    def ambiguous(self) -> bool:
+        """Whether several runs were heard and the user did not name one."""
+        return not self.asked and len(self.runs) > 1
 
     def choose(self, run: str):
         """Watch ``run``: the statuses heard so far may be of another run."""
@@ -188,6 +200,7 @@ class MonitorNode:
         self.subscribed = set()
         self.started = time.monotonic()
         if run is not None:
+            state.asked = True
             self.watch(run)
         self.discover()
         self.node.create_timer(0.5, self.discover)
@@ -269,8 +282,10 @@ def main(argv=None) -> int:
     finally:
         mon.node.destroy_node()
         rclpy.try_shutdown(context=context)
-    if state.run is None and len(state.runs) > 1:
-        print(f'monitor: {state.choice()}', file=sys.stderr)
+    if state.ambiguous():
+        # also when one was picked as the only run and another showed up later: which one
+        # the view showed depended on discovery's timing
+        print(f'monitor: {state.several()}', file=sys.stderr)
         return 2
     return 0
 
