@@ -73,9 +73,9 @@ def test_graph_learns_and_versions_advance(run):
     # learner another, each node logging as itself
     assert set(summary['nodes']) == {'sim_and_actor', 'critic_and_learner'}
     log = (run_dir / 'logs' / 'sim_and_actor.log').read_text()
-    assert '[sim_node]: lock_step: 64 x reacher2' in log and '[actor_node]: actor 0' in log
+    assert '[run.sim_node]: lock_step: 64 x reacher2' in log and '[run.actor_node]: actor 0' in log
     log = (run_dir / 'logs' / 'critic_and_learner.log').read_text()
-    assert '[critic_node]: critic: phi = gae' in log and '[learner_node]: done: ' in log
+    assert '[run.critic_node]: critic: phi = gae' in log and '[run.learner_node]: done: ' in log
     # the learner's end is a clean stop of the process, not an exception in a callback
     assert 'Exception in' not in log and 'FATAL' not in log
     from PIL import Image
@@ -124,7 +124,7 @@ def test_graph_equals_inprocess_reference_with_every_node_its_own_process(tmp_pa
     assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
     summary = json.loads((tmp_path / 'run' / 'summary.json').read_text())
     assert set(summary['nodes']) == {'sim_node', 'actor_node', 'critic_node', 'learner_node'}
-    assert '[actor_node]: actor 0' in (tmp_path / 'run' / 'logs' / 'actor_node.log').read_text()
+    assert '[run.actor_node]: actor 0' in (tmp_path / 'run' / 'logs' / 'actor_node.log').read_text()
     ref = train_inprocess(load_config(default_config(), [f'total_steps={steps}']), steps)
     assert summary['policy_version'] == ref['policy_version']
     assert summary['eval_returns'] == ref['eval_returns']
@@ -328,7 +328,8 @@ def test_resume_and_survive_a_learner_sigkill(run):
                             stderr=subprocess.STDOUT, text=True, start_new_session=True)
     # the learner publishes each episode summary live, as the bag gets it (monitor shows them)
     from diagnostic_msgs.msg import DiagnosticStatus
-    from pg_node.bag.recorder import EPISODE_QOS, EPISODE_TOPIC, parse_episode
+    from pg_node.bag.recorder import EPISODE_QOS, parse_episode
+    from pg_node.common.run import run_id_for_dir, run_topic
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
     ctx = rclpy.Context()
@@ -336,7 +337,8 @@ def test_resume_and_survive_a_learner_sigkill(run):
     live = []
     try:
         node = rclpy.create_node('episode_listener', context=ctx)
-        node.create_subscription(DiagnosticStatus, EPISODE_TOPIC,
+        # live, the summaries are the run's (/run/pg_node/episode); the bag has /pg_node/...
+        node.create_subscription(DiagnosticStatus, run_topic(run_id_for_dir(run_dir), 'episode'),
                                  lambda m: live.append(parse_episode(m)), EPISODE_QOS)
         ex = SingleThreadedExecutor(context=ctx)
         ex.add_node(node)
@@ -370,7 +372,7 @@ def test_resume_and_survive_a_learner_sigkill(run):
     after = json.loads((run_dir / 'summary.json').read_text())
     assert after['total_steps'] >= more and after['restarts']['critic_and_learner'] == 1
     log = (run_dir / 'logs' / 'critic_and_learner.log').read_text()
-    assert log.count('[critic_node]: resumed V from') == 2, log[-3000:]   # both restarts
+    assert log.count('[run.critic_node]: resumed V from') == 2, log[-3000:]   # both restarts
     versions = [int(float(r['policy_version'])) for r in progress(run_dir)]
     # the resumed run continued from the saved version, not from scratch
     assert versions[len(versions) - 1] > first and first + 1 in versions
