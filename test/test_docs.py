@@ -1,6 +1,8 @@
 """
-The documentation's links: every relative link of README.md and docs/ names a file of this
-repository (a newcomer's clone has nothing outside it).
+The documentation's links stay in the repository.
+
+Every relative link of README.md, BENCHMARKS.md and docs/ names a file of this repository:
+a newcomer's clone has nothing outside it.
 """
 from pathlib import Path
 import re

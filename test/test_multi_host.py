@@ -1,5 +1,5 @@
 """
-One run on many machines, for real: hosts are network namespaces on a bridge (``pg_node/tools/lan.py``).
+One run on many machines, for real: hosts are network namespaces on a bridge (``lan.py``).
 
 A learner host runs ``train --part learner``, each worker host ``train --part workers
 --actors i``, with the same configuration and run id; Fast DDS's shared memory is off, so

@@ -124,7 +124,8 @@ def test_graph_equals_inprocess_reference_with_every_node_its_own_process(tmp_pa
     assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
     summary = json.loads((tmp_path / 'run' / 'summary.json').read_text())
     assert set(summary['nodes']) == {'sim_node', 'actor_node', 'critic_node', 'learner_node'}
-    assert '[run.actor_node]: actor 0' in (tmp_path / 'run' / 'logs' / 'actor_node.log').read_text()
+    log = (tmp_path / 'run' / 'logs' / 'actor_node.log').read_text()
+    assert '[run.actor_node]: actor 0' in log
     ref = train_inprocess(load_config(default_config(), [f'total_steps={steps}']), steps)
     assert summary['policy_version'] == ref['policy_version']
     assert summary['eval_returns'] == ref['eval_returns']
