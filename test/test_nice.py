@@ -100,6 +100,8 @@ def node_nices(node: str, run_dir: Path, ros_args=(), policies=None) -> set:
          *ros_args],
         env=child_env(DOMAIN), cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
         text=True, start_new_session=True)
+    # the niceness the node starts with: this process's (``nice -n 3 make test`` gives 3)
+    start = os.getpriority(os.PRIO_PROCESS, 0)
     try:
         deadline = time.monotonic() + 90
         nices = {}
@@ -107,7 +109,7 @@ def node_nices(node: str, run_dir: Path, ros_args=(), policies=None) -> set:
             nices = thread_nices(proc.pid)
             # the node renices after it is built: wait for the main thread to change, then
             # give the rest of the threads a moment
-            if nices.get(proc.pid, 0) != 0:
+            if nices.get(proc.pid, start) != start:
                 time.sleep(0.5)
                 if policies is not None:
                     policies.append(thread_policies(proc.pid))
