@@ -10,6 +10,10 @@ Prints one row per configuration: messages per second and MB/s of serialised mes
 ``serialize_message`` alone; ``bytes in`` rows write pre-serialised CDR, so they show the
 writer's own cost. Each row is the best of ``--repeat`` runs (the runs of one row come one
 after another), which on a shared machine varies far less than a single run.
+
+``--rows zstd`` keeps the rows whose name holds ``zstd`` (what BENCHMARKS.md's
+``/tmp/wz.py`` repeated); ``--profile`` prints a cProfile of the writer alone with zstd
+(pre-serialised CDR in: what ``/tmp/prof_bag.py`` showed) instead of the table.
 """
 import argparse
 from pathlib import Path
@@ -61,8 +65,12 @@ def run(args):
         for k in range(n):
             serialize_message(msgs[k % 256])
 
-    dt = best_time(args.repeat, serialize_all)
-    rows.append(('serialize only', '-', n / dt, n * size / dt / 1e6, '-'))
+    def wanted(name):
+        return args.rows is None or args.rows in name
+
+    if wanted('serialize only') and not args.profile:
+        dt = best_time(args.repeat, serialize_all)
+        rows.append(('serialize only', '-', n / dt, n * size / dt / 1e6, '-'))
 
     tmp = Path(tempfile.mkdtemp(prefix='bench_bag_'))
 
@@ -81,18 +89,31 @@ def run(args):
         assert count == n
 
     try:
+        if args.profile:
+            import cProfile
+            import pstats
+            prof = cProfile.Profile()
+            prof.runcall(write, tmp / 'profile', 'zstd', True)
+            pstats.Stats(prof).sort_stats('cumulative').print_stats(25)
+            return
         for compression in ('none', 'zstd', 'lz4'):
             for raw in (False, True):
                 bag = tmp / f'{compression}_{int(raw)}'
+                if not wanted(('bytes in, ' if raw else 'write, ') + compression):
+                    continue
                 dt = best_time(args.repeat, lambda: write(bag, compression, raw))
                 disk = sum(p.stat().st_size for p in bag.glob('*.mcap')) / 1e6
                 rows.append((('bytes in, ' if raw else 'write, ') + compression,
                              len(list(bag.glob('*.mcap'))), n / dt, n * size / dt / 1e6,
                              f'{disk:.1f}'))
         for deserialize in (False, True):
+            name = 'read zstd' + (' + deserialize' if deserialize else ' raw')
+            if not wanted(name):
+                continue
+            if not (tmp / 'zstd_0').exists():
+                write(tmp / 'zstd_0', 'zstd', False)
             dt = best_time(args.repeat, lambda: read(tmp / 'zstd_0', deserialize))
-            rows.append(('read zstd' + (' + deserialize' if deserialize else ' raw'), '-',
-                         n / dt, n * size / dt / 1e6, '-'))
+            rows.append((name, '-', n / dt, n * size / dt / 1e6, '-'))
     finally:
         shutil.rmtree(tmp)
 
@@ -113,6 +134,9 @@ def main():
     parser.add_argument('--messages', type=int, default=20000)
     parser.add_argument('--split-mb', type=int, default=64)
     parser.add_argument('--repeat', type=int, default=3, help='runs per row, best kept')
+    parser.add_argument('--rows', help='only the rows whose name holds this text (e.g. zstd)')
+    parser.add_argument('--profile', action='store_true',
+                        help='print a cProfile of the zstd writer (pre-serialised) instead')
     run(parser.parse_args())
 
 

@@ -281,3 +281,31 @@ def test_throughput_plot_ticks_read_apart(tmp_path, monkeypatch):
     assert low < 2000 and high > 40000 and {'2k', '10k'} <= set(shown), (low, high, shown)
     monkeypatch.undo()                        # plt.close is matplotlib's again
     plt.close(fig)
+
+
+def test_bench_bag_keeps_only_the_rows_asked_for():
+    """``bench/bench_bag.py --rows`` (BENCHMARKS.md's zstd repeats) runs, with just those rows."""
+    env = dict(os.environ, PYTHONPATH=str(REPO),
+               AMENT_PREFIX_PATH=os.environ.get('AMENT_PREFIX_PATH', sys.prefix))
+    done = subprocess.run([sys.executable, 'bench/bench_bag.py', '--rows', 'bytes in',
+                           '--messages', '300', '--repeat', '1'], cwd=REPO, env=env,
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    rows = [line.split('|')[1].strip() for line in done.stdout.splitlines()
+            if line.startswith('| ') and 'configuration' not in line]
+    assert rows == ['bytes in, none', 'bytes in, zstd', 'bytes in, lz4'], done.stdout
+
+
+def test_bench_presets_table_from_fixed_numbers():
+    sys.path.insert(0, str(REPO / 'bench'))
+    try:
+        from bench_presets import table
+    finally:
+        sys.path.remove(str(REPO / 'bench'))
+    runs = [{'eval': e, 'seconds': 100.0 + i, 'rate': 9000.0, 'max_kl': 0.01 + i / 1000}
+            for i, e in enumerate((-4.0, -3.5, -4.5))]
+    text = table([{'preset': 'trpo', 'evals': [-4.0, -3.5, -4.5], 'mean': -4.0, 'std': 0.408,
+                   'runs': runs, 'max_kl_bound': 0.02}], 1_000_000)
+    row = text.splitlines()[-1]
+    assert row.startswith('| `trpo` | **-4.00 ± 0.41** | -4.00, -3.50, -4.50 | 100, 101, 102 |')
+    assert row.endswith('| 9,000, 9,000, 9,000 | 0.0120 (0.02) |'), row
