@@ -125,10 +125,11 @@ def test_curves_table_ranks_and_quotes_from_fixed_numbers():
         rk = bc.ranks(list(rows.values()), final)
         assert rk['n'] == 8 and rk['spearman'] == pytest.approx(rho)
         assert rk['rows'][order[0]]['eval'] == 1
-    # SB3 from the learning section, at the points it evaluated (here all three)
+    # SB3 from the learning section, at the points it evaluated (2 of the curves' 10)
+    assert res['curves']['points'][:2] == [409, 819]
     assert rows['sb3_a2c']['evals'][4096][0] == pytest.approx(-6.0)
-    assert rows['sb3_a2c']['evals'][1024] is None and rows['sb3_a2c']['wall_seconds'][0] == 4.1
-    assert 'evaluated at' not in rows['sb3_a2c']['note']
+    assert rows['sb3_a2c']['evals'][409] is None and rows['sb3_a2c']['wall_seconds'][0] == 4.1
+    assert 'evaluated at 1,024, 2,048, 4,096 only' in rows['sb3_a2c']['note']
     res['learning']['points'] = [4096]
     rows = {r['key']: r for r in bc.summarize(res['curves'], res['learning'], variance)}
     assert 'evaluated at 4,096 only' in rows['sb3_a2c']['note']
@@ -309,3 +310,26 @@ def test_bench_presets_table_from_fixed_numbers():
     row = text.splitlines()[-1]
     assert row.startswith('| `trpo` | **-4.00 ± 0.41** | -4.00, -3.50, -4.50 | 100, 101, 102 |')
     assert row.endswith('| 9,000, 9,000, 9,000 | 0.0120 (0.02) |'), row
+
+
+def test_curves_plot_two_panels_with_a_band_per_row(tmp_path, monkeypatch):
+    """Algorithms and estimators in two panels; each drawn row a mean line and a std band."""
+    import matplotlib
+    matplotlib.use('Agg')
+    from matplotlib.axes import Axes
+    from PIL import Image
+    from pg_node.tools import bench_curves as bc
+    bands = []
+    real = Axes.fill_between
+    monkeypatch.setattr(Axes, 'fill_between',
+                        lambda ax, *a, **k: bands.append(ax) or real(ax, *a, **k))
+    res = fake_results()
+    res['curves'] = fake_curves(list(bc.ESTIMATORS))
+    assert bc.make_plot(res, tmp_path) == {'curves': f'{tmp_path.name}/curves.png'}
+    panels = {id(ax): ax for ax in bands}
+    assert len(panels) == 2
+    by_panel = sorted(sum(1 for b in bands if b is ax) for ax in panels.values())
+    # a2c, reinforce, a2c_tuned, ppo, npg, trpo and the SB3 A2C row; 8 estimators
+    assert by_panel == [7, 8]
+    with Image.open(tmp_path / 'curves.png') as img:
+        assert img.size == (1500, 700)

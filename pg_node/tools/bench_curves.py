@@ -5,11 +5,12 @@ Each choice of phi of the critic (``estimator``: total return, reward-to-go, con
 optimal and time baselines, value baseline, TD residual, GAE) is trained in-process
 (:func:`pg_node.rl.train_inprocess.train_inprocess`, the graph's computation) with otherwise
 the default settings, the design's A2C, over the same seeds; the deterministic policy is
-evaluated at a quarter, half and all of the budget (full: 250k, 500k and 1M environment
-steps, 100 episodes, 3 seeds). The algorithm rows go in the same table: A2C (the ``gae`` runs
+evaluated at every tenth of the budget (full: 100k, 200k, ..., 1M environment steps, 100
+episodes, 3 seeds), so that the curves show where one row overtakes another; the table
+shows 30%, 50% and all of it, and the times to each return come from every point. The algorithm rows go in the same table: A2C (the ``gae`` runs
 above: the defaults), plain REINFORCE (total return, no advantage normalisation), PPO (the
-``config/ppo.yaml`` preset), tuned A2C (``config/a2c_tuned.yaml``), NPG and TRPO
-(``algo=npg`` / ``algo=trpo``, defaults otherwise);
+``config/ppo.yaml`` preset), tuned A2C (``config/a2c_tuned.yaml``), NPG and TRPO (the
+``config/npg.yaml`` and ``config/trpo.yaml`` presets);
 SB3 A2C and PPO come from the ``learning`` section of the same invocation (not run twice),
 and Tianshou's published numbers are quoted with their source (:data:`TIANSHOU`).
 
@@ -31,8 +32,8 @@ ALGORITHMS = {
                   None, ('estimator=total_return', 'normalize_advantage=false')),
     'a2c_tuned': ('A2C tuned (config/a2c_tuned.yaml)', 'a2c_tuned', ()),
     'ppo': ('PPO (config/ppo.yaml)', 'ppo', ()),
-    'npg': ('NPG (algo=npg, defaults)', None, ('algo=npg',)),
-    'trpo': ('TRPO (algo=trpo, defaults)', None, ('algo=trpo',)),
+    'npg': ('NPG (config/npg.yaml)', 'npg', ()),
+    'trpo': ('TRPO (config/trpo.yaml)', 'trpo', ()),
 }
 #: rows that are the runs of another row (same configuration): key -> (name, that row's key)
 SAME_RUNS = {'a2c': ('A2C (the defaults, config/a2c.yaml)', 'gae')}
@@ -47,8 +48,8 @@ TIANSHOU_SOURCE = ('https://github.com/thu-ml/tianshou/blob/master/examples/mujo
 TIANSHOU = {'PPO': (-4.1, 0.3), 'NPG': (-4.5, 0.5), 'TRPO': (-5.1, 0.8), 'A2C': (-6.7, 2.3)}
 #: Gymnasium's return at which Reacher counts as solved
 SOLVED = -3.75
-#: evaluation returns whose wall-clock time the table gives (issue 15: -5 and -4.5)
-TIME_THRESHOLDS = (-5.0, -4.5)
+#: evaluation returns whose wall-clock time the table gives (issue 15: -5 and -4.5; 32: -4)
+TIME_THRESHOLDS = (-5.0, -4.5, -4.0)
 
 #: budgets: full run, and --quick
 BUDGETS = {'curve_steps': (1_000_000, 1_024), 'curve_seeds': (3, 1),
@@ -56,8 +57,24 @@ BUDGETS = {'curve_steps': (1_000_000, 1_024), 'curve_seeds': (3, 1),
 
 
 def points_of(steps: int) -> List[int]:
-    """Return the evaluation points of a budget: a quarter, half and all of it."""
-    return sorted({steps // 4, steps // 2, steps})
+    """
+    Return the evaluation points of a budget: every tenth of it.
+
+    >>> points_of(1_000_000)[:3], points_of(1_000_000)[-1]
+    ([100000, 200000, 300000], 1000000)
+    """
+    return sorted({steps * k // 10 for k in range(1, 11)})
+
+
+def table_points(points: Sequence[int]) -> List[int]:
+    """
+    Return the points the table shows: 30%, 50% and all of a budget of ten points.
+
+    >>> table_points(points_of(1_000_000)), table_points([1024, 2048, 4096])
+    ([300000, 500000, 1000000], [1024, 2048, 4096])
+    """
+    points = sorted(points)
+    return [points[2], points[4], points[9]] if len(points) == 10 else list(points)
 
 
 def configurations() -> Dict[str, Dict]:
@@ -295,14 +312,15 @@ def render(results: Dict, plots: Dict[str, str]) -> List[str]:
     curves = results.get('curves')
     if not curves:
         return []
-    points, final = curves['points'], curves['points'][-1]
+    points, final = table_points(curves['points']), curves['points'][-1]
     rows = summarize(curves, results.get('learning'), results.get('variance'))
     rk = ranks(rows, final)
     out = ["## 5. Every estimator's learning curve", '',
            f"Each phi of the critic trained in-process (`train_inprocess`, the graph's "
            f'computation) for {curves["steps"]:,} environment steps with otherwise the default '
            f'settings (the design\'s A2C), seeds {", ".join(map(str, curves["seeds"]))}; '
-           f'deterministic evaluation over {curves["eval_episodes"]} episodes at each point, '
+           f'deterministic evaluation over {curves["eval_episodes"]} episodes at each of '
+           f'{len(curves["points"])} points (the plot has them all), '
            'mean ± std over seeds. Wall seconds: training only, evaluations excluded; '
            'time to a return: the training seconds at the first point whose evaluation '
            'reached it (an upper bound), mean over the seeds that did (k/n). '
@@ -349,7 +367,12 @@ def render(results: Dict, plots: Dict[str, str]) -> List[str]:
 
 
 def make_plot(results: Dict, plot_dir) -> Dict[str, str]:
-    """Write ``curves.png``: one line per estimator, dashed per algorithm row."""
+    """
+    Write ``curves.png``: algorithms in one panel, estimators in the other.
+
+    Each line is the mean over seeds at every evaluation point, its band one std either
+    side; Tianshou's published results stand beside the algorithms' panel.
+    """
     curves = results.get('curves')
     if not curves:
         return {}
@@ -358,27 +381,33 @@ def make_plot(results: Dict, plot_dir) -> Dict[str, str]:
     import matplotlib.pyplot as plt
     rows = summarize(curves, results.get('learning'), results.get('variance'))
     points = curves['points']
-    fig, ax = plt.subplots(figsize=(12, 5.5))
-    style = {'estimator': '-', 'algorithm': '--', 'sb3': ':'}
-    colors = plt.get_cmap('tab20').colors
-    drawn = [r for r in rows if r['key'] not in SAME_RUNS
-             and any(r['evals'][p] is not None for p in points)]
-    for i, r in enumerate(drawn):
-        xs = [p for p in points if r['evals'][p] is not None]
-        ax.plot(xs, [r['evals'][p][0] for p in xs], style[r['kind']], marker='o', ms=3,
-                lw=1.4, color=colors[i % len(colors)],
-                label=r['key'] if r['kind'] == 'estimator' else r['name'])
+    fig, (alg, est) = plt.subplots(1, 2, figsize=(15, 7), sharey=True)
+    colors = plt.get_cmap('tab10').colors
+    panels = {alg: [r for r in rows if r['kind'] != 'estimator'],
+              est: [r for r in rows if r['kind'] == 'estimator']}
+    for ax, drawn in panels.items():
+        for i, r in enumerate(r for r in drawn if any(r['evals'][p] for p in points)):
+            xs = [p for p in points if r['evals'][p] is not None]
+            mean = np.array([r['evals'][p][0] for p in xs])
+            std = np.array([r['evals'][p][1] for p in xs])
+            color = colors[i % len(colors)]
+            ax.plot(xs, mean, ':' if r['kind'] == 'sb3' else '-', marker='o', ms=2.5, lw=1.4,
+                    color=color, label=r['key'] if r['kind'] == 'estimator' else r['name'])
+            ax.fill_between(xs, mean - std, mean + std, color=color, alpha=0.15, lw=0)
+        ax.axhline(SOLVED, color='k', ls=':', lw=0.7)
+        ax.set_xlabel('environment steps')
+        ax.grid(alpha=0.3)
     for i, (name, (mean, std)) in enumerate(TIANSHOU.items()):
-        x = points[-1] * (1.02 + 0.02 * i)
-        ax.errorbar([x], [mean], yerr=[std], fmt='x', color='k', ms=5, lw=0.7,
-                    label='Tianshou (published, 1M; max over training)' if i == 0 else None)
-        ax.annotate(name, (x, mean), xytext=(3, 0), textcoords='offset points', fontsize=6,
-                    va='center')
-    ax.axhline(SOLVED, color='k', ls=':', lw=0.7)
-    ax.set_xlabel('environment steps')
-    ax.set_ylabel(f'deterministic evaluation return ({curves["eval_episodes"]} episodes)')
-    ax.set_title("Every estimator's learning curve on the arm (mean over seeds)")
-    ax.legend(fontsize=7, loc='upper left', bbox_to_anchor=(1.01, 1.0))
+        x = points[-1] * (1.02 + 0.025 * i)
+        alg.errorbar([x], [mean], yerr=[std], fmt='x', color='k', ms=5, lw=0.7,
+                     label='Tianshou (published, 1M; max over training)' if i == 0 else None)
+        alg.annotate(name, (x, mean), xytext=(3, 0), textcoords='offset points', fontsize=6,
+                     va='center')
+    alg.set_ylabel(f'deterministic evaluation return ({curves["eval_episodes"]} episodes)')
+    alg.set_title('Algorithms (mean over seeds, band: ± std)')
+    est.set_title('Estimators phi, the design\'s A2C otherwise (mean over seeds, band: ± std)')
+    for ax in (alg, est):          # below each panel: the curves keep the whole plot
+        ax.legend(fontsize=7, loc='upper center', bbox_to_anchor=(0.5, -0.1), ncol=2)
     fig.tight_layout()
     fig.savefig(plot_dir / 'curves.png', dpi=100)
     plt.close(fig)
