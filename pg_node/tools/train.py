@@ -27,6 +27,7 @@ from datetime import datetime
 import json
 import os
 from pathlib import Path
+import resource
 import subprocess
 import sys
 import time
@@ -298,7 +299,7 @@ class Supervisor:
         """
         self.sample_usage()
         for name, proc in list(self.procs.items()):
-            code = proc.poll()
+            code = self.poll(name, proc)
             if code is None:
                 continue
             if name == self.learner and code == 0 and self._learned_all():
@@ -324,10 +325,29 @@ class Supervisor:
             self.next_start[name] = time.monotonic() + delay
         return 'running'
 
+    def poll(self, name: str, proc: subprocess.Popen) -> Optional[int]:
+        """
+        Return ``proc``'s exit code (None while it runs); at its exit, its exact CPU seconds.
+
+        ``/proc`` is read twice a second, and a node's last moments would be lost; the
+        kernel's account of the children waited for (``RUSAGE_CHILDREN``) grows, at the
+        wait, by exactly that child's total. Only this thread waits for the nodes.
+        """
+        if proc.returncode is not None:
+            return proc.returncode
+        before = resource.getrusage(resource.RUSAGE_CHILDREN)
+        code = proc.poll()
+        if code is not None:
+            after = resource.getrusage(resource.RUSAGE_CHILDREN)
+            sample = self.samples.setdefault((name, proc.pid), {})
+            sample['cpu_seconds'] = (after.ru_utime - before.ru_utime
+                                     + after.ru_stime - before.ru_stime)
+        return code
+
     def sample_usage(self):
         """Read every live node's CPU seconds and memory from ``/proc``."""
         for name, proc in self.procs.items():
-            if proc.poll() is None:
+            if self.poll(name, proc) is None:
                 sample = process_usage(proc.pid)
                 if sample is not None:
                     self.samples[(name, proc.pid)] = sample
@@ -344,13 +364,15 @@ class Supervisor:
         Return each node's peak resident memory (MB) and CPU seconds, whole and in training.
 
         Sampled from ``/proc`` at every :meth:`check` (twice a second): the peak is exact,
-        CPU seconds miss at most the last half second of a process. ``cpu_seconds_training``
-        counts from the first update (the first progress row), without start-up.
+        and so are the CPU seconds of a process that ended (:meth:`poll`); a live one's miss
+        at most the last half second. ``cpu_seconds_training`` counts from the first update
+        (the first progress row, seen within half a second) to the end, without start-up.
         """
         cpu = self.cpu_seconds()
         start = self.cpu_at_first_update or {}
         return {name: {'peak_rss_mb': round(max((s['peak_rss_mb'] for (n, _), s
-                                                 in self.samples.items() if n == name),
+                                                 in self.samples.items()
+                                                 if n == name and 'peak_rss_mb' in s),
                                                 default=float('nan')), 1),
                        'cpu_seconds': round(cpu[name], 2),
                        'cpu_seconds_training': round(cpu[name] - start.get(name, 0.0), 2)}
@@ -366,12 +388,12 @@ class Supervisor:
         """Stop every node: SIGINT, then SIGTERM, then SIGKILL, waiting between."""
         self.sample_usage()         # the last reading of each node's CPU and memory
         for sig, wait in STOP_WAITS:
-            alive = [p for p in self.procs.values() if p.poll() is None]
-            for p in alive:
+            alive = [(n, p) for n, p in self.procs.items() if self.poll(n, p) is None]
+            for _, p in alive:
                 signal_process(p, sig)
             deadline = time.monotonic() + wait
             while alive and time.monotonic() < deadline:
-                alive = [p for p in alive if p.poll() is None]
+                alive = [(n, p) for n, p in alive if self.poll(n, p) is None]
                 time.sleep(0.05)
             if not alive:
                 return
