@@ -434,6 +434,39 @@ def test_sigkill_loses_at_most_the_open_chunk(tmp_path):
         assert scan.complete and scan.damage is None
 
 
+def test_sigterm_as_a_split_file_is_created_leaves_it_complete(tmp_path, monkeypatch):
+    """A signal just after a new file's header, before the writer holds it (CI's flake)."""
+    from pg_node.bag import writer as writer_module
+
+    created = []
+    original = writer_module.McapFile.__init__
+
+    def init_then_signal(self, *args, **kwargs):
+        original(self, *args, **kwargs)
+        created.append(self.path)
+        if len(created) == 2:           # the split's new file
+            os.kill(os.getpid(), signal.SIGTERM)    # its handler runs at the next bytecode
+
+    def on_term(signum, frame):
+        raise SystemExit(0)
+
+    monkeypatch.setattr(writer_module.McapFile, '__init__', init_then_signal)
+    old = signal.signal(signal.SIGTERM, on_term)
+    writer = BagWriter(tmp_path / 'bag', split_max_messages=3)
+    try:
+        with pytest.raises(SystemExit):
+            for i in range(10):
+                writer.write('/commands', Float64MultiArray(data=[float(i)]), 1000 + i)
+    finally:
+        signal.signal(signal.SIGTERM, old)
+        writer.close()
+    assert len(created) == 2
+    for path in created:
+        scan = McapScan(path)
+        list(scan)
+        assert scan.complete and scan.damage is None, (path, scan.damage)
+
+
 @pytest.mark.parametrize('how', ['term', 'int'])
 def test_sigterm_and_sigint_leave_a_complete_bag(tmp_path, how):
     proc, side = _start_child(tmp_path, how)

@@ -15,6 +15,7 @@ import json
 import os
 from pathlib import Path
 import re
+import sys
 
 import numpy as np
 import yaml
@@ -78,7 +79,9 @@ def message_class(name: str):
 
 
 def _share_dirs(pkg: str):
-    prefixes = os.environ.get('AMENT_PREFIX_PATH', '').split(os.pathsep)
+    # the ROS wheels install share/<pkg> into the environment's prefix: found there also
+    # when AMENT_PREFIX_PATH is not set (python -m pytest run without make)
+    prefixes = os.environ.get('AMENT_PREFIX_PATH', '').split(os.pathsep) + [sys.prefix]
     for prefix in prefixes:
         if prefix:
             yield Path(prefix) / 'share' / pkg

@@ -473,16 +473,19 @@ class BagWriter:
         return self.directory / f'{self.name}_{index}.mcap'
 
     def _open_file(self):
-        self._file = McapFile(self._file_path(self.file_index), self.chunk_size,
-                              self.compression, self.fsync)
-        self._file_topics = {}
-        self._file_counts = {}
-        self._file_first_t = None
-        self._file_episodes = 0
-        self._chunk_opened = time.monotonic()
-        for topic in self._topics.values():
-            self._add_channel(topic)
-        self._write_metadata(force=True)
+        # held as a file's finishing is: a SIGTERM between creating the file and holding it
+        # in self._file left a file that close() never finished (header only, no footer)
+        with _signals_deferred():
+            self._file = McapFile(self._file_path(self.file_index), self.chunk_size,
+                                  self.compression, self.fsync)
+            self._file_topics = {}
+            self._file_counts = {}
+            self._file_first_t = None
+            self._file_episodes = 0
+            self._chunk_opened = time.monotonic()
+            for topic in self._topics.values():
+                self._add_channel(topic)
+            self._write_metadata(force=True)
 
     def _write_chunk(self):
         if self._file.write_chunk():
