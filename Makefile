@@ -25,7 +25,9 @@ venv: $(STAMP)
 # Debian packages: libosmesa6 lets MuJoCo render offscreen (python -m pg_node render).
 SYSTEM_PACKAGES := libosmesa6
 
-$(STAMP): requirements.lock setup.py
+# Keyed on the content of requirements.lock and setup.py (in the stamp's name), not on
+# their dates: a fresh clone or a checkout gives them new dates, and nothing to install.
+$(STAMP):
 	@for pkg in $(SYSTEM_PACKAGES); do dpkg -s $$pkg >/dev/null 2>&1 || missing="$$missing $$pkg"; done; \
 	if [ -n "$$missing" ]; then \
 	  echo "Installing Debian packages:$$missing"; \
