@@ -36,6 +36,9 @@ setup(
             'policy_node = pg_node.ros.policy_node:main',
             'sim_and_actor = pg_node.ros.sim_and_actor:main',
             'critic_and_learner = pg_node.ros.critic_and_learner:main',
+            # python -m pg_node as an executable: ros2 run pg_node pg_node train, and the
+            # launch file's supervised:=true, in the Python pg_node was installed with
+            'pg_node = pg_node.tools.cli:main',
         ],
     },
 )

@@ -30,15 +30,18 @@ then stopped, as Ctrl-C does. Arguments:
   run in one process (``sim_and_actor``), the critic and the learner in another
   (``critic_and_learner``): the same four nodes, names, topics and parameters, with fewer
   processes to wake each control step; ``compose:=false`` starts a process per node;
-- ``supervised:=true``: instead of the four nodes, run ``python -m pg_node train`` with the
-  same file and overrides: it restarts a node that dies, evaluates the final policy and
-  writes ``summary.json`` and the learning-curve plot; the launch ends with it.
+- ``supervised:=true``: instead of the four nodes, run ``pg_node train`` (the package's
+  ``lib/pg_node/pg_node``, in the Python pg_node was installed with) with the same file and
+  overrides: it restarts a node that dies, evaluates the final policy and writes
+  ``summary.json`` and the learning-curve plot; the launch ends with it.
+
+A learner (or supervised training) that exits with an error fails the launch: every
+process is stopped and ``ros2 launch`` exits 1.
 """
 import os
 import re
-import sys
 
-from ament_index_python.packages import get_package_share_directory
+from ament_index_python.packages import get_package_prefix, get_package_share_directory
 from launch import LaunchDescription
 from launch.actions import (DeclareLaunchArgument, EmitEvent, ExecuteProcess, OpaqueFunction,
                             RegisterEventHandler)
@@ -56,13 +59,31 @@ def _value(context, name):
 
 
 def _end_with(action, reason):
-    """Return the handler that shuts the launch down when ``action``'s process exits."""
-    return RegisterEventHandler(OnProcessExit(
-        target_action=action, on_exit=[EmitEvent(event=Shutdown(reason=reason))]))
+    """
+    Return the handler that shuts the launch down when ``action``'s process exits.
+
+    A non-zero exit fails the launch: the handler raises, launch logs the line, stops every
+    process and ``ros2 launch`` exits 1 (LaunchService.run's code for a caught exception),
+    so a script or CI that runs the launch sees that training failed.
+    """
+    def on_exit(event, context):
+        if event.returncode != 0:
+            raise RuntimeError(f'{reason} with exit code {event.returncode}')
+        return [EmitEvent(event=Shutdown(reason=reason))]
+    return RegisterEventHandler(OnProcessExit(target_action=action, on_exit=on_exit))
 
 
 def _config_dir():
     return os.path.join(get_package_share_directory('pg_node'), 'config')
+
+
+def _executable(name):
+    """Return the path of the package's executable ``name`` (``lib/pg_node/<name>``)."""
+    path = os.path.join(get_package_prefix('pg_node'), 'lib', 'pg_node', name)
+    if not os.access(path, os.X_OK):
+        raise RuntimeError(f'{path} is missing: build and install pg_node again '
+                           '(colcon build), then source the install')
+    return path
 
 
 def _presets():
@@ -114,13 +135,15 @@ def _bring_up(context):
     if part == 'workers' and not actors:
         raise RuntimeError('part:=workers needs actors:=IDS (e.g. actors:=2,3)')
     if _value(context, 'supervised').lower() == 'true':
+        # pg_node's own executable, whose first line names the Python it was installed
+        # with (as ros2 run's executables do): ros2 launch may run in another Python
         train = ExecuteProcess(
-            cmd=[sys.executable, '-m', 'pg_node', 'train', '--config', params,
+            cmd=[_executable('pg_node'), 'train', '--config', params,
                  '--run-dir', run_dir, '--run-id', run_id, '--no-progress', '--part', part,
                  *(['--actors', actors] if actors else []),
                  *[f'{k}={v}' for k, v in given.items()]],
             output='screen', sigterm_timeout='30')
-        return [train, _end_with(train, 'supervised training finished')]
+        return [train, _end_with(train, 'supervised training ended')]
     run_ns = f'/{run_id}'
     shared = {k: v for k, v in given.items() if k in ('seed', 'num_envs')}
     shared['run_id'] = run_id
@@ -153,7 +176,7 @@ def _bring_up(context):
         if use_learner:
             both = Node(package='pg_node', executable='critic_and_learner', namespace=run_ns,
                         parameters=[params, _sections_file(training)], output='screen')
-            actions += [both, _end_with(both, 'the learner has finished')]
+            actions += [both, _end_with(both, 'the learner ended')]
         return actions
     for namespace, own in pairs:
         values = {'sim_node': {k: v for k, v in {**shared, 'seed': own.get(
@@ -166,7 +189,7 @@ def _bring_up(context):
         critic, learner = [Node(package='pg_node', executable=name, name=name,
                                 namespace=run_ns, parameters=[params, values], output='screen')
                            for name, values in training.items()]
-        actions += [critic, learner, _end_with(learner, 'the learner has finished')]
+        actions += [critic, learner, _end_with(learner, 'the learner ended')]
     return actions
 
 

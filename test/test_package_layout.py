@@ -12,7 +12,7 @@ import pytest
 
 REPO = Path(__file__).resolve().parent.parent
 EXECUTABLES = ('sim_node', 'actor_node', 'critic_node', 'learner_node', 'replay_node',
-               'policy_node', 'sim_and_actor', 'critic_and_learner')
+               'policy_node', 'sim_and_actor', 'critic_and_learner', 'pg_node')
 SOURCES = ('package.xml', 'setup.py', 'setup.cfg', 'resource', 'pg_node', 'config', 'launch')
 
 
@@ -83,6 +83,34 @@ def test_package_xml_is_format_3_and_declares_dependencies():
     assert {'ament_flake8', 'ament_pep257'} <= {e.text for e in root.iter('test_depend')}
 
 
+def _fake_prefix():
+    """Return an install prefix holding an executable ``lib/pg_node/pg_node``."""
+    import tempfile
+    prefix = Path(tempfile.mkdtemp(prefix='pg_node_prefix_'))
+    exe = prefix / 'lib' / 'pg_node' / 'pg_node'
+    exe.parent.mkdir(parents=True)
+    exe.write_text('#!/bin/sh\n')
+    exe.chmod(0o755)
+    return prefix
+
+
+FAKE_PREFIX = _fake_prefix()
+
+
+def test_pg_node_executable_runs_in_the_python_it_was_installed_with(install, tmp_path):
+    """``lib/pg_node/pg_node``, what supervised:=true starts, needs no python on PATH."""
+    exe = install / 'lib' / 'pg_node' / 'pg_node'
+    first = exe.read_text().splitlines()[0]
+    assert first.startswith('#!') and Path(first[2:].split()[0]).resolve() == \
+        Path(sys.executable).resolve(), first
+    site = next((install / 'lib').glob('python3*/site-packages'))
+    env = {'PATH': '/usr/bin:/bin', 'PYTHONPATH': str(site), 'LD_LIBRARY_PATH': '',
+           'AMENT_PREFIX_PATH': f'{install}:{sys.prefix}'}
+    res = subprocess.run([str(exe), 'train', '--help'], env=env, cwd=tmp_path,
+                         capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0 and 'usage:' in res.stdout, res.stderr
+
+
 class _Recorded:
     """A stand-in for a launch action or event: it keeps what it was built with."""
 
@@ -116,6 +144,8 @@ def _bring_up(monkeypatch, **given):
         monkeypatch.setitem(sys.modules, name, module)
     monkeypatch.setattr(ament_index_python.packages, 'get_package_share_directory',
                         lambda pkg: str(REPO))
+    monkeypatch.setattr(ament_index_python.packages, 'get_package_prefix',
+                        lambda pkg: str(FAKE_PREFIX))
     ns = runpy.run_path(str(REPO / 'launch' / 'train.launch.py'))
     desc = ns['generate_launch_description']()
     entities = desc.args[0]
@@ -128,9 +158,14 @@ def _bring_up(monkeypatch, **given):
 
 
 def _ends_launch_with(handler, action):
+    """Check the launch ends when ``action`` exits with 0, and fails when it exits with 1."""
+    import types
     on_exit = handler.args[0]
     assert type(on_exit).__name__ == 'OnProcessExit' and on_exit.kwargs['target_action'] is action
-    (emit,) = on_exit.kwargs['on_exit']
+    (emit,) = on_exit.kwargs['on_exit'](types.SimpleNamespace(returncode=0), None)
+    # launch logs a handler's exception, stops everything and ros2 launch exits 1
+    with pytest.raises(RuntimeError, match='with exit code 1$'):
+        on_exit.kwargs['on_exit'](types.SimpleNamespace(returncode=1), None)
     return type(emit.kwargs['event']).__name__ == 'Shutdown'
 
 
@@ -250,7 +285,10 @@ def test_launch_runs_the_supervised_bring_up_on_request(monkeypatch):
     actions = _bring_up(monkeypatch, supervised='true', total_steps='5000', run_dir='/tmp/r')
     train, handler = actions
     cmd = train.kwargs['cmd']
-    assert cmd[1:4] == ['-m', 'pg_node', 'train'] and 'total_steps=5000' in cmd
+    # the package's executable (its Python is the one pg_node was installed with), not the
+    # Python ros2 launch runs in
+    assert cmd[:2] == [str(FAKE_PREFIX / 'lib' / 'pg_node' / 'pg_node'), 'train']
+    assert 'total_steps=5000' in cmd
     assert cmd[cmd.index('--run-dir') + 1] == '/tmp/r'
     assert cmd[cmd.index('--run-id') + 1] == 'r'
     assert _ends_launch_with(handler, train)
