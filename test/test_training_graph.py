@@ -396,3 +396,37 @@ def test_resume_and_survive_a_learner_sigkill(run):
             got = sum(1 for _ in reader.messages(
                 [c for c in reader.connections if c.topic == '/joint_states']))
             assert got == counts['/joint_states']
+
+
+def test_nodes_started_one_by_one_end_when_the_learner_has_finished(tmp_path):
+    """
+    ``ros2 run`` each node, no launch, no ``train``: when the learner is done, all end.
+
+    Each says so and exits with 0, as under ``ros2 launch``; before, the actor re-sent its
+    last rollout every 5 s for ever.
+    """
+    run_dir = tmp_path / 'run'
+    own = {'sim_node': [], 'actor_node': [], 'critic_node': [f'run_dir:={run_dir}'],
+           'learner_node': [f'run_dir:={run_dir}', 'total_steps:=2048']}
+    child_env = env()
+    child_env.pop('PG_NODE_SUPERVISOR_PID', None)
+    procs = {}
+    try:
+        for name, params in own.items():
+            args = [a for p in ['run_id:=solo', *params] for a in ('-p', p)]
+            procs[name] = subprocess.Popen(
+                [sys.executable, '-m', f'pg_node.ros.{name}', '--ros-args', '-r',
+                 '__ns:=/solo', *args], env=child_env, cwd=REPO, stdout=subprocess.PIPE,
+                stderr=subprocess.STDOUT, text=True, start_new_session=True)
+        outs = {name: p.communicate(timeout=180)[0] for name, p in procs.items()}
+    finally:
+        for p in procs.values():
+            if p.poll() is None:
+                p.kill()
+                p.wait()
+    for name, p in procs.items():
+        assert p.returncode == 0, (name, outs[name][-3000:])
+    assert 'done: 2048 steps' in outs['learner_node'], outs['learner_node'][-3000:]
+    for name in ('sim_node', 'actor_node', 'critic_node'):
+        assert 'the learner has finished (2048 steps, policy version 4): stopping' \
+            in outs[name], (name, outs[name][-3000:])

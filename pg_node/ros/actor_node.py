@@ -42,7 +42,8 @@ from pg_node.ros import command
 from pg_node.ros import messages
 from pg_node.ros import table_msg
 from pg_node.ros import transition
-from pg_node.ros.node_utils import Diagnostics, LATCHED, RateCounter, RELIABLE, run, RunGuard
+from pg_node.ros.node_utils import (Diagnostics, EndWithLearner, LATCHED, RateCounter,
+                                    RELIABLE, run, RunGuard)
 from pg_node.ros.parameters import declare_params
 from pg_node.sim.arm_task import arm_groups, ArmSpec
 from rclpy.node import Node
@@ -94,6 +95,7 @@ class ActorNode(Node):
                          'weights_received': 0, 'policy_lag': 0}
         self.steps = RateCounter()
         self.run = RunGuard(self, self.cfg['run_id'])
+        self.end_with_learner = EndWithLearner(self, self.run)   # ros2 run: end with it
         self.pub_cmd = self.create_publisher(Float64MultiArray, COMMANDS, 10)
         self.pub_rollout = self.create_publisher(Float64MultiArray, self.run.topic('rollout'),
                                                  RELIABLE)

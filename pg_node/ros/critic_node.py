@@ -35,7 +35,8 @@ from pg_node.rl.rollout_buffer import RolloutArrays
 from pg_node.rl.weights import load_flat_state
 from pg_node.ros import messages
 from pg_node.ros import table_msg
-from pg_node.ros.node_utils import Diagnostics, LATCHED, RateCounter, RELIABLE, run, RunGuard
+from pg_node.ros.node_utils import (Diagnostics, EndWithLearner, LATCHED, RateCounter,
+                                    RELIABLE, run, RunGuard)
 from pg_node.ros.parameters import declare_params
 from rclpy.node import Node
 from std_msgs.msg import Float64MultiArray
@@ -68,6 +69,7 @@ class CriticNode(Node):
         self.last_stats = {}
         self.pending_fit = None            # (obs, returns) of the batch V has not learned yet
         self.run = RunGuard(self, self.cfg['run_id'])
+        self.end_with_learner = EndWithLearner(self, self.run)   # ros2 run: end with it
         self.pub_batch = self.create_publisher(Float64MultiArray, self.run.topic('batch'),
                                                RELIABLE)
         self.create_subscription(Float64MultiArray, self.run.topic('rollout'), self.on_rollout,

@@ -9,7 +9,10 @@ actor gets the newest), one ``std_msgs/Float64`` topic per training metric under
 ``approx_kl``, ``grad_norm``, ``steps_per_second``, ``policy_version``, ``env_steps``,
 ``policy_lag``, ``rejected_batches``, ``skipped_updates``), each episode summary on
 ``/<run>/pg_node/episode`` as the bag gets it (the bag's own topics are ``/pg_node/...``),
-and ``/diagnostics``. ``<run>``: the ``run_id`` parameter (:mod:`pg_node.common.run`); the
+its state on ``/<run>/pg_node/learner_state`` (latched ``DiagnosticStatus``: ``training``,
+then ``done``; nodes started one by one end at ``done``,
+:class:`pg_node.ros.node_utils.EndWithLearner`), and ``/diagnostics``. ``<run>``: the
+``run_id`` parameter (:mod:`pg_node.common.run`); the
 empty one drops the prefix.
 
 Each accepted batch is one update and one new policy version. A batch received again (the
@@ -44,7 +47,8 @@ from pg_node.rl.learner import EpisodeStats, Learner
 from pg_node.rl.logger import TensorBoardLog
 from pg_node.ros import messages
 from pg_node.ros import table_msg
-from pg_node.ros.node_utils import Diagnostics, LATCHED, RateCounter, RELIABLE, run, RunGuard
+from pg_node.ros.node_utils import (Diagnostics, DONE, LATCHED, LEARNER_STATE, learner_state_msg,
+                                    RateCounter, RELIABLE, run, RunGuard, TRAINING)
 from pg_node.ros.parameters import declare_params
 from rclpy.node import Node
 from std_msgs.msg import Float64, Float64MultiArray
@@ -56,6 +60,8 @@ METRICS = ('episode_return', 'episode_length', 'policy_loss', 'value_loss', 'ent
 PROGRESS_FIELDS = ('wall_seconds',) + METRICS
 #: seconds without a batch after which the learner says it waits (a batch takes milliseconds)
 GAP_WARNING = 3.0
+#: seconds a finished learner waits for the nodes that follow it to hear that it is done
+DONE_LINGER = 5.0
 
 
 class LearnerNode(Node):
@@ -124,6 +130,10 @@ class LearnerNode(Node):
         self.create_subscription(Float64MultiArray, self.run.topic('batch'), self.on_batch,
                                  RELIABLE)
         self.diag = Diagnostics(self, 'learner_node', self.cfg['algo'])
+        self.pub_state = self.create_publisher(DiagnosticStatus, self.run.topic(LEARNER_STATE),
+                                               LATCHED)
+        self.pub_state.publish(learner_state_msg(self.run, TRAINING, self.learner.version,
+                                                 self.learner.env_steps))
         self.create_timer(1.0, self.on_tick)
         self.publish_weights()
         self.get_logger().info(
@@ -244,8 +254,22 @@ class LearnerNode(Node):
         self.recorder.close()
         self.get_logger().info(f'done: {self.learner.env_steps} steps, policy version '
                                f'{self.learner.version}')
+        self.pub_state.publish(learner_state_msg(self.run, DONE, self.learner.version,
+                                                 self.learner.env_steps))
         if self.cfg['exit_when_done']:
-            self.exit_code = 0             # node_utils.run stops the process after this callback
+            if self.pub_state.get_subscription_count():
+                # nodes started one by one end at this news (EndWithLearner): stay until
+                # they have it, as their subscriptions go, DONE_LINGER s at most
+                self.linger_until = time.monotonic() + DONE_LINGER
+                self.create_timer(0.1, self.linger)
+            else:
+                self.exit_code = 0         # node_utils.run stops the process after this callback
+
+    def linger(self):
+        """End the process once the nodes that follow the learner's state are gone."""
+        if (not self.pub_state.get_subscription_count()
+                or time.monotonic() >= self.linger_until):
+            self.exit_code = 0
 
     def close(self):
         """Save and close everything (on exit, Ctrl-C or SIGTERM)."""

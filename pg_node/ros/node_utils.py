@@ -86,6 +86,63 @@ class RunGuard:
         return True
 
 
+#: the learner's state, ``/<run>/pg_node/learner_state`` (latched): training, then done
+LEARNER_STATE = 'learner_state'
+TRAINING, DONE = 'training', 'done'
+
+
+def learner_state_msg(run: 'RunGuard', state: str, version: int,
+                      env_steps: int) -> DiagnosticStatus:
+    """Return the learner's state as a ``DiagnosticStatus`` carrying the run's token."""
+    status = DiagnosticStatus(name='learner_node', hardware_id=run.run_id, message=state)
+    status.values = [KeyValue(key=k, value=str(v)) for k, v in (
+        ('state', state), ('run_token', run.token), ('policy_version', version),
+        ('env_steps', env_steps))]
+    return status
+
+
+def supervised() -> bool:
+    """Return whether ``python -m pg_node train`` started this process (and ends it)."""
+    return os.environ.get(SUPERVISOR_ENV, '').strip() == str(os.getppid())
+
+
+class EndWithLearner:
+    """
+    Ends a node of a run when the run's learner says it has finished.
+
+    Under ``train`` or ``ros2 launch`` the whole graph is stopped when the learner exits;
+    nodes started one by one (``ros2 run``) have no one to stop them, and an actor would
+    re-send its last rollout every few seconds for ever. So a node not started by ``train``
+    follows ``/<run>/pg_node/learner_state`` (latched, so a node that starts after the
+    learner still hears it) and, at ``done``, says so and sets its ``exit_code`` to 0, which
+    ends its process (:func:`run`) the way the learner's own exit does. A state of another
+    run is dropped and counted (:class:`RunGuard`).
+    """
+
+    def __init__(self, node: Node, run: 'RunGuard'):
+        self.node = node
+        self.run = run
+        self.topic = run.topic(LEARNER_STATE)
+        node.exit_code = None
+        if not supervised():
+            node.create_subscription(DiagnosticStatus, self.topic, self.on_state, LATCHED)
+
+    def on_state(self, msg: DiagnosticStatus):
+        """At the run's learner's ``done``: say so and end the node."""
+        values = {kv.key: kv.value for kv in msg.values}
+        try:
+            token = int(values.get('run_token', ''))
+        except ValueError:
+            return
+        if self.run.foreign(token, self.topic) or values.get('state') != DONE:
+            return
+        if self.node.exit_code is None:
+            self.node.get_logger().info(
+                f"the learner has finished ({values.get('env_steps')} steps, policy version "
+                f"{values.get('policy_version')}): stopping")
+            self.node.exit_code = 0
+
+
 class RateCounter:
     """Counts events and reports their rate since the last report."""
 

@@ -100,7 +100,7 @@ from pg_node.common.run import COMMANDS
 from pg_node.ros import command
 from pg_node.ros import table_msg
 from pg_node.ros import transition
-from pg_node.ros.node_utils import run, RunGuard
+from pg_node.ros.node_utils import EndWithLearner, run, RunGuard
 from pg_node.ros.parameters import declare_params
 from pg_node.sim.arm_task import arm_groups, ArmTask
 from rclpy.event_handler import PublisherEventCallbacks
@@ -143,6 +143,7 @@ class SimNode(Node):
                             reward_control_weight=p['reward_control_weight'])
         self.params = p
         self.run = RunGuard(self, p['run_id'])
+        self.end_with_learner = EndWithLearner(self, self.run)   # ros2 run: end with it
         n, spec = self.task.num_envs, self.task.spec
         self.joint_names = [f'arm{i}/{name}' for i in range(n) for name in spec.joint_names]
         self.offsets = self.grid_offsets(p['marker_spacing'])
