@@ -98,6 +98,26 @@ def test_train_refuses_a_model_that_is_not_mjcf_before_starting(tmp_path, text, 
     assert not (tmp_path / 'run').exists()  # nothing was started
 
 
+@pytest.mark.parametrize('override, words', [
+    # a ROS 2 parameter cannot hold an empty list: the nodes crashed and were restarted
+    ('hidden_sizes=[]', ["parameter 'hidden_sizes'", 'non-empty list of positive integers',
+                         'cannot hold an empty list']),
+    ('hidden_sizes=[64, 0]', ["parameter 'hidden_sizes'", '0 is not a positive integer']),
+    ('foo=1', ["unknown parameter 'foo'", 'known: activation, actor_id']),
+    ('learning_rte=3e-4', ["unknown parameter 'learning_rte'",
+                           "did you mean 'learning_rate'"]),
+    ('critic_node.vf_epoch=3', ["'vf_epoch' in section 'critic_node'",
+                                "did you mean 'vf_epochs'"]),
+    ('model:=nosuch.xml', ["parameter 'model'", "'nosuch.xml'", 'shipped: ']),
+    ('gamma', ['not of the form key=value (or key:=value)']),
+])
+def test_train_refuses_a_bad_override_before_starting(tmp_path, override, words):
+    done = run('train', override, '--run-dir', tmp_path / 'run', timeout=60)
+    refused(done, 2, 'configuration error: ', *words)
+    assert len(done.stderr.strip().splitlines()) == 1, done.stderr
+    assert not (tmp_path / 'run').exists()  # nothing was started
+
+
 def test_check_model_compiles_the_shipped_models():
     from pg_node.common.paths import check_model, models_dir
     for model in models_dir().glob('*.xml'):

@@ -37,6 +37,13 @@ def test_bad_values_are_refused_naming_key_value_and_rule(override, key):
     assert 'expected' in text
 
 
+def test_overrides_take_key_colon_equals_value_as_ros_users_write_it():
+    """``model:=...`` is what ``arm import`` prints (issue 33): the same as ``model=...``."""
+    colon = load_config(None, ['model:=arm5_3d', 'critic_node.vf_epochs:=3'])
+    assert colon == load_config(None, ['model=arm5_3d', 'critic_node.vf_epochs=3'])
+    assert colon['/**']['model'] == 'arm5_3d' and colon['critic_node']['vf_epochs'] == 3
+
+
 def test_unknown_keys_and_sections_are_refused(tmp_path):
     with pytest.raises(ConfigError, match="unknown parameter 'gama'"):
         load_config(None, ['gama=0.9'])

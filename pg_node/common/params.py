@@ -13,8 +13,10 @@ The YAML file (``config/pg_node.yaml``) follows ROS 2's parameter-file format: a
 node shares (the arm model, the number of arms, the seed, the network shape).
 """
 from dataclasses import dataclass
+import difflib
 import math
 from pathlib import Path
+import re
 from typing import Any, Callable, Dict, Optional, Sequence
 
 from pg_node.common.paths import check_model
@@ -47,7 +49,7 @@ class Param:
         """Describe the allowed values in words."""
         kind = type(self.default).__name__
         if isinstance(self.default, list):
-            kind = 'list of integers'
+            kind = 'non-empty list of positive integers'
         if self.choices is not None:
             return 'one of ' + ', '.join(repr(c) for c in self.choices)
         if self.low is not None or self.high is not None:
@@ -84,10 +86,19 @@ class Param:
             if not isinstance(value, str):
                 raise bad
         elif want is list:
-            if (not isinstance(value, (list, tuple))
-                    or not all(isinstance(v, int) and not isinstance(v, bool) and v > 0
-                               for v in value)):
+            if not isinstance(value, (list, tuple)):
                 raise bad
+            if not value:
+                # a ROS 2 parameter cannot hold an empty list: it has no type, and the node
+                # that declares it fails (ParameterUninitializedException)
+                raise ConfigError(f'parameter {key!r}: [] is not allowed; expected '
+                                  f'{self.allowed()} (a ROS 2 parameter cannot hold an empty '
+                                  'list)')
+            for v in value:
+                if isinstance(v, bool) or not isinstance(v, int) or v <= 0:
+                    raise ConfigError(f'parameter {key!r}: {list(value)!r} is not allowed: '
+                                      f'{v!r} is not a positive integer; expected '
+                                      f'{self.allowed()}')
             value = list(value)
         if self.choices is not None and value not in self.choices:
             raise bad
@@ -299,15 +310,35 @@ def known_keys() -> set:
 
 
 def parse_override(text: str):
-    """Split ``key=value`` (value parsed as YAML: ``3``, ``0.5``, ``true``, ``[64, 64]``)."""
-    if '=' not in text:
-        raise ConfigError(f'override {text!r} is not of the form key=value')
-    key, _, raw = text.partition('=')
+    """
+    Split ``key=value`` or ``key:=value`` (value parsed as YAML: ``3``, ``0.5``, ``[64, 64]``).
+
+    ``:=`` is how ROS users write a value (``-p key:=value``, launch arguments), so it is
+    taken too.
+
+    >>> parse_override('model:=my_arm.xml'), parse_override('actor_node.n_steps=16')
+    (('model', 'my_arm.xml'), ('actor_node.n_steps', 16))
+    """
+    match = re.fullmatch(r'([^=:]+)(:?=)(.*)', text, re.S)
+    if match is None:
+        raise ConfigError(f'override {text!r} is not of the form key=value (or key:=value)')
+    key, raw = match.group(1), match.group(3)
     try:
         value = yaml.safe_load(raw)
     except yaml.YAMLError as exc:
         raise ConfigError(f'override {text!r}: value is not valid YAML ({exc})') from None
     return key.strip(), value
+
+
+def _did_you_mean(key: str, known) -> str:
+    """
+    Return ``" (did you mean 'x'?)"`` for the known names closest to ``key``, or nothing.
+
+    >>> _did_you_mean('learning_rte', ['learning_rate', 'gamma'])
+    " (did you mean 'learning_rate'?)"
+    """
+    close = difflib.get_close_matches(key, list(known), n=3, cutoff=0.7)
+    return f' (did you mean {" or ".join(repr(c) for c in close)}?)' if close else ''
 
 
 def load_config(path=None, overrides: Sequence[str] = (), extra_sections=None
@@ -346,15 +377,18 @@ def load_config(path=None, overrides: Sequence[str] = (), extra_sections=None
         else:
             homes = [n for n, t in tables.items() if key in t]
             if not homes:
-                raise ConfigError(f'override {text!r}: unknown parameter {key!r}')
+                known = sorted(set().union(*tables.values()))
+                raise ConfigError(f'override {text!r}: unknown parameter {key!r}'
+                                  f'{_did_you_mean(key, known)}; known: {", ".join(known)} '
+                                  '(node.key=value sets one node only)')
             for name in homes:
                 given[name][key] = value
     out = {}
     for name, table in tables.items():
         for key in given[name]:
             if key not in table:
-                raise ConfigError(f'unknown parameter {key!r} in section {name!r}; allowed: '
-                                  f'{", ".join(table)}')
+                raise ConfigError(f'unknown parameter {key!r} in section {name!r}'
+                                  f'{_did_you_mean(key, table)}; allowed: {", ".join(table)}')
         values = {}
         for key, param in table.items():
             if key in given[name]:
