@@ -860,6 +860,10 @@ def test_signal_to_train_alone_stops_every_node(tmp_path, sig):
     assert node_pids(run_dir) == []
     summary = json.loads((run_dir / 'summary.json').read_text())
     assert summary['interrupted'] and 0 < summary['total_steps'] < 10_000_000
+    # a fresh run: all it learned, it learned in this session, rows written while stopping too
+    n = summary['total_steps']
+    assert summary['session_steps'] == n, summary
+    assert f'{n} steps learned in this session ({n} in all)' in text, text[-3000:]
 
 
 @pytest.mark.e2e
@@ -899,3 +903,39 @@ def test_sigkill_of_train_stops_every_node_cleanly(tmp_path):
     assert files
     for f in files:
         full_mcap_check(f)
+
+
+@pytest.mark.e2e
+def test_a_failed_run_prints_only_what_exists(tmp_path):
+    """
+    A node that keeps dying fails the run: exit 1, no evaluation of nothing, no missing path.
+
+    Before, a failed run printed 'return nan +/- nan over 0 episodes' and the paths of a bag
+    and a curve that did not exist (issue 33).
+    """
+    run_dir = tmp_path / 'run'
+    cmd = [sys.executable, '-m', 'pg_node', 'train', '--run-dir', str(run_dir),
+           '--no-progress', '--total-steps', '10000000', '--max-restarts', '0']
+    proc = subprocess.Popen(cmd, env=env(GRAPH), cwd=REPO, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 120
+        while not node_pids(run_dir, 'sim_and_actor') and time.monotonic() < deadline:
+            time.sleep(0.05)
+        pids = node_pids(run_dir, 'sim_and_actor')
+        assert pids, 'sim_and_actor did not start'
+        os.kill(pids[0], signal.SIGKILL)        # at start-up: nothing learned yet
+        out, err = proc.communicate(timeout=120)
+    finally:
+        kill_run(proc, run_dir)
+    assert proc.returncode == 1, out + err
+    assert 'training failed: sim_and_actor exited with code -9 1 times' in err, err
+    assert 'Traceback' not in out + err and 'nan' not in out, out
+    assert 'no policy to evaluate: the learner wrote no checkpoint' in out, out
+    listed = [m.groups() for m in (re.match(r'(run dir|bag|checkpoint|summary|curve): +(.+)$', ln)
+                                   for ln in out.splitlines()) if m]
+    assert ('summary', str(run_dir / 'summary.json')) in listed, out
+    assert all(Path(path).exists() for _, path in listed), listed
+    assert not any(label == 'curve' for label, _ in listed)       # no update, no curve
+    json.loads((run_dir / 'summary.json').read_text(),
+               parse_constant=lambda c: pytest.fail(f'summary.json holds {c}'))

@@ -261,7 +261,8 @@ def value_at(curve: List[Dict], steps: int) -> Optional[float]:
     """Return the curve's ``episode_return`` at the last point with ``env_steps <= steps``."""
     best = None
     for point in curve:
-        if point['env_steps'] <= steps * 1.0001 and np.isfinite(point['episode_return']):
+        ret = point['episode_return']        # None: summary.json's null (no episode yet)
+        if point['env_steps'] <= steps * 1.0001 and ret is not None and np.isfinite(ret):
             best = float(point['episode_return'])
     return best
 

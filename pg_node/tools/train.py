@@ -25,6 +25,7 @@ import argparse
 import csv
 from datetime import datetime
 import json
+import math
 import os
 from pathlib import Path
 import resource
@@ -111,6 +112,14 @@ def resolve_config(args) -> dict:
     if not cfg[SHARED]['run_id']:
         # a run always has an identity on the network: its directory's name by default
         cfg = load_config(path, overrides + [f'run_id={run_id_for_dir(run_dir)}'])
+    # what every node will check of the model, checked once here: a model that compiles but
+    # is no pg_node arm made both processes crash, restart and crash again
+    from pg_node.common.paths import resolve_model
+    from pg_node.sim.arm_task import check_arm, NotAnArm
+    try:
+        check_arm(resolve_model(cfg[SHARED]['model']))
+    except NotAnArm as exc:
+        raise ConfigError(f"parameter 'model': {exc}") from None
     return cfg
 
 
@@ -440,6 +449,30 @@ def last_progress(path: Path, tail_bytes: int = 8192):
     return rows[-1] if rows else None
 
 
+def strict_json(value):
+    """
+    Return ``value`` with every NaN or infinity replaced by None, for strict JSON (``null``).
+
+    ``json.dumps`` writes ``NaN``, which JSON does not have: ``jq`` and most other readers
+    refuse the file. A curve's return before any episode ended is such a value.
+
+    >>> strict_json({'curve': [{'r': float('nan')}, {'r': -4.5}], 'n': 3})
+    {'curve': [{'r': None}, {'r': -4.5}], 'n': 3}
+    """
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: strict_json(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [strict_json(v) for v in value]
+    return value
+
+
+def write_summary(path: Path, summary: dict):
+    """Write ``summary.json`` as strict JSON (no NaN: ``null``)."""
+    path.write_text(json.dumps(strict_json(summary), indent=2, default=str, allow_nan=False))
+
+
 def evaluate_run(run_dir: Path, episodes: int) -> dict:
     """Evaluate the newest checkpoint's deterministic policy."""
     from pg_node.rl.checkpoint import load_latest
@@ -482,7 +515,8 @@ def _ret(value: float) -> str:
 
 
 def _rate(value: float) -> str:
-    return 'n/a' if value != value else f'{value:,.0f}'  # NaN: one update so far
+    # NaN: one update so far (a rate), or a node that ended before it was sampled (memory)
+    return 'n/a' if value != value else f'{value:,.0f}'
 
 
 class ProgressView:
@@ -689,6 +723,9 @@ def main(argv=None) -> int:
             if announcer is not None:
                 announcer.finish(state)     # the worker hosts stop their nodes and end
                 announcer.close()
+        # the rows the learner wrote while it was being stopped are this session's too (an
+        # interrupted fresh run said '185344 steps in this session (189952 in all)')
+        view.poll()
         view.close()
     if state == 'failed':
         print(f'training failed: {sup.failed}; logs in {run_dir / "logs"}', file=sys.stderr)
@@ -710,23 +747,27 @@ def main(argv=None) -> int:
                'restarts': sup.restarts,
                'nodes': sup.usage()}
     summary['steps_per_second'] = view.steps_per_second(last) if last else float('nan')
-    print(f'evaluating the deterministic policy over {args.eval_episodes} episodes ...',
-          flush=True)
-    summary.update(evaluate_run(run_dir, args.eval_episodes))
+    if any((run_dir / 'checkpoints').glob('ckpt_*.pt')):
+        print(f'evaluating the deterministic policy over {args.eval_episodes} episodes ...',
+              flush=True)
+        summary.update(evaluate_run(run_dir, args.eval_episodes))
     summary['curve'] = [{'env_steps': r['env_steps'], 'wall_seconds': r['wall_seconds'],
                          'episode_return': r['episode_return']} for r in rows]
     summary['config'] = dict(cfg)
     summary['wall_seconds_total'] = time.monotonic() - t0  # this command, evaluation included
-    (run_dir / 'summary.json').write_text(json.dumps(summary, indent=2, default=str))
+    write_summary(run_dir / 'summary.json', summary)
     png = run_dir / 'learning_curve.png'
     if rows:
         # the same figure as python -m pg_node plot <run dir>: returns, speed, losses, entropy
         from pg_node.tools.plot import plot_run, RunData
         plot_run(RunData(run_dir), png)
-    print(f"deterministic evaluation: return {summary.get('eval_return', float('nan')):.2f} "
-          f"+/- {summary.get('eval_return_std', float('nan')):.2f} over "
-          f"{summary.get('eval_episodes', 0)} episodes, policy version "
-          f"{summary.get('policy_version', 'none')}")
+    # a failed run prints only what exists: no evaluation of nothing, no path to no file
+    if 'eval_return' in summary:
+        print(f"deterministic evaluation: return {summary['eval_return']:.2f} +/- "
+              f"{summary['eval_return_std']:.2f} over {summary['eval_episodes']} episodes, "
+              f"policy version {summary['policy_version']}")
+    else:
+        print('no policy to evaluate: the learner wrote no checkpoint')
     if last is not None:
         print(f"training episodes' mean return (last update): {_ret(last['episode_return'])}")
     bringup = ('no progress row' if view.bringup_seconds is None
@@ -736,11 +777,12 @@ def main(argv=None) -> int:
           f"from its first update to its last ({summary['session_training_seconds']:.1f} s); "
           f"bring-up {bringup}, {summary['wall_seconds_total']:.0f} s in total")
     print('nodes (peak memory, CPU in training): ' + '; '.join(
-        f"{name} {u['peak_rss_mb']:.0f} MB, {u['cpu_seconds_training']:.1f} s"
+        f"{name} {_rate(u['peak_rss_mb'])} MB, {u['cpu_seconds_training']:.1f} s"
         for name, u in summary['nodes'].items()))
-    print(f'run dir:    {run_dir}\nbag:        {run_dir / "bag"}\n'
-          f'checkpoint: {summary.get("checkpoint", "none")}\nsummary:    '
-          f'{run_dir / "summary.json"}\ncurve:      {png}')
+    files = [('run dir', run_dir), ('bag', run_dir / 'bag'),
+             ('checkpoint', Path(summary.get('checkpoint', run_dir / 'no checkpoint'))),
+             ('summary', run_dir / 'summary.json'), ('curve', png)]
+    print('\n'.join(f'{label + ":":<11} {path}' for label, path in files if path.exists()))
     return 1 if state == 'failed' else 0
 
 
@@ -802,7 +844,7 @@ def run_workers(args, cfg: dict, actors: List[int], params: Path, discovery: dic
                'failed': state == 'failed', 'learner_host_state': (follower.info or {}).get(
                    'state'), 'restarts': sup.restarts, 'nodes': sup.usage(),
                'config': dict(cfg)}
-    (run_dir / 'summary.json').write_text(json.dumps(summary, indent=2, default=str))
+    write_summary(run_dir / 'summary.json', summary)
     if state == 'done':
         print(f'run {run_id} has ended on the learner host '
               f'({follower.info["state"]}); this host ran actors '
