@@ -118,6 +118,43 @@ def test_train_refuses_a_bad_override_before_starting(tmp_path, override, words)
     assert not (tmp_path / 'run').exists()  # nothing was started
 
 
+def _not_an_arm(tmp_path, kind):
+    """Write a model that MuJoCo compiles but that is no pg_node arm (or a URDF)."""
+    import re
+    text = (REPO / 'pg_node' / 'sim' / 'models' / 'reacher2.xml').read_text()
+    if kind == 'no fingertip':
+        text = text.replace('name="fingertip"', 'name="tip"')
+    elif kind == 'no actuators':
+        text = re.sub(r'<actuator>.*?</actuator>', '', text, flags=re.S)
+    else:
+        text = ('<robot name="r"><link name="a"/><link name="b"><inertial><mass value="1"/>'
+                '<inertia ixx="1" iyy="1" izz="1" ixy="0" ixz="0" iyz="0"/></inertial></link>'
+                '<joint name="j" type="revolute"><parent link="a"/><child link="b"/>'
+                '<limit lower="-1" upper="1" effort="1" velocity="1"/></joint></robot>')
+    path = tmp_path / 'arm.xml'
+    path.write_text(text)
+    return path
+
+
+@pytest.mark.parametrize('kind, words', [
+    ('no fingertip', ['is not a pg_node arm', "no site named 'fingertip'", 'docs/mjcf.md']),
+    ('no actuators', ['is not a pg_node arm', 'no actuators', 'docs/mjcf.md']),
+    ('urdf', ['is a URDF, not MJCF', 'python -m pg_node arm import']),
+])
+def test_a_model_that_is_no_arm_is_refused_before_any_node_starts(tmp_path, kind, words):
+    """It compiled, then every node crashed with a traceback, was restarted and crashed."""
+    model = _not_an_arm(tmp_path, kind)
+    done = run('train', f'model={model}', '--run-dir', tmp_path / 'run', timeout=60)
+    refused(done, 2, "configuration error: parameter 'model'", str(model), *words)
+    assert len(done.stderr.strip().splitlines()) == 1, done.stderr
+    assert not (tmp_path / 'run').exists()  # nothing was started
+    # a node started on its own (ros2 run) says the same in one line
+    node = run('--ros-args', '-p', f'model:={model}', module='pg_node.ros.actor_node',
+               timeout=60)
+    refused(node, 2, 'configuration error: ', *words[:2])
+    assert len(node.stderr.strip().splitlines()) == 1, node.stderr
+
+
 def test_check_model_compiles_the_shipped_models():
     from pg_node.common.paths import check_model, models_dir
     for model in models_dir().glob('*.xml'):

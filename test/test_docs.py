@@ -42,3 +42,14 @@ def test_the_check_sees_the_readme_link_of_before():
     (target,) = relative_links(before)
     assert 'outside the repository' in outside(REPO / 'README.md', target)
     assert 'docs/theory.md' in relative_links((REPO / 'README.md').read_text())
+
+
+def test_the_smallest_arm_of_docs_mjcf_is_an_arm(tmp_path):
+    """docs/mjcf.md's example passes the check that train makes, and steps."""
+    from pg_node.sim.arm_task import ArmTask, check_arm
+    xml = re.search(r'```xml\n(.*?)```', (REPO / 'docs' / 'mjcf.md').read_text(), re.S)
+    (tmp_path / 'tiny.xml').write_text(xml.group(1))
+    assert check_arm(tmp_path / 'tiny.xml').joint_names == ('joint0',)
+    task = ArmTask(tmp_path / 'tiny.xml', num_envs=2, seed=0)
+    task.reset()
+    assert task.step([[0.5], [-0.5]])[0].shape == (2, 3 + 2 * 2)

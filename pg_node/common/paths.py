@@ -1,6 +1,7 @@
 """Where pg_node's shared files (config, launch, models) are, from source or installed."""
 import os
 from pathlib import Path
+import xml.etree.ElementTree as ET
 
 PACKAGE_NAME = 'pg_node'
 _PACKAGE_DIR = Path(__file__).resolve().parent.parent
@@ -93,6 +94,14 @@ def check_model(name_or_path: str) -> Path:
     imported here, not with this module.
     """
     path = resolve_model(name_or_path)
+    try:
+        root = ET.parse(path).getroot().tag
+    except (ET.ParseError, OSError):
+        root = None                 # MuJoCo says what is wrong with it, below
+    if root == 'robot':
+        # MuJoCo compiles a URDF too, into a model without actuators: no arm
+        raise ValueError(f'{path} is a URDF, not MJCF: make a pg_node arm of it with '
+                         f'python -m pg_node arm import {path}')
     import mujoco
     try:
         mujoco.MjModel.from_xml_path(str(path))

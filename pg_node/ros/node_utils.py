@@ -15,6 +15,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from pg_node.common.params import ConfigError
 from pg_node.common.paths import SUPERVISOR_ENV
 from pg_node.common.run import run_token, run_topic
+from pg_node.sim.arm_task import NotAnArm
 import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
@@ -469,6 +470,10 @@ def run(make_node: Callable[[], Union[Node, List[Node]]], args=None,
             pass                              # a second signal, or a shutdown from elsewhere
         except ConfigError as exc:
             print(f'configuration error: {exc}', file=sys.stderr)
+            code = 2
+        except NotAnArm as exc:             # the model compiles, but is no pg_node arm
+            print(f'configuration error: the model is not a pg_node arm: {exc} (docs/mjcf.md '
+                  'says what an arm needs)', file=sys.stderr)
             code = 2
         except SystemExit as exc:
             code = int(exc.code or 0)

@@ -71,6 +71,25 @@ TARGET_BODY = 'target'
 THREADS_FROM_ENVS = 32
 
 
+class NotAnArm(ValueError):
+    """The model compiles but breaks a convention of this module's docstring (docs/mjcf.md)."""
+
+
+def check_arm(path) -> 'ArmSpec':
+    """
+    Compile the MJCF at ``path`` and read it as an arm; return its :class:`ArmSpec`.
+
+    Raises :class:`NotAnArm` in one line naming the file and what it lacks, so that a
+    configuration check refuses a model no node could use before any node starts (a
+    compiled model that is not an arm made every node crash, restart and crash again).
+    """
+    try:
+        return ArmSpec.from_model(mujoco.MjModel.from_xml_path(str(path)))
+    except NotAnArm as exc:
+        raise NotAnArm(f'{path} is not a pg_node arm: {exc} (docs/mjcf.md says what an arm '
+                       'needs)') from None
+
+
 def _custom_numeric(model: mujoco.MjModel, name: str, default):
     """Return the ``<custom><numeric>`` field ``name`` as an array, or ``default``."""
     idx = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_NUMERIC, name)
@@ -110,62 +129,62 @@ class ArmSpec:
 
     @classmethod
     def from_model(cls, model: mujoco.MjModel) -> 'ArmSpec':
-        """Read the conventions documented in the module docstring; raise ValueError if unmet."""
+        """Read the conventions documented in the module docstring; raise NotAnArm if unmet."""
         if model.nu == 0:
-            raise ValueError('the model has no actuators, so no arm joints')
+            raise NotAnArm('the model has no actuators, so no arm joints')
         joint_ids, act_names = [], []
         for a in range(model.nu):
             if model.actuator_trntype[a] != mujoco.mjtTrn.mjTRN_JOINT:
-                raise ValueError(f'actuator {a} does not drive a joint')
+                raise NotAnArm(f'actuator {a} does not drive a joint')
             joint_ids.append(int(model.actuator_trnid[a, 0]))
             act_names.append(mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_ACTUATOR, a)
                              or f'actuator{a}')
         if len(set(joint_ids)) != len(joint_ids):
-            raise ValueError('two actuators drive the same joint')
+            raise NotAnArm('two actuators drive the same joint')
         joint_ids = np.array(joint_ids)
         for j in joint_ids:
             if model.jnt_type[j] != mujoco.mjtJoint.mjJNT_HINGE:
-                raise ValueError(f'arm joint {j} is not a hinge')
+                raise NotAnArm(f'arm joint {j} is not a hinge')
         names = tuple(mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, j) or f'joint{j}'
                       for j in joint_ids)
         site = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, FINGERTIP_SITE)
         if site < 0:
-            raise ValueError(f'the model has no site named {FINGERTIP_SITE!r}')
+            raise NotAnArm(f'the model has no site named {FINGERTIP_SITE!r}')
         body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, TARGET_BODY)
         if body < 0:
-            raise ValueError(f'the model has no body named {TARGET_BODY!r}')
+            raise NotAnArm(f'the model has no body named {TARGET_BODY!r}')
         mocap = int(model.body_mocapid[body])
         target_joints = [j for j in range(model.njnt) if model.jnt_bodyid[j] == body]
         if mocap >= 0:
             if target_joints:
-                raise ValueError('a mocap target cannot have joints')
+                raise NotAnArm('a mocap target cannot have joints')
             dim = 3
         else:
             dim = len(target_joints)
             if not 1 <= dim <= 3:
-                raise ValueError('the target must be a mocap body or have 1-3 slide joints')
+                raise NotAnArm('the target must be a mocap body or have 1-3 slide joints')
             for k, j in enumerate(target_joints):
                 if (model.jnt_type[j] != mujoco.mjtJoint.mjJNT_SLIDE
                         or not np.allclose(model.jnt_axis[j], np.eye(3)[k])):
-                    raise ValueError('target joints must be slides along world x, y, z in order')
+                    raise NotAnArm('target joints must be slides along world x, y, z in order')
                 if model.body_parentid[body] != 0 or not np.isclose(
                         model.body_pos[body][k], model.qpos0[model.jnt_qposadr[j]]):
-                    raise ValueError('target slide joints need ref equal to the body position '
-                                     'and the target body a child of the world')
+                    raise NotAnArm('target slide joints need ref equal to the body position '
+                                   'and the target body a child of the world')
             if set(target_joints) & set(joint_ids.tolist()):
-                raise ValueError('target joints must not be actuated')
+                raise NotAnArm('target joints must not be actuated')
         center = _custom_numeric(model, 'pg_target_center', np.zeros(dim))
         if center.shape != (dim,):
-            raise ValueError(f'pg_target_center needs {dim} numbers')
+            raise NotAnArm(f'pg_target_center needs {dim} numbers')
         init_qpos = _custom_numeric(model, 'pg_init_qpos', model.qpos0[
             model.jnt_qposadr[joint_ids]])
         if init_qpos.shape != (len(joint_ids),):
-            raise ValueError(f'pg_init_qpos needs {len(joint_ids)} numbers (one per arm joint)')
+            raise NotAnArm(f'pg_init_qpos needs {len(joint_ids)} numbers (one per arm joint)')
         points = None
         if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_NUMERIC, 'pg_target_points') >= 0:
             points = _custom_numeric(model, 'pg_target_points', [])
             if mocap < 0 or points.size == 0 or points.size % 3:
-                raise ValueError('pg_target_points needs a mocap target and x y z per point')
+                raise NotAnArm('pg_target_points needs a mocap target and x y z per point')
             points = points.reshape(-1, 3)
         # bodies that carry an arm joint, and the fingertip's, to draw the links
         chain = sorted({int(model.jnt_bodyid[j]) for j in joint_ids}
