@@ -211,3 +211,19 @@ def test_a_worker_host_refuses_an_unknown_run_and_a_config_that_differs(tmp_path
         os.killpg(learner.pid, signal.SIGINT)
         out = learner.communicate(timeout=60)[0]
     assert learner.returncode == 0, out
+
+
+@pytest.mark.parametrize('args', [['render', SAMPLE, '--list'], ['replay', SAMPLE, '--info']],
+                         ids=['render --list', 'replay --info'])
+def test_a_reader_that_leaves_early_ends_the_command_quietly(args):
+    """``... | head``: no BrokenPipeError traceback; the status SIGPIPE gives coreutils."""
+    reader, writer = os.pipe()
+    env = dict(os.environ, PYTHONPATH=str(REPO),
+               AMENT_PREFIX_PATH=os.environ.get('AMENT_PREFIX_PATH', sys.prefix))
+    proc = subprocess.Popen([sys.executable, '-m', 'pg_node', *map(str, args)], env=env,
+                            cwd=REPO, stdout=writer, stderr=subprocess.PIPE, text=True)
+    os.close(writer)
+    os.close(reader)            # the reader is gone before the first line: every write fails
+    err = proc.communicate(timeout=120)[1]
+    assert proc.returncode == 141, err
+    assert err == '', err

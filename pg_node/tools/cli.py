@@ -7,9 +7,13 @@ missing says so instead of failing at start-up.
 """
 import importlib
 import importlib.util
+import os
 import sys
 
 #: command -> (module, one-line help)
+#: the exit status of a command whose reader closed the pipe (SIGPIPE's, as coreutils')
+EXIT_BROKEN_PIPE = 128 + 13
+
 COMMANDS = {
     'train': ('pg_node.tools.train', 'start the training graph (sim, actor, critic, learner)'),
     'eval': ('pg_node.tools.evaluate', 'evaluate a saved policy checkpoint'),
@@ -56,4 +60,13 @@ def main(argv=None) -> int:
         print(f'pg_node: command {name!r} is not available in this version '
               f'(module {module_name} is missing)', file=sys.stderr)
         return 2
-    return int(importlib.import_module(module_name).main(rest) or 0)
+    try:
+        code = int(importlib.import_module(module_name).main(rest) or 0)
+        sys.stdout.flush()          # here, not at exit, where a closed pipe would be reported
+        return code
+    except BrokenPipeError:
+        # the reader left (``... --list | head``): stop quietly, as coreutils do when SIGPIPE
+        # ends them (status 128 + 13); the recipe of Python's signal docs: stdout goes to
+        # devnull so that nothing is written to the closed pipe at exit
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return EXIT_BROKEN_PIPE
