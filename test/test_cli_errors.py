@@ -227,3 +227,33 @@ def test_a_reader_that_leaves_early_ends_the_command_quietly(args):
     err = proc.communicate(timeout=120)[1]
     assert proc.returncode == 141, err
     assert err == '', err
+
+
+# -- replay ------------------------------------------------------------------------------------
+@pytest.mark.parametrize('param, words', [
+    ('rate:=-3', ['rate must be >= 0', 'not -3']),             # an integer, taken as a double
+    ('rate:=fast', ["parameter 'rate': 'fast' is not allowed; expected a number"]),
+    ('loop:=3', ["parameter 'loop': 3 is not allowed; expected true or false"]),
+    ('rat:=0.0', ["unknown parameter 'replay_node.rat' (did you mean 'rate'?)", 'allowed: bag']),
+])
+def test_replay_node_refuses_bad_parameters_in_one_line(param, words):
+    """Before: InvalidParameterTypeException tracebacks, and an unknown parameter ignored."""
+    done = run('--ros-args', '-p', f'bag:={SAMPLE}', '-p', param, module='pg_node.ros.replay_node',
+               timeout=60)
+    refused(done, 1, 'replay_node: ', *words)
+    assert len(done.stderr.strip().splitlines()) == 1, done.stderr
+
+
+def test_replay_node_takes_an_integer_for_a_double():
+    """``rate:=0`` (as fast as possible) and ``wait_timeout:=1``, as sim_node takes them."""
+    done = run('--ros-args', '-p', f'bag:={SAMPLE}', '-p', 'rate:=0', '-p', 'wait_timeout:=1',
+               '-p', 'wait_for_subscribers:=0', '-p', 'topics:=[/joint_states]',
+               module='pg_node.ros.replay_node', timeout=60)
+    assert done.returncode == 0, done.stderr
+    assert 'as fast as possible' in done.stderr + done.stdout
+
+
+def test_replay_rate_option_says_what_it_takes():
+    done = run('replay', SAMPLE, '--rate', 'fast')
+    refused(done, 2, 'argument --rate/-r: expected a number >= 0 (0: as fast as possible), '
+                     "got 'fast'")

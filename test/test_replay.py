@@ -162,7 +162,7 @@ def test_info_accepts_a_run_dir(tmp_path, capsys):
 
 def test_negative_rate_is_a_usage_error(capsys):
     assert main([str(SAMPLE), '--rate', '-1']) == 2
-    assert 'argument --rate/-r: must be >= 0' in capsys.readouterr().err
+    assert 'argument --rate/-r: expected a number >= 0' in capsys.readouterr().err
 
 
 # -- over DDS ---------------------------------------------------------------------------------

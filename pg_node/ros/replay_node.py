@@ -59,6 +59,7 @@ arguments (after ``--ros-args``) go to ``rclpy.init``, the rest to argparse, so 
 serves both ways of starting the node.
 """
 import argparse
+import difflib
 import math
 import sys
 import threading
@@ -69,7 +70,7 @@ from pg_node.bag.reader import BagReader
 from pg_node.ros import node_utils
 from rcl_interfaces.msg import ParameterDescriptor, ParameterType
 import rclpy
-from rclpy.exceptions import ParameterUninitializedException
+from rclpy.exceptions import InvalidParameterTypeException, ParameterUninitializedException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -130,6 +131,14 @@ def merge_qos(profiles):
     return out
 
 
+#: what each parameter type takes, in the words of an error
+_KIND = {ParameterType.PARAMETER_STRING: 'a string', ParameterType.PARAMETER_DOUBLE: 'a number',
+         ParameterType.PARAMETER_BOOL: 'true or false',
+         ParameterType.PARAMETER_INTEGER: 'an integer'}
+#: parameters every rclpy node may be given
+ROS_KEYS = ('use_sim_time', 'start_type_description_service')
+
+
 def parse_remaps(items):
     """
     Turn ``['/a:=/b', ...]`` into ``{'/a': '/b'}``; raise ValueError on a malformed item.
@@ -154,19 +163,43 @@ class ReplayNode(Node):
     def __init__(self, **kwargs):
         """Declare the parameters, open the bag and create one publisher per played topic."""
         super().__init__('replay_node', **kwargs)
+        given = getattr(self, '_parameter_overrides', {})
+        names = [name for name, *_ in PARAMETERS]
+        for name in sorted(given):
+            # as the other nodes do (pg_node.ros.parameters): a typo is refused, not ignored
+            if name not in names and name not in ROS_KEYS and not name.startswith('qos_'):
+                close = difflib.get_close_matches(name, names, n=1)
+                hint = f' (did you mean {close[0]!r}?)' if close else ''
+                raise ValueError(f"unknown parameter 'replay_node.{name}'{hint}; allowed: "
+                                 f'{", ".join(names)}')
         p = {}
         for name, default, ptype, text in PARAMETERS:
             descriptor = ParameterDescriptor(type=ptype, description=text)
             if ptype == ParameterType.PARAMETER_STRING_ARRAY:
                 # rclpy types an empty list default as a byte array: declare the type only
-                self.declare_parameter(name, Parameter.Type.STRING_ARRAY, descriptor)
                 try:
+                    self.declare_parameter(name, Parameter.Type.STRING_ARRAY, descriptor)
                     p[name] = list(self.get_parameter(name).value)
                 except ParameterUninitializedException:
                     p[name] = list(default)
-            else:
+                except InvalidParameterTypeException:
+                    raise ValueError(f'parameter {name!r}: {given[name].value!r} is not allowed; '
+                                     'expected a list of strings') from None
+                continue
+            try:
                 self.declare_parameter(name, default, descriptor)
-                p[name] = self.get_parameter(name).value
+            except InvalidParameterTypeException:
+                # an integer for a double (rate:=2), as the other nodes take it; anything
+                # else is refused in one line saying what the parameter takes
+                value = given[name].value
+                if (ptype == ParameterType.PARAMETER_DOUBLE and isinstance(value, int)
+                        and not isinstance(value, bool)):
+                    self.declare_parameter(name, float(value), descriptor,
+                                           ignore_override=True)
+                else:
+                    raise ValueError(f'parameter {name!r}: {value!r} is not allowed; expected '
+                                     f'{_KIND[ptype]}') from None
+            p[name] = self.get_parameter(name).value
         self.params = p
         if not p['bag']:
             raise ValueError('no bag given (parameter bag, or the first argument)')
@@ -474,9 +507,13 @@ def split_ros_args(argv):
 
 
 def _non_negative(text: str) -> float:
-    value = float(text)
+    try:
+        value = float(text)
+    except ValueError:
+        value = float('nan')
     if not value >= 0:
-        raise argparse.ArgumentTypeError(f'must be >= 0 (0: as fast as possible), got {text}')
+        raise argparse.ArgumentTypeError(f'expected a number >= 0 (0: as fast as possible), '
+                                         f'got {text!r}')
     return value
 
 
