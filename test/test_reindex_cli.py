@@ -31,6 +31,7 @@ def test_reindex_makes_a_killed_learners_bag_whole_and_leaves_a_whole_one(tmp_pa
     (mcap,) = cut.glob('*.mcap')
     with open(mcap, 'r+b') as f:                    # as SIGKILL leaves it: no summary
         f.truncate(mcap.stat().st_size * 2 // 3)
+    original = mcap.read_bytes()
     with pytest.raises(Exception):
         with Reader(cut) as reader:
             list(reader.messages())
@@ -42,6 +43,36 @@ def test_reindex_makes_a_killed_learners_bag_whole_and_leaves_a_whole_one(tmp_pa
         n = sum(1 for _ in reader.messages())
         assert 0 < n == reader.message_count < 400   # what was before the cut
     assert not res.stderr
+    # the user's bytes are never discarded: the damaged original is kept beside the repair
+    kept = mcap.with_name(mcap.name + '.damaged')
+    assert kept.read_bytes() == original
+    assert f'{cut}: the damaged original is kept as {kept}' in res.stdout
+
+
+def test_reindex_says_nothing_recoverable_and_leaves_the_file_and_metadata(tmp_path):
+    """Random bytes named .mcap: they were replaced by an empty MCAP, 'repaired', exit 0."""
+    bag = write_bag(tmp_path / 'bag')
+    (mcap,) = bag.glob('*.mcap')
+    noise = bytes(range(256)) * 20
+    mcap.write_bytes(noise)
+    metadata = (bag / 'metadata.yaml').read_bytes()
+    res = run(bag)
+    assert res.returncode == 1, res.stdout
+    assert res.stderr.strip() == (f'reindex: {mcap}: nothing recoverable (not an MCAP file '
+                                  '(bad magic)); left as it is'), res.stderr
+    assert 'repaired' not in res.stdout
+    assert mcap.read_bytes() == noise and (bag / 'metadata.yaml').read_bytes() == metadata
+    assert sorted(p.name for p in bag.iterdir()) == sorted(['metadata.yaml', mcap.name])
+
+
+def test_reindex_discard_damaged_keeps_only_the_repair(tmp_path):
+    bag = write_bag(tmp_path / 'bag')
+    (mcap,) = bag.glob('*.mcap')
+    with open(mcap, 'r+b') as f:
+        f.truncate(mcap.stat().st_size // 2)
+    res = run(bag, '--discard-damaged')
+    assert res.returncode == 0 and 'repaired' in res.stdout, res.stderr
+    assert sorted(p.name for p in bag.iterdir()) == sorted(['metadata.yaml', mcap.name])
 
 
 def test_reindex_refuses_what_is_not_a_bag_in_one_line(tmp_path):

@@ -27,6 +27,10 @@ from pg_node.bag import ros_types
 import yaml
 
 
+#: the damage of a file that does not even start as MCAP: nothing in it is recoverable
+NOT_MCAP = 'not an MCAP file (bad magic)'
+
+
 class Damage(NamedTuple):
     """Where and why reading one file of a bag stopped early."""
 
@@ -171,7 +175,7 @@ def _reason(exc, at_record_start):
         return (f'truncated record: it runs past the end of the file ({exc.wanted} more '
                 f'bytes wanted, {exc.left} left)')
     if isinstance(exc, InvalidMagic):
-        return 'not an MCAP file (bad magic)'
+        return NOT_MCAP
     if isinstance(exc, CRCValidationError):
         return f'corrupted record: CRC mismatch ({exc})'
     return f'corrupted record: {exc!r}'

@@ -35,7 +35,7 @@ from mcap.records import Channel, Message, Metadata, Schema
 import mcap.writer
 from mcap.writer import CompressionType, LIBRARY_IDENTIFIER, Writer
 from pg_node.bag import ros_types
-from pg_node.bag.reader import _split_index, McapScan, read_metadata_yaml
+from pg_node.bag.reader import _split_index, McapScan, NOT_MCAP, read_metadata_yaml
 import yaml
 
 METADATA_VERSION = 9
@@ -573,6 +573,8 @@ class ReindexReport:
     def __init__(self):
         """Start an empty report."""
         self.files = []  # (name, message count, damage or None)
+        self.unrecoverable = []  # (name, damage): not MCAP at all, left as they were
+        self.kept = []   # the damaged originals kept beside their repair
 
     @property
     def repaired(self):
@@ -589,7 +591,16 @@ class ReindexReport:
         return f'ReindexReport(files={self.files!r})'
 
 
-def reindex(directory, compression='zstd', keep_damaged=False) -> ReindexReport:
+def _free_name(path: Path) -> Path:
+    """Return ``path``, or ``path.1``, ``path.2``, ... : the first that does not exist."""
+    k, free = 0, path
+    while free.exists():
+        k += 1
+        free = path.with_name(f'{path.name}.{k}')
+    return free
+
+
+def reindex(directory, compression='zstd', keep_damaged=True) -> ReindexReport:
     """
     Recover a bag whose writer was killed, like ``ros2 bag reindex``.
 
@@ -598,8 +609,13 @@ def reindex(directory, compression='zstd', keep_damaged=False) -> ReindexReport:
     file, then ``os.replace``) into a complete MCAP file holding everything before the
     damage. Then ``metadata.yaml`` is rewritten from what the files really contain: counts,
     times, and each topic's QoS and type hash from its MCAP channel (from the old
-    metadata.yaml where a channel has none). ``keep_damaged`` keeps each original damaged
-    file as ``<name>.damaged``.
+    metadata.yaml where a channel has none).
+
+    Nothing the user had is lost: each damaged original is kept beside its repair as
+    ``<name>.damaged`` (rosbag2 keeps what it cannot read, too), unless ``keep_damaged`` is
+    False. A file that is no MCAP at all (not its magic) holds nothing recoverable:
+    it is left as it is, out of metadata.yaml, and listed in ``report.unrecoverable``; when
+    no file is left, metadata.yaml is not rewritten either.
     """
     directory = Path(directory)
     info = read_metadata_yaml(directory) or {}
@@ -617,6 +633,9 @@ def reindex(directory, compression='zstd', keep_damaged=False) -> ReindexReport:
         scan = McapScan(path)
         counts, times = _copy_records(scan, None, topics)
         damage = scan.damage
+        if damage is not None and damage.reason == NOT_MCAP:
+            report.unrecoverable.append((path.name, damage))
+            continue
         if damage is not None:
             damaged.append(path)
         n = sum(counts.values())
@@ -645,9 +664,12 @@ def reindex(directory, compression='zstd', keep_damaged=False) -> ReindexReport:
         _copy_records(McapScan(path), writer, {})
         writer.close(metadata=[('rosbag2', {'serialized_metadata': _dump(info)})])
         if keep_damaged:
-            os.replace(path, path.with_name(path.name + '.damaged'))
+            kept = _free_name(path.with_name(path.name + '.damaged'))
+            os.replace(path, kept)
+            report.kept.append(kept.name)
         os.replace(tmp, path)
-    write_metadata_yaml(directory, info)
+    if files:
+        write_metadata_yaml(directory, info)
     return report
 
 

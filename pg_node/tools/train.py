@@ -238,7 +238,10 @@ def make_bags_whole(bags) -> list:
     for bag in bags:
         report = reindex(bag)
         damage = '; '.join(f'{name}: {d}' for name, d in report.repaired) or 'nothing damaged'
-        lines.append(f'made {bag} whole: {report.message_count} messages ({damage})')
+        kept = f'; damaged originals kept: {", ".join(report.kept)}' if report.kept else ''
+        lines.append(f'made {bag} whole: {report.message_count} messages ({damage}){kept}')
+        lines += [f'{bag / name}: nothing recoverable ({d.reason}); left as it is'
+                  for name, d in report.unrecoverable]
     return lines
 
 
