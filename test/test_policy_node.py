@@ -332,26 +332,52 @@ def test_joint_order_and_extra_joints_give_the_same_command(tmp_path, client, tr
     np.testing.assert_allclose(in_order, want, atol=1e-9)
 
 
-@pytest.mark.parametrize('names,missing', [(['joint0'], 'joint1'),
-                                           (['arm0/joint0', 'arm0/joint1', 'arm1/joint0'],
-                                            'arm1/joint1'),
-                                           (['shoulder', 'elbow'], 'joint0')])
+@pytest.mark.parametrize('names,velocities,missing', [
+    (['joint0'], 1, "joint_states has no joint 'joint1'"),
+    (['arm0/joint0', 'arm0/joint1', 'arm1/joint0'], 3, "joint_states has no joint 'arm1/joint1'"),
+    (['shoulder', 'elbow'], 2, "joint_states has no joint 'joint0'"),
+    (['joint0', 'joint1'], 0, 'joint_states needs a position and a velocity for every joint'),
+])
 def test_a_missing_joint_stops_the_node_with_one_line(tmp_path, client, trained, names,
-                                                      missing):
+                                                      velocities, missing):
+    """Exit code 2 and one line; before, a FATAL callback error and a traceback came first."""
     pol = start(tmp_path, 'pg_node.ros.policy_node', f'policy:={trained["onnx"]}')
     try:
         client.wait(lambda: any(m.startswith('waiting') for m, _ in client.diagnostics),
                     what='policy_node to load its policy')
         deadline = time.monotonic() + 20
         while pol.poll() is None and time.monotonic() < deadline:
-            client.send_state(names, [0.0] * len(names), [0.0] * len(names))
+            client.send_state(names, [0.0] * len(names), [0.0] * velocities)
             time.sleep(0.1)
     finally:
         code, log = processes.stop_logged(pol)
-    errors = [line for line in log.splitlines() if 'error' in line]
+    errors = [line for line in log.splitlines() if 'error' in line.lower()]
     assert code == 2, log
-    assert 'Traceback' not in log
-    assert len(errors) == 1 and f"joint_states has no joint '{missing}'" in errors[0], log
+    assert 'Traceback' not in log and 'FATAL' not in log and 'Exception in' not in log, log
+    assert len(errors) == 1 and missing in errors[0], log
+
+
+def test_an_unreachable_or_non_finite_target_is_warned_about_once(tmp_path, client, trained):
+    """(5, 5) is far out of reacher2's 0.21 m; NaN was ignored without a word (issue 33)."""
+    pol = start(tmp_path, 'pg_node.ros.policy_node', f'policy:={trained["onnx"]}')
+    try:
+        client.wait(lambda: any(m.startswith('waiting') for m, _ in client.diagnostics),
+                    what='policy_node to load its policy')
+        for _ in range(3):
+            client.send_target('arm0', [float('nan'), 0.1, 0.01])
+            client.send_target('arm0', [5.0, 5.0, 0.01])
+            client.send_target('arm0', [0.1, 0.1, 0.01])        # within reach: no word
+        client.wait(lambda: client.diagnostics[-1][1]['targets_out_of_reach'] == '3'
+                    and client.diagnostics[-1][1]['targets_ignored'] == '3',
+                    what='the targets counted in /diagnostics')
+    finally:
+        code, log = processes.stop_logged(pol)
+    assert code == 0, log[-2000:]
+    warnings = [line for line in log.splitlines() if '[WARN]' in line]
+    assert len(warnings) == 2, log
+    assert 'ignored a target with a non-finite coordinate for arm0: (nan, 0.1, 0.01)' in log
+    assert ("target (5, 5, 0.01) for arm0 is 7.07 m from the arm's base, beyond its reach of "
+            '0.21 m') in log
 
 
 def test_bad_policy_parameter_is_one_line(tmp_path):

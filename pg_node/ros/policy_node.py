@@ -16,7 +16,10 @@ Subscribed:
   joint missing from the message is an error that stops the node (exit code 2, one line);
 * ``target`` (``geometry_msgs/PointStamped``, reliable + transient-local as ``sim_node``
   publishes it): the goal of arm ``i`` with ``frame_id`` ``arm<i>``, in that arm's frame;
-  with plain joint names, any frame is the one arm's goal.
+  with plain joint names, any frame is the one arm's goal. A target beyond the arm's reach
+  (:meth:`pg_node.sim.observation.ObservationBuilder.reach`) is commanded, with a warning
+  once per arm; a non-finite one is ignored, with a warning once per arm (both counted in
+  ``/diagnostics``).
 
 Published:
 
@@ -40,6 +43,7 @@ Parameters: :data:`pg_node.common.params.POLICY_PARAMS`.
 """
 from collections import deque
 import re
+import sys
 import time
 from typing import Dict, List, Sequence
 
@@ -60,6 +64,8 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
 PREFIXED = re.compile(r'^arm(\d+)/(.+)$')
+#: a target this much beyond the arm's reach (ObservationBuilder.reach) is warned about
+REACH_MARGIN = 1.05
 #: commands whose state ages the diagnostics summarise
 AGE_WINDOW = 1000
 
@@ -126,6 +132,9 @@ class PolicyNode(Node):
         except (PolicySourceError, ValueError) as exc:
             raise ConfigError(f"parameter 'policy_node.policy': {exc}") from None
         self.load_seconds = time.perf_counter() - t0
+        self.base, self.reach = self.builder.reach()
+        self.exit_code = None               # set on a fatal input: run() ends the process
+        self.told = set()                   # the target warnings given (once each)
         self.joints = list(card['joint_names'])
         self.low, self.high = control_range(card)
         self.act_dim = self.policy.act_dim
@@ -142,7 +151,8 @@ class PolicyNode(Node):
         self.status = 'waiting: no joint_states yet'
         self.counters = {'commands': 0, 'zero_commands': 0, 'stale_events': 0,
                          'states_received': 0, 'states_dropped_nonfinite': 0,
-                         'actions_nonfinite': 0, 'targets_ignored': 0}
+                         'actions_nonfinite': 0, 'targets_ignored': 0,
+                         'targets_out_of_reach': 0}
         self.ages = deque(maxlen=AGE_WINDOW)
         self.rate = RateCounter()
         self._cpu = (time.process_time(), time.monotonic())
@@ -183,7 +193,18 @@ class PolicyNode(Node):
     # --- inputs ---------------------------------------------------------------------------
 
     def on_joint_state(self, msg: JointState):
-        """Keep the model joints' positions and velocities, in model order."""
+        """Keep the model joints' positions and velocities; end the node on a fatal mismatch."""
+        if self.exit_code is not None:
+            return
+        try:
+            self._take_joint_state(msg)
+        except ConfigError as exc:
+            # one line and exit code 2, ended by run() after this callback: an exception
+            # through the executor was logged as a FATAL callback error with a traceback
+            print(f'configuration error: {exc}', file=sys.stderr, flush=True)
+            self.exit_code = 2
+
+    def _take_joint_state(self, msg: JointState):
         names = msg.name
         if self._index is None or names != self._names:
             index = joint_columns(list(names), self.joints, self.num_arms)
@@ -212,11 +233,30 @@ class PolicyNode(Node):
     def on_target(self, msg: PointStamped):
         """Keep each arm's goal by its frame (``arm<i>``)."""
         point = np.array([msg.point.x, msg.point.y, msg.point.z])
+        frame = msg.header.frame_id or 'the arm'
         if not np.all(np.isfinite(point)):
             self.counters['targets_ignored'] += 1
+            self.warn_once(('nonfinite', frame),
+                           f'ignored a target with a non-finite coordinate for {frame}: '
+                           f'({point[0]:g}, {point[1]:g}, {point[2]:g}); the last finite one '
+                           'still holds (counted in /diagnostics as targets_ignored)')
             return
+        distance = float(np.linalg.norm(point - self.base))
+        if distance > REACH_MARGIN * self.reach:
+            self.counters['targets_out_of_reach'] += 1
+            self.warn_once(('reach', frame),
+                           f'target ({point[0]:g}, {point[1]:g}, {point[2]:g}) for {frame} is '
+                           f'{distance:.3g} m from the arm\'s base, beyond its reach of '
+                           f'{self.reach:.3g} m: commanded anyway, the arm cannot get there '
+                           '(counted in /diagnostics as targets_out_of_reach)')
         self.targets[msg.header.frame_id] = point
         self.latest_target = point
+
+    def warn_once(self, key, text: str):
+        """Log ``text`` as a warning the first time ``key`` comes up."""
+        if key not in self.told:
+            self.told.add(key)
+            self.get_logger().warning(text)
 
     def target_array(self):
         """Return the goals ``(arms, 3)``, or the name of an arm without one."""

@@ -51,6 +51,29 @@ class ObservationBuilder:
             out[i] = self._tip
         return out
 
+    def reach(self, samples: int = 2000, seed: int = 0):
+        """
+        Return ``(base, reach)``: the first arm joint's anchor, and how far the fingertip gets.
+
+        The farthest fingertip from the base over ``samples`` joint configurations drawn in
+        the joint limits (a full turn where a joint has none): what a target further away
+        than this cannot be reached by any pose. Seeded: the same model, the same answer.
+
+        >>> from pg_node.common.paths import resolve_model
+        >>> b = ObservationBuilder(mujoco.MjModel.from_xml_path(str(resolve_model('reacher2'))))
+        >>> round(b.reach()[1], 3)      # two links of 0.1 m and a fingertip 0.01 m out
+        0.21
+        """
+        rng = np.random.default_rng(seed)
+        low = np.where(self.spec.joint_limited, self.spec.joint_range[:, 0], -np.pi)
+        high = np.where(self.spec.joint_limited, self.spec.joint_range[:, 1], np.pi)
+        q = rng.uniform(low, high, size=(samples, self.n_joints))
+        self._qpos[self.spec.qpos_adr] = q[0]
+        mujoco.mj_kinematics(self.model, self.data)
+        base = self.data.xanchor[self.spec.joint_ids[0]].copy()
+        tips = self.fingertips(q)
+        return base, float(np.max(np.linalg.norm(tips - base, axis=1)))
+
     def __call__(self, q, qdot, target) -> np.ndarray:
         """
         Return the observations ``(N, obs_dim)``.
