@@ -246,7 +246,7 @@ class PolicyNode(Node):
             self.counters['targets_out_of_reach'] += 1
             self.warn_once(('reach', frame),
                            f'target ({point[0]:g}, {point[1]:g}, {point[2]:g}) for {frame} is '
-                           f'{distance:.3g} m from the arm\'s base, beyond its reach of '
+                           f"{distance:.3g} m from the arm's base, beyond its reach of "
                            f'{self.reach:.3g} m: commanded anyway, the arm cannot get there '
                            '(counted in /diagnostics as targets_out_of_reach)')
         self.targets[msg.header.frame_id] = point
