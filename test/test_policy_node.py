@@ -434,6 +434,9 @@ def test_play_prints_episodes_and_writes_a_gif(tmp_path, trained):
     assert res.returncode == 0, res.stderr[-3000:]
     lines = [line for line in res.stdout.splitlines() if line.startswith('episode')]
     assert len(lines) >= 3 and 'final fingertip distance' in lines[0], res.stdout
+    # numbered from 1 as they end (the simulator's ids began at 2 or 3: the episodes that
+    # started before the first command are not played)
+    assert [int(line.split()[1]) for line in lines] == list(range(1, len(lines) + 1)), lines
     returns = [float(line.split('return')[1].split(',')[0]) for line in lines]
     assert all(-60 < r < 0 for r in returns), res.stdout
     from PIL import Image

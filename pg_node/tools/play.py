@@ -61,7 +61,9 @@ class Episodes:
         self.counted_from = None        # transitions after this seq count
         self.prev = None
         self.running = {}               # episode id -> [return, arm, start seq, frames]
-        self.finished = []              # (episode id, arm, return, distance, frames)
+        # (number, arm, return, distance, frames); numbered from 1 in the order they end:
+        # the simulator's own ids count the episodes that began before the first command
+        self.finished = []
 
     def add(self, tr):
         """Take one transition."""
@@ -80,7 +82,8 @@ class Episodes:
                     entry[3].append((tr.final_obs[i], entry[0]))
                     if self.counted_from is not None and entry[2] > self.counted_from:
                         dist = float(np.linalg.norm(tr.final_obs[i, self.vec]))
-                        self.finished.append((ep, i, entry[0], dist, entry[3]))
+                        self.finished.append((len(self.finished) + 1, i, entry[0], dist,
+                                              entry[3]))
                 else:
                     entry[3].append((tr.obs[i], entry[0]))
         for i in range(tr.num_envs):
