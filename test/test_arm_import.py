@@ -9,6 +9,7 @@ and ``render``, and a short training run improves its return.
 """
 import os
 from pathlib import Path
+import re
 import shlex
 import struct
 import subprocess
@@ -202,11 +203,37 @@ def test_errors_are_one_line(tmp_path, capsys):
     assert 'cannot read' in err
     err = one_line_error(capsys, TWO_LINK, '--tip', 'fingertip', '--home', 0, '-o', out)
     assert '--home needs 2 angles' in err
+    # a joint whose child link is not defined (it was said to be a second root link)
+    text = TWO_LINK.read_text()
+    (tmp_path / 'child.urdf').write_text(text.replace('<child link="link1"/>',
+                                                      '<child link="lnk1"/>', 1))
+    err = one_line_error(capsys, tmp_path / 'child.urdf', '--tip', 'fingertip', '-o', out)
+    assert "names child link 'lnk1', which the URDF does not define" in err
+    assert 'root link' not in err
+    # a revolute joint without <limit>: ROS's URDF parser refuses it; it got no limits here
+    no_limit = re.sub(r'(<joint name="joint1" type="revolute">.*?)<limit[^>]*/>', r'\1', text,
+                      count=1, flags=re.S)
+    assert no_limit != text
+    (tmp_path / 'nolimit.urdf').write_text(no_limit)
+    err = one_line_error(capsys, tmp_path / 'nolimit.urdf', '--tip', 'fingertip', '-o', out)
+    assert "revolute joint 'joint1' has no <limit>" in err
     bad = with_mesh(tmp_path / 'robot' / 'r.urdf', 'package://nopkg/meshes/link.stl')
     err = one_line_error(capsys, bad, '--tip', 'fingertip', '-o', out)
     assert "mesh 'package://nopkg/meshes/link.stl' not found; looked in:" in err
     assert str(tmp_path / 'robot' / 'nopkg' / 'meshes') in err
     assert not out.exists()
+
+
+def test_an_effort_limit_of_zero_is_named_as_such(tmp_path, capsys):
+    """effort="0" was reported as 'has no effort limit'."""
+    text = TWO_LINK.read_text().replace('lower="-3" upper="3" effort="200"',
+                                        'lower="-3" upper="3" effort="0"')
+    (tmp_path / 'zero.urdf').write_text(text)
+    code, out, err = run_import(capsys, tmp_path / 'zero.urdf', '--tip', 'fingertip', '-o',
+                                tmp_path / 'zero.xml')
+    assert code == 0, err
+    assert "joint 'joint1' has effort limit 0, which cannot move it; using 1 N m" in out + err
+    assert "joint 'joint1' has no effort limit" not in out + err
 
 
 def test_cli_error_has_no_traceback(tmp_path):

@@ -175,6 +175,17 @@ def _chain(robot: ET.Element, base: Optional[str], tip: str):
         parent, child = j.find('parent'), j.find('child')
         if parent is None or child is None:
             raise UrdfImportError(f'joint {j.get("name")!r} lacks a <parent> or <child> link')
+        for end, link in (('parent', parent.get('link')), ('child', child.get('link'))):
+            if link not in links:   # else it looked like a second root link
+                known = ', '.join(links[:12]) + (', ...' if len(links) > 12 else '')
+                raise UrdfImportError(f'joint {j.get("name")!r} names {end} link {link!r}, '
+                                      f'which the URDF does not define (links: {known})')
+        if j.get('type') in ('revolute', 'prismatic') and j.find('limit') is None:
+            # ROS's own URDF parser (urdfdom) refuses the file for this: the joint's range
+            # would silently be a full turn here
+            raise UrdfImportError(f'{j.get("type")} joint {j.get("name")!r} has no <limit>: '
+                                  'a URDF must give one (lower, upper, effort, velocity), as '
+                                  "ROS's URDF parser requires")
         parent_of[child.get('link')] = (parent.get('link'), j)
     roots = [name for name in links if name not in parent_of]
     if len(roots) != 1:
@@ -250,9 +261,14 @@ def _subtree(spec: mujoco.MjSpec, name: str) -> List:
 
 def _effort(joint: ET.Element, warnings: List[str]) -> float:
     limit = joint.find('limit')
-    effort = float(limit.get('effort', 0)) if limit is not None else 0.0
-    if not effort > 0:
+    given = limit.get('effort') if limit is not None else None
+    effort = float(given) if given is not None else 0.0
+    if given is None:
         warnings.append(f'joint {joint.get("name")!r} has no effort limit; using 1 N m')
+        effort = 1.0
+    elif not effort > 0:
+        warnings.append(f'joint {joint.get("name")!r} has effort limit {given}, which cannot '
+                        'move it; using 1 N m (scale it with --effort-scale)')
         effort = 1.0
     return effort
 
