@@ -104,17 +104,55 @@ def test_graph_equals_inprocess_reference(run):
     assert summary['eval_returns'] == ref['eval_returns']
 
 
-@pytest.mark.parametrize('groups', [2, 3])
-def test_graph_equals_inprocess_reference_with_other_lock_step_groups(tmp_path, groups):
-    """Two groups of 32 arms, or three of 21-22 arms: the in-process computation too."""
+#: every randomization term, with each distribution, operation and time of drawing
+RANDOMIZED = ['randomize_mass=uniform 0.5 2', 'randomize_damping=log_uniform 0.5 3',
+              'randomize_frictionloss=add uniform 0 0.05 startup',
+              'randomize_armature=gaussian 1 0.1 every 7', 'randomize_gear=uniform 0.6 1.4',
+              'randomize_latency=uniform 0 2', 'randomize_obs_noise=0.01',
+              'randomize_vel_noise=gaussian 0.05 0.01', 'randomize_action_noise=0.05',
+              'randomize_target_noise=uniform 0 0.01']
+
+
+@pytest.mark.parametrize('groups, overrides', [(2, []), (3, RANDOMIZED)],
+                         ids=['2-groups', '3-groups-randomized'])
+def test_graph_equals_inprocess_reference_with_other_lock_step_groups(tmp_path, groups,
+                                                                     overrides):
+    """
+    Two groups of 32 arms, or three of 21-22 arms: the in-process computation too.
+
+    The second run randomizes every term (each arm its own masses, damping, friction,
+    armature, gears, latency and noise, drawn at startup, reset and every 7 steps): the
+    simulator's groups draw them as the in-process task's arms do, and the bag holds them.
+    """
     steps = 20_480
-    res = train(tmp_path / 'run', '--total-steps', str(steps), f'lock_step_groups={groups}')
+    res = train(tmp_path / 'run', '--total-steps', str(steps), f'lock_step_groups={groups}',
+                *overrides)
     assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
     summary = json.loads((tmp_path / 'run' / 'summary.json').read_text())
     ref = train_inprocess(load_config(default_config(), [f'total_steps={steps}',
-                                                         f'lock_step_groups={groups}']), steps)
+                                                         f'lock_step_groups={groups}',
+                                                         *overrides]), steps)
     assert summary['policy_version'] == ref['policy_version']
     assert summary['eval_returns'] == ref['eval_returns']
+    if overrides:
+        # each episode's draws are in the bag: every arm's start, then a row per new episode
+        with Reader(tmp_path / 'run' / 'bag') as reader:
+            rows = []
+            for conn, _, raw in reader.messages(
+                    [c for c in reader.connections if c.topic == '/pg_node/randomization']):
+                msg = TYPESTORE.deserialize_cdr(raw, conn.msgtype)
+                header, fields = table_msg.unpack(
+                    [(d.label, d.size, d.stride) for d in msg.layout.dim],
+                    msg.layout.data_offset, msg.data, 2,
+                    {name: None for name in [d.label for d in msg.layout.dim[1:]]})
+                rows += list(zip(fields['arm'][:, 0], fields['episode_id'][:, 0],
+                                 fields['latency'][:, 0], fields['mass/body0'][:, 0]))
+        episodes = {(int(a), int(e)) for a, e, _, _ in rows}
+        # 20480 steps of 64 arms: 320 control steps, 6 whole episodes and a 7th begun
+        assert len(episodes) >= 64 * 7, len(episodes)
+        assert {lat for _, _, lat, _ in rows} == {0.0, 1.0, 2.0}
+        masses = np.array([m for _, _, _, m in rows])
+        assert masses.min() >= 0.5 and masses.max() <= 2.0 and masses.std() > 0.3
 
 
 def test_graph_equals_inprocess_reference_with_every_node_its_own_process(tmp_path):

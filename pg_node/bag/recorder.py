@@ -72,6 +72,8 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, Float64MultiArray, MultiArrayDimension
 
 EPISODE_TOPIC = '/pg_node/episode'
+#: each episode's drawn randomization terms (domain randomization on)
+RANDOMIZATION_TOPIC = '/pg_node/randomization'
 #: the recorded actions (training's command topic, never a real controller's)
 COMMANDS_TOPIC = '/pg_node/commands'
 METRICS_PREFIX = '/pg_node/metrics/'
@@ -474,6 +476,21 @@ class EpisodeRecorder:
                     self.writer.add_topic(topic, Float64, _DEFAULT)
                 self.writer.write(topic, Float64(data=value), t_ns)
             self._last_t = t_ns
+
+    def record_randomization(self, msg, t_wall_ns: int):
+        """
+        Write a simulator's drawn randomization terms on ``/pg_node/randomization``.
+
+        ``msg`` is the ``Float64MultiArray`` table ``sim_node`` publishes (one row per arm
+        that drew: ``arm``, ``episode_id``, ``episode_step``, then the values by label), so
+        each episode's masses, gains, latency and noise can be read back next to it.
+        """
+        with self._lock:
+            if self.writer.closed:
+                raise RuntimeError('episode recorder is closed')
+            if RANDOMIZATION_TOPIC not in self.writer.topics:
+                self.writer.add_topic(RANDOMIZATION_TOPIC, Float64MultiArray, _DEFAULT)
+            self.writer.write(RANDOMIZATION_TOPIC, msg, self._clamp(t_wall_ns))
 
     def open_episodes(self) -> Dict[tuple, int]:
         """Return ``{(actor, arm): episode_id}`` of the episodes not yet summarised."""

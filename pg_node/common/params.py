@@ -20,6 +20,7 @@ import re
 from typing import Any, Callable, Dict, Optional, Sequence
 
 from pg_node.common.paths import check_model
+from pg_node.common.perturbations import PARAM_PREFIX, parse_term, TERMS
 from pg_node.common.run import check_run_id
 import yaml
 
@@ -44,6 +45,8 @@ class Param:
     validate: Optional[Callable[[Any], Any]] = None
     #: True: may change while the node runs (``ros2 param set``); False: read-only
     live: bool = False
+    #: a str parameter that also takes a bare number (YAML ``0.01``, ``key:=2``) as its text
+    numbers_as_text: bool = False
 
     def allowed(self) -> str:
         """Describe the allowed values in words."""
@@ -83,6 +86,9 @@ class Param:
             if not math.isfinite(value):
                 raise bad
         elif want is str:
+            if (self.numbers_as_text and isinstance(value, (int, float))
+                    and not isinstance(value, bool)):
+                value = repr(value)
             if not isinstance(value, str):
                 raise bad
         elif want is list:
@@ -261,6 +267,13 @@ SIM_PARAMS: Dict[str, Param] = {
                                 'the arrival of the command that answers it); empty: the round '
                                 'trips show only in the diagnostics', validate=_writable_file),
 }
+# domain randomization: one string per term, off when empty (pg_node.common.perturbations)
+for _term, _info in TERMS.items():
+    SIM_PARAMS[PARAM_PREFIX + _term] = Param(
+        '', f'domain randomization: {_info.description} ({_info.default_op}'
+            f'{", " + _info.unit if _info.unit else ""}); "[operation] distribution a b '
+            '[reset|startup|every N]" or one value; empty: off (docs/robustness.md)',
+        validate=lambda text, _t=_term: parse_term(_t, text), numbers_as_text=True)
 
 #: policy_node: a trained policy run in real time (not part of the training graph, so not in
 #: :data:`SCHEMA`, whose nodes ``train`` configures and ``config/pg_node.yaml`` lists).

@@ -11,6 +11,7 @@ from typing import Callable, Dict, Optional
 
 import numpy as np
 from pg_node.common.paths import resolve_model
+from pg_node.common.perturbations import from_params
 from pg_node.rl.critic import Critic
 from pg_node.rl.evaluate import evaluate_policy
 from pg_node.rl.learner import Learner
@@ -27,8 +28,14 @@ def train_inprocess(cfg: Dict[str, Dict], total_steps: int,
     torch.set_num_threads(1)
     shared = cfg['/**']
     a_cfg, c_cfg, l_cfg = cfg['actor_node'], cfg['critic_node'], cfg['learner_node']
+    sim = cfg.get('sim_node', {})
+    # the simulator node's task: its episode length, reward weights and randomization
     task = ArmTask(resolve_model(shared['model']), num_envs=shared['num_envs'],
-                   seed=shared['seed'])
+                   seed=shared['seed'], frame_skip=sim.get('frame_skip', 2),
+                   max_episode_steps=sim.get('max_episode_steps', 50),
+                   reward_dist_weight=sim.get('reward_dist_weight', 1.0),
+                   reward_control_weight=sim.get('reward_control_weight', 1.0),
+                   randomization=from_params(sim))
     learner = Learner(task.obs_dim, task.act_dim, {**l_cfg, **a_cfg})
     critic = Critic(task.obs_dim, c_cfg)
     buf = RolloutBuffer(a_cfg['n_steps'], task.num_envs, task.obs_dim, task.act_dim)

@@ -48,7 +48,8 @@ from pg_node.rl.logger import TensorBoardLog
 from pg_node.ros import messages
 from pg_node.ros import table_msg
 from pg_node.ros.node_utils import (Diagnostics, DONE, LATCHED, LEARNER_STATE, learner_state_msg,
-                                    RateCounter, RELIABLE, run, RunGuard, TRAINING)
+                                    RANDOMIZATION, RateCounter, RELIABLE, run, RunGuard,
+                                    TRAINING)
 from pg_node.ros.parameters import declare_params
 from rclpy.node import Node
 from std_msgs.msg import Float64, Float64MultiArray
@@ -129,6 +130,8 @@ class LearnerNode(Node):
                             for name in METRICS}
         self.create_subscription(Float64MultiArray, self.run.topic('batch'), self.on_batch,
                                  RELIABLE)
+        self.create_subscription(Float64MultiArray, self.run.topic(RANDOMIZATION),
+                                 self.on_randomization, 100)
         self.diag = Diagnostics(self, 'learner_node', self.cfg['algo'])
         self.pub_state = self.create_publisher(DiagnosticStatus, self.run.topic(LEARNER_STATE),
                                                LATCHED)
@@ -145,6 +148,14 @@ class LearnerNode(Node):
         layout, vec = self.learner.weights()
         self.pub_weights.publish(table_msg.to_msg(*messages.pack_weights(
             layout, vec, self.learner.version, self.learner.env_steps, self.run.token)))
+
+    def on_randomization(self, msg: Float64MultiArray):
+        """Write a simulator's drawn randomization terms to the bag, as they came."""
+        if self.done or not msg.data or msg.layout.data_offset < 1:
+            return
+        if self.run.foreign(int(msg.data[0]), self.run.topic(RANDOMIZATION)):
+            return
+        self.recorder.record_randomization(msg, time.time_ns())
 
     def on_batch(self, msg: Float64MultiArray):
         """Learn from a batch of the right version; publish, log and checkpoint."""

@@ -31,6 +31,9 @@ LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
 RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
                       durability=DurabilityPolicy.VOLATILE, history=HistoryPolicy.KEEP_LAST)
 
+#: run topic where each simulator publishes its arms' drawn randomization terms, for the bag
+RANDOMIZATION = 'randomization'
+
 
 class Diagnostics:
     """Publishes one ``DiagnosticStatus`` of a node on ``/diagnostics`` from its counters."""

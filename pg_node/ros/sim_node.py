@@ -96,11 +96,12 @@ import numpy as np
 from pg_node.bag.ros_types import float64_field
 from pg_node.common.params import params_for
 from pg_node.common.paths import resolve_model
+from pg_node.common.perturbations import from_params
 from pg_node.common.run import COMMANDS
 from pg_node.ros import command
 from pg_node.ros import table_msg
 from pg_node.ros import transition
-from pg_node.ros.node_utils import EndWithLearner, run, RunGuard
+from pg_node.ros.node_utils import EndWithLearner, RANDOMIZATION, run, RunGuard
 from pg_node.ros.parameters import declare_params
 from pg_node.sim.arm_task import arm_groups, ArmTask
 from rclpy.event_handler import PublisherEventCallbacks
@@ -123,6 +124,23 @@ def sim_stamp(seconds: float) -> Time:
     return Time(sec=nanos // 1_000_000_000, nanosec=nanos % 1_000_000_000)
 
 
+def randomization_msg(task: ArmTask, arms, run: int, sim_seed: int) -> Float64MultiArray:
+    """
+    Return the drawn terms of ``arms`` as a table: header ``run sim_seed``, then per arm.
+
+    Fields: ``arm``, ``episode_id``, ``episode_step`` (of the episode the values hold for,
+    from that step on) and one column per drawn value, labelled as
+    :attr:`pg_node.sim.randomization.Randomizer.labels` (``mass/body0``, ``latency``...).
+    ``sim_seed`` tells several simulators of one run apart.
+    """
+    r, arms = task.randomizer, np.asarray(arms)
+    fields = {'arm': arms, 'episode_id': task.episode_id[arms],
+              'episode_step': task.episode_step[arms]}
+    fields.update({label: r.values[arms, c] for c, label in enumerate(r.labels)})
+    dims, offset, data = table_msg.pack([run, sim_seed], fields)
+    return table_msg.to_msg(dims, offset, data)
+
+
 class SimNode(Node):
     """Publish simulated arms and step them on torque commands."""
 
@@ -140,7 +158,8 @@ class SimNode(Node):
                             frame_skip=p['frame_skip'],
                             max_episode_steps=p['max_episode_steps'],
                             reward_dist_weight=p['reward_dist_weight'],
-                            reward_control_weight=p['reward_control_weight'])
+                            reward_control_weight=p['reward_control_weight'],
+                            randomization=from_params(p))
         self.params = p
         self.run = RunGuard(self, p['run_id'])
         self.end_with_learner = EndWithLearner(self, self.run)   # ros2 run: end with it
@@ -181,6 +200,12 @@ class SimNode(Node):
         self.pub_transition = self.create_publisher(Float64MultiArray, 'pg_node/transition',
                                                     reliable_latched)
         self.pub_markers = self.create_publisher(MarkerArray, 'pg_node/markers', 1)
+        self.pub_draws = None
+        if self.task.randomizer is not None:
+            # every arm's drawn terms when they change (the learner writes them to the bag)
+            self.pub_draws = self.create_publisher(
+                Float64MultiArray, self.run.topic(RANDOMIZATION),
+                QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
         self.pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self.create_subscription(Float64MultiArray, COMMANDS, self.on_command, 10, raw=True)
         self.create_service(Trigger, '~/reset_world', self.on_reset_world)
@@ -355,6 +380,16 @@ class SimNode(Node):
             self.counters['steps'] += 1      # a control step: every group has stepped
         self.publish_state(g, self.group_transition(g, obs, reward, terminated, truncated,
                                                     info['final_obs']), last)
+        self.publish_draws()
+
+    def publish_draws(self):
+        """Publish the terms the arms drew since the last call, one row per arm."""
+        if self.pub_draws is None:
+            return
+        arms = self.task.randomizer.take_drawn()
+        if arms:
+            self.pub_draws.publish(randomization_msg(self.task, arms, self.run.token,
+                                                     self.params['seed']))
 
     def group_transition(self, g: int, obs, reward, terminated, truncated,
                          final_obs) -> transition.Transition:
@@ -385,6 +420,7 @@ class SimNode(Node):
             no = np.zeros(k, dtype=bool)
             tr = self.group_transition(g, obs[arms], np.zeros(k), no, no, obs[arms])
             self.publish_state(g, tr, g == len(self.groups) - 1)
+        self.publish_draws()
 
     def publish_state(self, g: int, tr: transition.Transition, last: bool = True):
         """

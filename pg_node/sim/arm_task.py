@@ -61,10 +61,12 @@ post-step ``xpos`` that Reacher-v5's reward reads, so rollout is not used.
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 import os
-from typing import List, Optional
+from typing import List, Mapping, Optional
 
 import mujoco
 import numpy as np
+from pg_node.common.perturbations import parse_terms, TermSpec
+from pg_node.sim.randomization import Randomizer
 
 FINGERTIP_SITE = 'fingertip'
 TARGET_BODY = 'target'
@@ -243,12 +245,15 @@ class ArmTask:
     def __init__(self, model_path, num_envs: int = 1, seed: Optional[int] = None,
                  frame_skip: int = 2, max_episode_steps: Optional[int] = 50,
                  reward_dist_weight: float = 1.0, reward_control_weight: float = 1.0,
-                 num_threads: Optional[int] = None):
+                 num_threads: Optional[int] = None,
+                 randomization: Optional[Mapping[str, object]] = None):
         """
         Load the model and make ``num_envs`` simulations of it; call ``reset`` next.
 
         ``num_threads`` threads step the envs (1: a plain loop); by default 1 below
         ``THREADS_FROM_ENVS`` envs, else the number of CPUs (at most 4).
+        ``randomization`` maps terms of :mod:`pg_node.sim.randomization` to their strings
+        (or :class:`~pg_node.sim.randomization.TermSpec`); empty or None: the nominal arm.
         """
         if (num_envs < 1 or frame_skip < 1
                 or (max_episode_steps is not None and max_episode_steps < 1)):
@@ -277,6 +282,16 @@ class ArmTask:
         self.episode_return = np.zeros(self.num_envs)
         self._next_episode_id = 0
         self._rngs = []
+        terms = {t: v for t, v in (randomization or {}).items() if isinstance(v, TermSpec)}
+        terms.update(parse_terms({t: v for t, v in (randomization or {}).items()
+                                  if not isinstance(v, TermSpec)}))
+        self.randomizer = None
+        if terms:
+            self.randomizer = Randomizer(self.model, self.spec, terms, self.num_envs,
+                                         0 if seed is None else seed)
+        #: the model each env steps with (one per env under a model term, else shared)
+        self.models = (self.randomizer.models if self.randomizer is not None
+                       else [self.model] * self.num_envs)
         self._seed(seed)
         if num_threads is None:
             num_threads = (1 if self.num_envs < THREADS_FROM_ENVS
@@ -300,6 +315,8 @@ class ArmTask:
         """Give env ``i`` the generator ``PCG64(SeedSequence(seed + i))``."""
         if seed is None:
             seed = int(np.random.SeedSequence().entropy)
+        if self.randomizer is not None:
+            self.randomizer.seed(seed)
         self._rngs = [np.random.Generator(np.random.PCG64(np.random.SeedSequence(seed + i)))
                       for i in range(self.num_envs)]
 
@@ -341,6 +358,9 @@ class ArmTask:
             qvel[s.target_dof_adr] = 0.0
         d.qpos[:] = qpos
         d.qvel[:] = qvel
+        if self.randomizer is not None:
+            self.randomizer.on_reset(i)
+            m = self.randomizer.models[i]
         mujoco.mj_forward(m, d)
         self.episode_id[i] = self._next_episode_id
         self._next_episode_id += 1
@@ -349,7 +369,7 @@ class ArmTask:
 
     def set_state(self, i: int, qpos, qvel, target=None):
         """Put env ``i`` in a given state (and goal), as Gymnasium's ``set_state`` does."""
-        m, d, s = self.model, self.datas[i], self.spec
+        d, s = self.datas[i], self.spec
         d.qpos[:] = qpos
         d.qvel[:] = qvel
         if target is not None:
@@ -358,7 +378,7 @@ class ArmTask:
             else:
                 d.qpos[s.target_qpos_adr] = target
                 d.qvel[s.target_dof_adr] = 0.0
-        mujoco.mj_forward(m, d)
+        mujoco.mj_forward(self.models[i], d)
 
     def _gather(self, name: str, arms: slice = slice(None)) -> np.ndarray:
         """Return field ``name`` of the envs ``arms`` stacked: ``(n, ...)``, a copy."""
@@ -376,11 +396,15 @@ class ArmTask:
         """
         Return arm joint ``(position, velocity, effort)``, each ``(N, n_joints)``.
 
-        The effort is the actuator force on the joint (``qfrc_actuator``), in N m.
+        The effort is the actuator force on the joint (``qfrc_actuator``), in N m. Under
+        observation noise, positions and velocities carry the current observation's noise
+        (what a noisy encoder reports).
         """
-        s = self.spec
-        return (self._gather('qpos')[:, s.qpos_adr], self._gather('qvel')[:, s.dof_adr],
-                self._gather('qfrc_actuator')[:, s.dof_adr])
+        s, r = self.spec, self.randomizer
+        pos, vel = self._gather('qpos')[:, s.qpos_adr], self._gather('qvel')[:, s.dof_adr]
+        if r is not None and r.has_obs_noise:
+            pos, vel = pos + r.noise_q, vel + r.noise_v
+        return pos, vel, self._gather('qfrc_actuator')[:, s.dof_adr]
 
     def link_positions(self) -> np.ndarray:
         """Return ``(N, L, 2, 3)`` segments from each arm body's parent to the body, then tip."""
@@ -409,9 +433,17 @@ class ArmTask:
                                      if s.target_mocap >= 0 else qpos[:, s.target_qpos_adr])
         vec = (self._gather('site_xpos', arms)[:, s.fingertip_site]
                - self._gather('xpos', arms)[:, s.target_body])
+        r = self.randomizer
+        if r is not None and r.has_obs_noise:
+            # sensors, not the world: the true vec stays for the reward
+            q = q + r.noise_q[arms]
+            obs[:, 2 * nj + k:3 * nj + k] += r.noise_v[arms]
+            obs[:, 2 * nj:2 * nj + k] += r.noise_t[arms]
+            obs[:, 3 * nj + k:] = vec[:, :k] - r.noise_t[arms]
+        else:
+            obs[:, 3 * nj + k:] = vec[:, :k]
         obs[:, :nj] = np.cos(q)
         obs[:, nj:2 * nj] = np.sin(q)
-        obs[:, 3 * nj + k:] = vec[:, :k]
         return obs, vec
 
     def _chunks_of(self, lo: int, hi: int):
@@ -433,7 +465,8 @@ class ArmTask:
         holding ``final_obs`` (the observation the action reached), ``episode_id`` and
         ``episode_step`` of the returned observation, ``final_episode_id`` (the episode
         the action was taken in), ``episode_return`` / ``episode_length`` (NaN / 0 where
-        no episode ended) and the two reward terms ``reward_dist`` and ``reward_ctrl``.
+        no episode ended), the two reward terms ``reward_dist`` and ``reward_ctrl`` and
+        ``distance``, the true fingertip-to-target distance in m after the step.
         """
         lo, hi, _ = (slice(None) if arms is None else arms).indices(self.num_envs)
         sl = slice(lo, hi)
@@ -441,21 +474,29 @@ class ArmTask:
         if act.shape != (hi - lo, self.act_dim):
             raise ValueError(f'act has shape {act.shape}, expected '
                              f'{(hi - lo, self.act_dim)}')
-        m, n, datas, ctrl = self.model, self.frame_skip, self.datas, self._views['ctrl']
+        n, datas, ctrl, models = self.frame_skip, self.datas, self._views['ctrl'], self.models
+        applied, r = act, self.randomizer
+        if r is not None:
+            r.before_step(lo, hi)
+            applied = r.applied_action(act, lo, hi)
 
         def advance(envs):
             for i in envs:
-                ctrl[i][:] = act[i - lo]
-                mujoco.mj_step(m, datas[i], nstep=n)
+                ctrl[i][:] = applied[i - lo]
+                mujoco.mj_step(models[i], datas[i], nstep=n)
 
         chunks = self._chunks_of(lo, hi)
         others = [self._pool.submit(advance, c) for c in chunks[1:]] if self._pool else ()
         advance(chunks[0])
         for job in others:
             job.result()
+        if r is not None and r.has_obs_noise:
+            for i in range(lo, hi):
+                r.draw_noise(i)
         obs, vec = self._observe(sl)
         # reward from the post-step positions, in Reacher-v5's order of operations
-        reward_dist = -np.sqrt(np.einsum('ij,ij->i', vec, vec))
+        distance = np.sqrt(np.einsum('ij,ij->i', vec, vec))
+        reward_dist = -distance
         reward_dist *= self.reward_dist_weight
         reward_ctrl = -np.square(act).sum(axis=1) * self.reward_control_weight
         reward = reward_dist + reward_ctrl
@@ -475,6 +516,7 @@ class ArmTask:
             'episode_length': np.where(done, self.episode_step[sl], 0),
             'reward_dist': reward_dist,
             'reward_ctrl': reward_ctrl,
+            'distance': distance,
         }
         for i in np.flatnonzero(done):
             self.reset_env(lo + int(i))

@@ -43,13 +43,17 @@ class ArmEnv(gymnasium.Env):
 
     def __init__(self, model: str = 'reacher2', frame_skip: int = 2,
                  reward_dist_weight: float = 1.0, reward_control_weight: float = 1.0,
-                 render_mode: Optional[str] = None, width: int = 320, height: int = 240):
+                 render_mode: Optional[str] = None, width: int = 320, height: int = 240,
+                 randomization: Optional[dict] = None):
         """
         Load ``model`` (a shipped model's name or an MJCF path).
 
         ``render_mode='rgb_array'`` (what SB3's ``make_vec_env`` asks for) makes
         :meth:`render` return the arm drawn by MuJoCo's offscreen renderer; the renderer is
         created on the first call, so an environment that is never rendered needs no OpenGL.
+        ``randomization`` takes the terms of :mod:`pg_node.sim.randomization`, as
+        ``sim_node``'s ``randomize_<term>`` parameters do (``{'mass': 'uniform 0.7 1.5'}``);
+        ``reset(seed=s)`` seeds them as the simulator's arm 0 of seed ``s``.
         """
         if render_mode not in (None, 'rgb_array'):
             raise ValueError(f'render_mode {render_mode!r} is not supported; use None or '
@@ -60,7 +64,8 @@ class ArmEnv(gymnasium.Env):
         self._camera = None
         self.task = ArmTask(resolve_model(model), num_envs=1, frame_skip=frame_skip,
                             max_episode_steps=None, reward_dist_weight=reward_dist_weight,
-                            reward_control_weight=reward_control_weight, num_threads=1)
+                            reward_control_weight=reward_control_weight, num_threads=1,
+                            randomization=randomization)
         spec = self.task.spec
         self.observation_space = spaces.Box(-np.inf, np.inf, shape=(self.task.obs_dim,),
                                             dtype=np.float64)
@@ -73,6 +78,8 @@ class ArmEnv(gymnasium.Env):
     def reset(self, *, seed: Optional[int] = None, options: Optional[dict] = None):
         """Start an episode drawn from ``self.np_random``; return ``(obs, info)``."""
         super().reset(seed=seed)
+        if seed is not None and self.task.randomizer is not None:
+            self.task.randomizer.seed(seed)
         self.task.rngs[0] = self.np_random
         self.task.reset_env(0)
         return self.task.observe()[0], {}
@@ -83,7 +90,8 @@ class ArmEnv(gymnasium.Env):
         obs, reward, terminated, truncated, info = self.task.step(act)
         return (obs[0], float(reward[0]), bool(terminated[0]), bool(truncated[0]),
                 {'reward_dist': float(info['reward_dist'][0]),
-                 'reward_ctrl': float(info['reward_ctrl'][0])})
+                 'reward_ctrl': float(info['reward_ctrl'][0]),
+                 'distance': float(info['distance'][0])})
 
     def render(self):
         """Return the current frame as an ``(height, width, 3)`` uint8 array (rgb_array)."""

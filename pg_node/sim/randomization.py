@@ -1,0 +1,232 @@
+"""
+The terms of :mod:`pg_node.common.perturbations` applied to the arms of an ``ArmTask``.
+
+:class:`Randomizer` holds what differs per arm: a copy of the ``MjModel`` with its drawn
+masses, damping, friction, armature and gears (only when such a term is on; the arms
+share one model otherwise), each arm's recent commands (latency) and the noise of its
+next observation. It draws from generators of its own, so the task's episode starts are
+the same with and without it.
+"""
+import copy
+import math
+from typing import List, Mapping
+
+import mujoco
+import numpy as np
+from pg_node.common.perturbations import BadTerm, STREAM, TERMS, TermSpec
+
+
+def _arm_bodies(model: mujoco.MjModel, target_body: int) -> np.ndarray:
+    """Return the bodies that are links of the arm: not the world, not the target's."""
+    bodies = []
+    for b in range(1, model.nbody):
+        root = b
+        while model.body_parentid[root] != 0:
+            root = model.body_parentid[root]
+        if b != target_body and root != target_body and model.body_mass[b] > 0:
+            bodies.append(b)
+    return np.array(bodies, dtype=int)
+
+
+class Randomizer:
+    """
+    The terms of one :class:`~pg_node.sim.arm_task.ArmTask`, for its ``num_envs`` arms.
+
+    Holds one ``MjModel`` per arm when a model term is on (they differ), the arms' command
+    histories for latency, and the current noise of each arm's observation.
+    """
+
+    def __init__(self, model: mujoco.MjModel, spec, terms: Mapping[str, TermSpec],
+                 num_envs: int, seed: int):
+        self.base = model
+        self.terms = dict(terms)
+        self.num_envs = num_envs
+        self.nj, self.k = len(spec.joint_ids), spec.target_dim
+        self.act_dim = model.nu
+        self.bodies = _arm_bodies(model, spec.target_body)
+        self.dofs = np.asarray(spec.dof_adr)
+        has_model_terms = any(TERMS[t].kind == 'model' for t in self.terms)
+        self.models = ([copy.deepcopy(model) for _ in range(num_envs)] if has_model_terms
+                       else [model] * num_envs)
+        self._scratch = [mujoco.MjData(m) for m in self.models] if has_model_terms else None
+        self.labels = self._labels(model)
+        self.cols, col = {}, 0
+        for term in self.terms:
+            self.cols[term] = slice(col, col + self._width(term))
+            col += self._width(term)
+        self._noise_terms = [(t, w) for t, w in (('obs_noise', self.nj), ('vel_noise', self.nj),
+                                                 ('target_noise', self.k)) if t in self.terms]
+        self._noise_width = sum(w for _, w in self._noise_terms)
+        self._check_nominal(model)
+        self.values = np.full((num_envs, len(self.labels)), np.nan)
+        latency = self.terms.get('latency')
+        self.history = (int(math.floor(latency.bounds[1])) + 1) if latency else 1
+        self.hist = np.zeros((num_envs, self.history, self.act_dim))
+        self.latency = np.zeros(num_envs, dtype=np.int64)
+        self.noise_q = np.zeros((num_envs, self.nj))
+        self.noise_v = np.zeros((num_envs, self.nj))
+        self.noise_t = np.zeros((num_envs, self.k))
+        self.steps = np.zeros(num_envs, dtype=np.int64)
+        self.seed(seed)
+
+    def _check_nominal(self, model):
+        """Refuse an ``add`` whose range takes a nominal value below zero."""
+        fields = {'mass': model.body_mass[self.bodies],
+                  'damping': model.dof_damping[self.dofs],
+                  'frictionloss': model.dof_frictionloss[self.dofs],
+                  'armature': model.dof_armature[self.dofs],
+                  'gear': model.actuator_gear[:, 0]}
+        for term, spec in self.terms.items():
+            if spec.operation != 'add' or term not in fields:
+                continue
+            lowest = float(np.min(fields[term])) + spec.bounds[0]
+            positive = term in ('mass', 'gear')
+            if lowest < 0 or (lowest <= 0 and positive):
+                raise BadTerm(f'{term} {spec.text()}: the {term} of this model would reach '
+                              f'{lowest:g}; it must stay {"> 0" if positive else ">= 0"}')
+        if 'mass' in self.terms and not len(self.bodies):
+            raise BadTerm('mass: this model has no links with mass to change')
+
+    def _labels(self, model) -> List[str]:
+        """Name each drawn value: ``mass/<body>``, ``damping/<joint>``, ``latency``..."""
+        def name(kind, i):
+            return mujoco.mj_id2name(model, kind, int(i)) or str(int(i))
+        labels = []
+        for term in self.terms:
+            if term == 'mass':
+                labels += [f'mass/{name(mujoco.mjtObj.mjOBJ_BODY, b)}' for b in self.bodies]
+            elif term in ('damping', 'frictionloss', 'armature'):
+                joints = model.dof_jntid[self.dofs]
+                labels += [f'{term}/{name(mujoco.mjtObj.mjOBJ_JOINT, j)}' for j in joints]
+            elif term == 'gear':
+                labels += [f'gear/{name(mujoco.mjtObj.mjOBJ_ACTUATOR, a)}'
+                           for a in range(model.nu)]
+            else:
+                labels.append(term)
+        return labels
+
+    def seed(self, seed: int):
+        """Give arm ``i`` the generator ``PCG64(SeedSequence(seed + i, spawn_key=(1,)))``."""
+        self.rngs = [np.random.Generator(np.random.PCG64(
+            np.random.SeedSequence(int(seed) + i, spawn_key=(STREAM,))))
+            for i in range(self.num_envs)]
+        self.drawn = set()
+        for i in range(self.num_envs):
+            self._draw(i, startup=True)
+
+    def _sample(self, spec: TermSpec, rng, size) -> np.ndarray:
+        if spec.distribution == 'uniform':
+            if spec.term == 'latency':
+                return rng.integers(int(spec.a), int(spec.b) + 1, size=size).astype(float)
+            return rng.uniform(spec.a, spec.b, size=size)
+        if spec.distribution == 'log_uniform':
+            x = np.exp(rng.uniform(math.log(spec.a), math.log(spec.b), size=size))
+        else:
+            x = np.clip(rng.normal(spec.a, spec.b, size=size), *spec.bounds)
+        return np.rint(x) if spec.term == 'latency' else x
+
+    def _draw(self, i: int, startup: bool = False, every: bool = False):
+        """Draw arm ``i``'s terms that are due: at startup all, else by their ``when``."""
+        rng, changed_model = self.rngs[i], False
+        for term, spec in self.terms.items():
+            due = (startup or (spec.when == 'reset' and not every)
+                   or (spec.when == 'every' and every))
+            if due:
+                cols = self.cols[term]
+                self.values[i, cols] = self._sample(spec, rng, cols.stop - cols.start)
+                changed_model |= TERMS[term].kind == 'model'
+                self.drawn.add(i)
+        if changed_model:
+            self._apply_model(i)
+        if 'latency' in self.terms:
+            self.latency[i] = int(self.values[i, self.cols['latency']][0])
+
+    def _width(self, term: str) -> int:
+        if term == 'mass':
+            return len(self.bodies)
+        if term in ('damping', 'frictionloss', 'armature'):
+            return len(self.dofs)
+        if term == 'gear':
+            return self.act_dim
+        return 1
+
+    def value(self, i: int, term: str) -> np.ndarray:
+        """Return arm ``i``'s current draw of ``term`` (one value per link/joint/motor)."""
+        return self.values[i, self.cols[term]]
+
+    def _apply_model(self, i: int):
+        """Write arm ``i``'s model terms over the nominal values of its own ``MjModel``."""
+        m, base = self.models[i], self.base
+
+        def applied(term, nominal):
+            spec, v = self.terms[term], self.value(i, term)
+            if spec.operation == 'scale':
+                return nominal * v
+            if spec.operation == 'add':
+                return nominal + v
+            return np.broadcast_to(v, nominal.shape).copy()
+
+        if 'mass' in self.terms:
+            b = self.bodies
+            mass = applied('mass', base.body_mass[b])
+            m.body_mass[b] = mass
+            m.body_inertia[b] = base.body_inertia[b] * (mass / base.body_mass[b])[:, None]
+        for term, field in (('damping', 'dof_damping'), ('frictionloss', 'dof_frictionloss'),
+                            ('armature', 'dof_armature')):
+            if term in self.terms:
+                getattr(m, field)[self.dofs] = applied(term, getattr(base, field)[self.dofs])
+        if 'gear' in self.terms:
+            m.actuator_gear[:, 0] = applied('gear', base.actuator_gear[:, 0])
+        # the constants MuJoCo derives from masses and armature (invweight0, ...)
+        mujoco.mj_setConst(m, self._scratch[i])
+
+    def on_reset(self, i: int):
+        """Arm ``i`` starts an episode: redraw its reset terms, clear its commands."""
+        self._draw(i)
+        self.hist[i] = 0.0
+        self.draw_noise(i)
+
+    def before_step(self, lo: int, hi: int):
+        """Redraw the ``every N`` terms of arms ``lo..hi-1`` that are due."""
+        periodic = [s.every for s in self.terms.values() if s.when == 'every']
+        if periodic:
+            for i in range(lo, hi):
+                if any(self.steps[i] and self.steps[i] % n == 0 for n in periodic):
+                    self._draw(i, every=True)
+        self.steps[lo:hi] += 1
+
+    def applied_action(self, act: np.ndarray, lo: int, hi: int) -> np.ndarray:
+        """Return the commands arms ``lo..hi-1`` apply now: late by their latency, noisy."""
+        if self.history > 1:
+            self.hist[lo:hi, 1:] = self.hist[lo:hi, :-1]
+            self.hist[lo:hi, 0] = act
+            act = self.hist[np.arange(lo, hi), self.latency[lo:hi]]
+        spec = self.terms.get('action_noise')
+        if spec is not None:
+            act = act + np.stack([self.rngs[i].standard_normal(self.act_dim)
+                                  for i in range(lo, hi)]) * self._std('action_noise', lo, hi)
+        return act
+
+    def _std(self, term: str, lo: int, hi: int) -> np.ndarray:
+        return self.values[lo:hi, self.cols[term]]
+
+    def draw_noise(self, i: int):
+        """Draw arm ``i``'s observation noise for its next observation (one draw)."""
+        if not self._noise_width:
+            return
+        z, col = self.rngs[i].standard_normal(self._noise_width), 0
+        for term, width in self._noise_terms:
+            out = {'obs_noise': self.noise_q, 'vel_noise': self.noise_v,
+                   'target_noise': self.noise_t}[term]
+            out[i] = z[col:col + width] * self.values[i, self.cols[term].start]
+            col += width
+
+    def take_drawn(self) -> List[int]:
+        """Return the arms that drew new values since the last call (sorted), and forget."""
+        drawn, self.drawn = sorted(self.drawn), set()
+        return drawn
+
+    @property
+    def has_obs_noise(self) -> bool:
+        """Return whether any observation noise term is on."""
+        return bool(self._noise_width)
