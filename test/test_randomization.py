@@ -14,6 +14,7 @@ from pg_node.common.paths import resolve_model
 from pg_node.common.perturbations import BadTerm, parse_perturbation, parse_term
 from pg_node.sim.arm_task import ArmTask
 import pg_node.sim.gym_env  # noqa: F401  (registers the ids)
+from pg_node.sim.observation import ObservationBuilder
 import pytest
 
 REACHER = resolve_model('reacher2')
@@ -72,7 +73,7 @@ def test_perturbation_keys():
         'mass': 'scale 1.3 startup', 'latency': 'abs 2 startup', 'obs_noise': 'abs 0.02 startup',
         'damping': 'add 0.5 startup'}
     for bad, message in [(['mass=1.3', 'mass_scale=1'], 'mass given twice'),
-                         (['weight_scale=2'], "unknown key; known: mass_scale"),
+                         (['weight_scale=2'], 'unknown key; known: mass_scale'),
                          (['mass_scale'], 'write KEY=VALUE'),
                          (['latency_steps=1.5'], 'latency is whole control steps'),
                          (['mass_scale=0'], 'a mass scale must stay > 0')]:
@@ -122,7 +123,7 @@ def test_stepping_groups_in_turn_is_stepping_all_arms_with_every_term():
                     randomization=EVERY_TERM)
     parts = ArmTask(REACHER, num_envs=6, seed=3, max_episode_steps=4,
                     randomization=EVERY_TERM)
-    o1, o2 = whole.reset(), parts.reset()
+    whole.reset(), parts.reset()
     acts = actions(20, 6)
     for t in range(20):
         o1, r1, *_ = whole.step(acts[t])
@@ -199,9 +200,16 @@ def test_observation_noise_is_in_the_observation_only():
     act = actions(1, 2)[0]
     ra, rb = a.step(act)[1], b.step(act)[1]
     assert np.array_equal(ra, rb)                 # the true reward, the same arm state
-    q_noisy = np.arctan2(b.observe()[:, 2:4], b.observe()[:, 0:2])
+    obs = b.observe()
+    q_noisy = np.arctan2(obs[:, 2:4], obs[:, 0:2])
     q_true = a.joint_state()[0]
     assert 0.01 < np.abs(q_noisy - q_true).mean() < 0.15
+    # what a robot computes from noisy encoders and a noisy target: the fingertip by
+    # forward kinematics of the noisy angles (policy_node's ObservationBuilder)
+    target = b.target_pos()
+    target[:, :2] = obs[:, 4:6]                     # the goal's x, y as observed (noisy)
+    rebuilt = ObservationBuilder(b.model)(q_noisy, obs[:, 6:8], target)
+    assert np.allclose(rebuilt, obs, atol=1e-12)
     a.close(), b.close()
 
 

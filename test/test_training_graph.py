@@ -115,8 +115,8 @@ RANDOMIZED = ['randomize_mass=uniform 0.5 2', 'randomize_damping=log_uniform 0.5
 
 @pytest.mark.parametrize('groups, overrides', [(2, []), (3, RANDOMIZED)],
                          ids=['2-groups', '3-groups-randomized'])
-def test_graph_equals_inprocess_reference_with_other_lock_step_groups(tmp_path, groups,
-                                                                     overrides):
+def test_graph_equals_inprocess_reference_with_other_lock_step_groups(
+        tmp_path, groups, overrides):
     """
     Two groups of 32 arms, or three of 21-22 arms: the in-process computation too.
 
@@ -144,7 +144,7 @@ def test_graph_equals_inprocess_reference_with_other_lock_step_groups(tmp_path, 
                 header, fields = table_msg.unpack(
                     [(d.label, d.size, d.stride) for d in msg.layout.dim],
                     msg.layout.data_offset, msg.data, 2,
-                    {name: None for name in [d.label for d in msg.layout.dim[1:]]})
+                    dict.fromkeys([d.label for d in msg.layout.dim[1:]]))
                 rows += list(zip(fields['arm'][:, 0], fields['episode_id'][:, 0],
                                  fields['latency'][:, 0], fields['mass/body0'][:, 0]))
         episodes = {(int(a), int(e)) for a, e, _, _ in rows}

@@ -45,8 +45,9 @@ episode has L commands, the arm gets zero (the control penalty is still on the c
 action, what the policy chose). Action noise is added to the applied command, which MuJoCo
 then clamps to the control range. Observation noise is drawn once per control step and
 arm and enters only the observation (and ``joint_state``): the reward and the recorded
-distance are the true ones. The fingertip-to-target part of the observation is computed
-against the noisy target, as a perception pipeline would.
+distance are the true ones. The fingertip-to-target part of the observation is what a
+robot computes: the fingertip by forward kinematics of the noisy joint angles, minus the
+noisy target.
 
 The terms are applied by :class:`pg_node.sim.randomization.Randomizer`, inside
 :class:`~pg_node.sim.arm_task.ArmTask`. Every arm draws from its own generator,

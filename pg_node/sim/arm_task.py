@@ -436,10 +436,14 @@ class ArmTask:
         r = self.randomizer
         if r is not None and r.has_obs_noise:
             # sensors, not the world: the true vec stays for the reward
-            q = q + r.noise_q[arms]
+            seen = vec
+            if 'obs_noise' in r.terms:
+                q = q + r.noise_q[arms]
+                seen = (r.fingertips(q)
+                        - self._gather('xpos', arms)[:, s.target_body])
             obs[:, 2 * nj + k:3 * nj + k] += r.noise_v[arms]
             obs[:, 2 * nj:2 * nj + k] += r.noise_t[arms]
-            obs[:, 3 * nj + k:] = vec[:, :k] - r.noise_t[arms]
+            obs[:, 3 * nj + k:] = seen[:, :k] - r.noise_t[arms]
         else:
             obs[:, 3 * nj + k:] = vec[:, :k]
         obs[:, :nj] = np.cos(q)

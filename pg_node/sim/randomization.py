@@ -67,6 +67,8 @@ class Randomizer:
         self.noise_v = np.zeros((num_envs, self.nj))
         self.noise_t = np.zeros((num_envs, self.k))
         self.steps = np.zeros(num_envs, dtype=np.int64)
+        self._fk = mujoco.MjData(model) if 'obs_noise' in self.terms else None
+        self._qpos_adr, self._tip = spec.qpos_adr, spec.fingertip_site
         self.seed(seed)
 
     def _check_nominal(self, model):
@@ -225,6 +227,20 @@ class Randomizer:
         """Return the arms that drew new values since the last call (sorted), and forget."""
         drawn, self.drawn = sorted(self.drawn), set()
         return drawn
+
+    def fingertips(self, q: np.ndarray) -> np.ndarray:
+        """
+        Return the fingertips ``(n, 3)`` at joint angles ``q``, by forward kinematics.
+
+        Under ``obs_noise`` the observation's fingertip-to-target part is computed from the
+        noisy angles, as a robot computes it from its encoders (ObservationBuilder).
+        """
+        out, d = np.empty((len(q), 3)), self._fk
+        for i, angles in enumerate(q):
+            d.qpos[self._qpos_adr] = angles
+            mujoco.mj_kinematics(self.base, d)
+            out[i] = d.site_xpos[self._tip]
+        return out
 
     @property
     def has_obs_noise(self) -> bool:

@@ -17,6 +17,8 @@ EXIT_BROKEN_PIPE = 128 + 13
 COMMANDS = {
     'train': ('pg_node.tools.train', 'start the training graph (sim, actor, critic, learner)'),
     'eval': ('pg_node.tools.evaluate', 'evaluate a saved policy checkpoint'),
+    'robustness': ('pg_node.tools.robustness', 'compare trained policies on arms that are not '
+                                               'their model (mass, strength, latency, noise)'),
     'variance': ('pg_node.tools.variance', 'bias and variance of every gradient estimator'),
     'bench': ('pg_node.tools.bench', 'throughput, latency and learning benchmarks'),
     'replay': ('pg_node.ros.replay_node', 'play a rosbag2 MCAP bag back onto its topics'),

@@ -5,6 +5,11 @@ Takes a run directory (its ``checkpoints/``), a directory of policy checkpoints 
 valid one is used) or one ``ckpt_*.pt`` file. A directory of the critic's checkpoints
 (``<run>/critic``), a ``--model`` whose observation or action size differs from the one the
 policy was trained on, and an unreadable file are refused in one line.
+
+``--perturb KEY=VALUE ...`` evaluates on an arm that is not the model, the same for every
+episode: ``mass_scale=1.3 gear_scale=0.8 damping_scale=2 latency_steps=2 obs_noise=0.02``
+(the keys of :func:`pg_node.common.perturbations.parse_perturbation`). The episodes are the
+nominal evaluation's, so the two reports compare episode for episode.
 """
 import argparse
 import json
@@ -26,8 +31,20 @@ def main(argv=None) -> int:
                         help='default: %(default)s')
     parser.add_argument('--seed', type=int, default=0, help='default: %(default)s')
     parser.add_argument('--model', help='arm model (default: the one it was trained on)')
+    parser.add_argument('--perturb', nargs='+', action='extend', default=[],
+                        metavar='KEY=VALUE',
+                        help='evaluate on a changed arm: mass_scale, damping_scale, '
+                             'frictionloss_scale, armature_scale, gear_scale (or _add, _abs), '
+                             'latency_steps, obs_noise, vel_noise, action_noise, target_noise; '
+                             'e.g. mass_scale=1.3 latency_steps=2')
     parser.add_argument('--json', action='store_true', help='print JSON')
     args = parser.parse_args(argv)
+    from pg_node.common.perturbations import BadTerm, parse_perturbation
+    try:
+        perturbation = parse_perturbation(args.perturb)
+    except BadTerm as exc:
+        print(f'eval: {exc}', file=sys.stderr)
+        return 2
     try:
         state, _ = find_checkpoint(args.checkpoint)
     except PolicySourceError as exc:
@@ -42,6 +59,12 @@ def main(argv=None) -> int:
     except (ValueError, OSError) as exc:
         print(f'eval: --model {model}: {exc}', file=sys.stderr)
         return 2
+    try:
+        ArmTask(resolve_model(model), num_envs=1, randomization=perturbation).close()
+    except BadTerm as exc:
+        print(f'eval: --perturb: {exc}', file=sys.stderr)
+        task.close()
+        return 2
     sizes = (task.obs_dim, task.act_dim)
     task.close()
     if sizes != (state['obs_dim'], state['act_dim']):
@@ -51,12 +74,16 @@ def main(argv=None) -> int:
         return 2
     policy = make_policy(state['obs_dim'], state['act_dim'], cfg)
     policy.load_state_dict(state['policy'])
-    res = evaluate_policy(policy, model, args.episodes, args.seed)
+    res = evaluate_policy(policy, model, args.episodes, args.seed, perturbation=perturbation)
     res['policy_version'] = int(state['version'])
-    del res['eval_returns']
+    res['perturbation'] = {t: s.text() for t, s in perturbation.items()}
+    del res['eval_returns'], res['eval_final_distances']
     if args.json:
         print(json.dumps(res))
     else:
-        print(f"policy version {res['policy_version']}: return {res['eval_return']:.2f} "
-              f"+/- {res['eval_return_std']:.2f} over {args.episodes} episodes")
+        on = (' on an arm with ' + ' '.join(args.perturb)) if args.perturb else ''
+        print(f"policy version {res['policy_version']}{on}: return {res['eval_return']:.2f} "
+              f"+/- {res['eval_return_std']:.2f} over {args.episodes} episodes; final "
+              f"distance {100 * res['eval_final_distance']:.2f} cm, "
+              f"{100 * res['eval_reached']:.0f}% within 2 cm")
     return 0
