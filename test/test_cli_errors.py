@@ -4,6 +4,7 @@ Bad input to the command-line tools and nodes: one line on stderr, a non-zero ex
 Each case runs the real command as a process and checks its exit code, that stderr names
 the problem, and that no traceback reached the user.
 """
+import json
 import os
 from pathlib import Path
 import subprocess
@@ -70,6 +71,39 @@ def test_eval_refuses_a_model_of_other_sizes(run_dir):
 
 def test_eval_refuses_zero_episodes(run_dir):
     refused(run('eval', run_dir, '--episodes', 0), 2, '--episodes')
+
+
+def test_eval_on_a_perturbed_arm_reports_distance_and_reached_share(run_dir):
+    done = run('eval', run_dir, '--episodes', 2, '--perturb', 'mass_scale=1.3',
+               'latency_steps=2', '--json')
+    assert done.returncode == 0, done.stderr
+    res = json.loads(done.stdout)
+    assert res['perturbation'] == {'mass': 'scale 1.3 startup', 'latency': 'abs 2 startup'}
+    assert res['eval_final_distance'] > 0 and 0 <= res['eval_reached'] <= 1
+    done = run('eval', run_dir, '--episodes', 2, '--perturb', 'gear_scale=0.8')
+    assert 'on an arm with gear_scale=0.8: return' in done.stdout and 'within 2 cm' in done.stdout
+
+
+@pytest.mark.parametrize('perturb, words', [
+    ('torque_scale=2', "--perturb 'torque_scale': unknown key; known: mass_scale"),
+    ('mass_scale=-1', 'a mass scale must stay > 0'),
+    ('latency_steps=1.5', 'latency is whole control steps'),
+    ('obs_noise=-0.1', 'a noise std must be >= 0'),
+    ('damping_add=-2', 'the damping of this model would reach -1'),
+    ('mass_scale', 'write KEY=VALUE'),
+])
+def test_eval_refuses_a_bad_perturbation_in_one_line(run_dir, perturb, words):
+    refused(run('eval', run_dir, '--episodes', 2, '--perturb', perturb), 2, words)
+
+
+@pytest.mark.parametrize('args, code, words', [
+    ([], 2, 'give run directories to compare, or --train PRESETS'),
+    (['--train', 'nosuch'], 2, "config 'nosuch' is neither an existing file nor a preset"),
+    (['--train', 'ppo', '--seeds', 'a'], 2, "'a' is not a comma-separated list"),
+    (['/nonexistent'], 1, 'no such file or directory'),
+])
+def test_robustness_refuses_bad_input_in_one_line(args, code, words):
+    refused(run('robustness', *args), code, words)
 
 
 # -- nodes and train ------------------------------------------------------------------------

@@ -450,3 +450,27 @@ def test_play_prints_episodes_and_writes_a_gif(tmp_path, trained):
                              capture_output=True, text=True, timeout=120)
         assert res.returncode in (1, 2) and words in res.stderr, res.stderr
         assert 'Traceback' not in res.stderr
+
+
+def test_play_on_a_perturbed_arm_as_on_hardware(tmp_path, trained):
+    """``play --perturb``: the simulator is an arm that is not the model; bad keys refused."""
+    env = processes.child_env(DOMAIN_ID)
+    res = subprocess.run([sys.executable, '-m', 'pg_node', 'play', str(trained['onnx']),
+                          '--episodes', '2', '--real-time-factor', '2', '--perturb',
+                          'latency_steps=2', 'gear_scale=0.7', 'obs_noise=0.01',
+                          '--log-dir', str(tmp_path / 'logs')], env=env, capture_output=True,
+                         text=True, timeout=300)
+    assert res.returncode == 0, res.stderr[-3000:]
+    assert 'perturbed (latency_steps=2 gear_scale=0.7 obs_noise=0.01)' in res.stdout
+    assert len([ln for ln in res.stdout.splitlines() if ln.startswith('episode')]) >= 2
+    log = (tmp_path / 'logs' / 'sim_node.log').read_text()
+    assert ('randomized per arm: gear scale 0.7 startup, latency abs 2 startup, obs_noise '
+            'abs 0.01 startup') in log, log
+    for perturb, words in ((['weight=2'], "--perturb 'weight': unknown key"),
+                           (['damping_add=-5'], 'the damping of this model would reach -4'),
+                           (['latency_steps=12'], 'latency must stay within 0..10')):
+        res = subprocess.run([sys.executable, '-m', 'pg_node', 'play', str(trained['onnx']),
+                              '--perturb', *perturb], env=env, capture_output=True, text=True,
+                             timeout=120)
+        assert res.returncode == 2 and words in res.stderr, res.stderr
+        assert 'Traceback' not in res.stderr and len(res.stderr.strip().splitlines()) == 1

@@ -228,6 +228,9 @@ class SimNode(Node):
         self.get_logger().info(
             f'{self.mode}: {n} x {p["model"]} ({self.task.act_dim} actuators, joints '
             f'{", ".join(spec.joint_names)}), dt {self.task.dt:g} s, seed {p["seed"]}')
+        if self.task.randomizer is not None:
+            self.get_logger().info('randomized per arm: ' + ', '.join(
+                f'{t} {v.text()}' for t, v in self.task.randomizer.terms.items()))
 
     def grid_offsets(self, spacing: float) -> np.ndarray:
         """Return where each arm is drawn: a square grid ``spacing`` apart."""

@@ -13,6 +13,13 @@ The two nodes run in a namespace of their own (``/play_<pid>``), where ``policy_
 publishes ``arm_controller/commands`` as on a robot and the simulator, the robot's stand-in,
 takes them there; and on this machine only (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``
 unless the environment sets it): a real controller on the lab network never hears them.
+
+``--perturb KEY=VALUE ...`` (the keys of ``eval --perturb``) makes the simulator an arm that
+is not the policy's model, as hardware is: ``mass_scale=1.5 gear_scale=0.7
+latency_steps=2 obs_noise=0.01`` gives heavier links, weaker motors, commands applied two
+control steps late and noisy ``joint_states`` (``sim_node``'s ``randomize_<term>``
+parameters, fixed values). The return is the true one; under noise, the final distance is
+the one the policy's sensors saw.
 """
 import argparse
 import os
@@ -42,6 +49,11 @@ def parse_args(argv):
     parser.add_argument('--gif', help='write an animation of arm 0 (.gif)')
     parser.add_argument('--gif-episodes', type=positive_int, default=1,
                         help='episodes of arm 0 in the animation (default: %(default)s)')
+    parser.add_argument('--perturb', nargs='+', action='extend', default=[],
+                        metavar='KEY=VALUE',
+                        help='play on an arm that is not the model, e.g. mass_scale=1.5 '
+                             'gear_scale=0.7 latency_steps=2 obs_noise=0.01 (the keys of eval '
+                             '--perturb)')
     parser.add_argument('--log-dir', help="where the nodes' logs go (default: a temporary "
                                           'directory)')
     return parser.parse_args(argv)
@@ -135,6 +147,12 @@ def main(argv=None) -> int:
     if args.gif and Path(args.gif).suffix.lower() != '.gif':
         print(f'play: --gif {args.gif}: the animation is written as .gif', file=sys.stderr)
         return 2
+    from pg_node.common.perturbations import BadTerm, PARAM_PREFIX, parse_perturbation
+    try:
+        perturbation = parse_perturbation(args.perturb)
+    except BadTerm as exc:
+        print(f'play: {exc}', file=sys.stderr)
+        return 2
     from pg_node.rl.trained_policy import (find_checkpoint, checkpoint_card, OnnxPolicy,
                                            PolicySourceError)
     source = Path(args.policy).expanduser()
@@ -148,14 +166,27 @@ def main(argv=None) -> int:
     except PolicySourceError as exc:
         print(f'play: {exc}', file=sys.stderr)
         return 1
+    log_dir = Path(args.log_dir or tempfile.mkdtemp(prefix='pg_node_play_'))
+    log_dir.mkdir(parents=True, exist_ok=True)
+    model = _model_param(card, log_dir)
+    if perturbation:
+        # a perturbation this arm cannot take (an add below zero) is refused here, not in
+        # the simulator's log
+        from pg_node.common.paths import resolve_model
+        from pg_node.sim.arm_task import ArmTask
+        try:
+            ArmTask(resolve_model(model), randomization=perturbation).close()
+        except BadTerm as exc:
+            print(f'play: --perturb: {exc}', file=sys.stderr)
+            return 2
+    perturb_params = [a for term, spec in perturbation.items()
+                      for a in ('-p', f'{PARAM_PREFIX}{term}:={spec.text()}')]
     from diagnostic_msgs.msg import DiagnosticArray
     from pg_node.ros import transition
     from pg_node.tools import processes
     import rclpy
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
     from std_msgs.msg import Float64MultiArray
-    log_dir = Path(args.log_dir or tempfile.mkdtemp(prefix='pg_node_play_'))
-    log_dir.mkdir(parents=True, exist_ok=True)
     from pg_node.common.run import COMMANDS, CONTROLLER_COMMANDS
     from pg_node.tools.train import discovery_env
     os.environ.update(discovery_env(network=False)[0])
@@ -177,7 +208,8 @@ def main(argv=None) -> int:
                    durability=DurabilityPolicy.TRANSIENT_LOCAL))
     procs = {}
     code = shown = 0
-    print(f'play: {source} on {args.arms} x {card["model"]} in real time '
+    on = f' perturbed ({" ".join(args.perturb)})' if args.perturb else ''
+    print(f'play: {source} on {args.arms} x {card["model"]}{on} in real time '
           f'(x{args.real_time_factor:g}); logs in {log_dir}', flush=True)
     try:
         with processes.terminate_as_interrupt():
@@ -195,8 +227,8 @@ def main(argv=None) -> int:
                 [sys.executable, '-m', 'pg_node.ros.sim_node', '--ros-args',
                  '-r', f'__ns:={namespace}', '-r', f'{COMMANDS}:={CONTROLLER_COMMANDS}',
                  '-p', 'mode:=real_time', '-p', f'num_envs:={args.arms}', '-p',
-                 f'seed:={args.seed}', '-p', f'model:={_model_param(card, log_dir)}',
-                 '-p', f'real_time_factor:={args.real_time_factor}'],
+                 f'seed:={args.seed}', '-p', f'model:={model}',
+                 '-p', f'real_time_factor:={args.real_time_factor}', *perturb_params],
                 log_dir / 'sim_node.log', env)
             deadline = time.monotonic() + 120 + 5 * args.episodes
 
