@@ -537,7 +537,8 @@ def test_sigkill_of_each_node_mid_run(tmp_path):
     run_dir = tmp_path / 'run'
     # --separate: each node a process of its own, so that each can be killed alone
     cmd = [sys.executable, '-m', 'pg_node', 'train', '--run-dir', str(run_dir), '--separate',
-           '--no-progress', '--total-steps', str(KILL_STEPS), '--eval-episodes', '10']
+           '--no-progress', '--total-steps', str(KILL_STEPS), '--eval-episodes', '10',
+           '--restart-delay', '0.1']
     proc = subprocess.Popen(cmd, env=env(GRAPH), cwd=REPO, stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True, start_new_session=True)
     killed_at = {}
@@ -654,7 +655,7 @@ def test_sigterm_sigint_and_sigkill_of_each_node_mid_run(tmp_path):
     total = STOP_EVERY * (len(STOPS) + 2)
     cmd = [sys.executable, '-m', 'pg_node', 'train', '--run-dir', str(run_dir), '--separate',
            '--no-progress', '--total-steps', str(total), '--eval-episodes', '10',
-           '--max-restarts', str(len(SIGNALS))]
+           '--max-restarts', str(len(SIGNALS)), '--restart-delay', '0.1']
     proc = subprocess.Popen(cmd, env=env(GRAPH), cwd=REPO, stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True, start_new_session=True)
     killed_bag = None

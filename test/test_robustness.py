@@ -1,6 +1,4 @@
-"""
-``python -m pg_node robustness``: the sweep, its paired errors and its files.
-"""
+"""``python -m pg_node robustness``: the sweep, its paired errors and its files."""
 import csv
 import json
 import os

@@ -19,6 +19,14 @@ def positive_float(text: str) -> float:
     return value
 
 
+def non_negative_float(text: str) -> float:
+    """Return ``text`` as a finite number >= 0, or raise argparse's type error."""
+    value = float(text)
+    if not value >= 0 or not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f'must be >= 0, got {text}')
+    return value
+
+
 def run_id_arg(text: str) -> str:
     """Return ``text`` if it can name a run (:mod:`pg_node.common.run`), else a type error."""
     from pg_node.common.run import check_run_id

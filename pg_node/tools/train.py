@@ -37,7 +37,7 @@ from typing import List, Optional
 from pg_node.common.params import ConfigError, load_config, SHARED
 from pg_node.common.paths import preset_names
 from pg_node.common.run import pair_namespace, run_id_for_dir, run_namespace
-from pg_node.tools.args import run_id_arg
+from pg_node.tools.args import non_negative_float, run_id_arg
 from pg_node.tools.processes import (child_env, process_usage, shutting_down, signal_process,
                                      STOP_WAITS, terminate_as_interrupt)
 import yaml
@@ -65,6 +65,9 @@ def parse_args(argv):
     parser.add_argument('--eval-episodes', type=int, default=100, help='default: %(default)s')
     parser.add_argument('--max-restarts', type=int, default=3,
                         help='restarts allowed per node (default: %(default)s)')
+    parser.add_argument('--restart-delay', type=non_negative_float, default=1.0,
+                        help='seconds before a dead node is first restarted, doubling at each '
+                             'further restart (default: %(default)s)')
     parser.add_argument('--no-progress', action='store_true', help='no progress bar')
     parser.add_argument('--run-id', type=run_id_arg,
                         help="the run's name on the ROS network: its nodes and topics live "
@@ -259,8 +262,10 @@ class Supervisor:
 
     def __init__(self, run_dir: Path, commands: dict, max_restarts: int,
                  total_steps: Optional[int] = None, seeds: Optional[dict] = None,
-                 learner: str = 'learner_node', env: Optional[dict] = None):
+                 learner: str = 'learner_node', env: Optional[dict] = None,
+                 restart_delay: float = 1.0):
         self.run_dir = run_dir
+        self.restart_delay = restart_delay     # s before a first restart, doubling after
         self.learner = learner      # the process the learner runs in
         self.commands = commands
         self.total_steps = total_steps
@@ -330,7 +335,7 @@ class Supervisor:
                 self.failed = f'{name} exited with code {code} {self.restarts[name] + 1} times'
                 return 'failed'
             self.restarts[name] += 1
-            delay = 2.0 ** (self.restarts[name] - 1)
+            delay = self.restart_delay * 2.0 ** (self.restarts[name] - 1)
             print(f'\n{name} exited with code {code}; restarting in {delay:g} s '
                   f'({self.restarts[name]}/{self.max_restarts}), see '
                   f'{self.run_dir / "logs" / (name + ".log")}', file=sys.stderr)
@@ -708,7 +713,8 @@ def main(argv=None) -> int:
               f"learned, {start['checkpoint']})", flush=True)
     compose = not args.separate
     sup = Supervisor(run_dir, node_commands(params, cfg, compose, args.part), args.max_restarts,
-                     total, sim_seeds(cfg, compose), learner_process(compose), env=discovery)
+                     total, sim_seeds(cfg, compose), learner_process(compose), env=discovery,
+                     restart_delay=args.restart_delay)
     view = ProgressView(run_dir / 'progress.csv', total, start, bar=not args.no_progress)
     t0 = view.t0
     state = 'running'
@@ -823,7 +829,8 @@ def run_workers(args, cfg: dict, actors: List[int], params: Path, discovery: dic
         compose = not args.separate
         sup = Supervisor(run_dir, node_commands(params, cfg, compose, 'workers', actors),
                          args.max_restarts, None, sim_seeds(cfg, compose),
-                         learner_process(compose), env=discovery)
+                         learner_process(compose), env=discovery,
+                         restart_delay=args.restart_delay)
         print(f'joined run {run_id}: starting {", ".join(sup.commands)}; logs in '
               f'{run_dir / "logs"}', flush=True)
         try:
