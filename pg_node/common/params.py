@@ -283,7 +283,7 @@ POLICY_PARAMS: Dict[str, Param] = {
     'control_rate': Param(0.0, 'commands per second of wall time (0: one per control step of '
                                'the policy, 1 / control_step)', low=0.0, live=True),
     'state_timeout': Param(0.2, 'seconds after which joint states count as stale: zero effort '
-                                'is sent once and commanding waits for fresh states',
+                                'is sent at every tick until fresh states come',
                            **POSITIVE, live=True),
     'deterministic': Param(True, 'command the mean action; false: sample from the Gaussian',
                            live=True),

@@ -31,13 +31,21 @@ Published:
   kinematics at the measured angles), clipped to the control range; a non-finite action
   is replaced by zero effort, so no command is ever non-finite or out of range;
 * ``/diagnostics``: state (commanding, or why not: no joint states yet, no target yet,
-  stale joint states), achieved command rate, the age of the joint state each command was
-  computed from (median and p99 over the last commands), stale events, dropped states,
-  CPU share and the policy's source.
+  stale joint states, e-stop latched), achieved command rate, the age of the joint state
+  each command was computed from (median and p99 over the last commands), stale events,
+  e-stops, dropped states, CPU share and the policy's source.
+
+* ``estop`` (``std_msgs/Bool``, reliable): ``true`` latches an emergency stop; ``false``
+  does not clear it. Service ``~/reset_estop`` (``std_srvs/Trigger``) clears it.
 
 Safety: when the newest joint state is older than ``state_timeout`` s, zero effort is
-published once and a warning logged; commanding resumes with the next fresh joint state.
-Before the first joint state and target nothing is published.
+published at every control tick (never one message only: a forward command controller
+holds the last command it got) and a warning logged once per stale spell; commanding
+resumes with the next fresh joint state. A latched e-stop publishes zero effort at every
+tick too, whatever the states, until ``~/reset_estop``. Before the first joint state and
+target nothing is published. Diagnostics levels follow diagnostic_updater's habits:
+commanding OK, waiting (no states or no target yet) WARN, stale states or a latched e-stop
+ERROR.
 
 Parameters: :data:`pg_node.common.params.POLICY_PARAMS`.
 """
@@ -61,7 +69,8 @@ from rclpy.node import Node
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, qos_profile_sensor_data, QoSProfile,
                        ReliabilityPolicy)
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Float64MultiArray
+from std_msgs.msg import Bool, Float64MultiArray
+from std_srvs.srv import Trigger
 
 PREFIXED = re.compile(r'^arm(\d+)/(.+)$')
 #: a target this much beyond the arm's reach (ObservationBuilder.reach) is warned about
@@ -148,8 +157,9 @@ class PolicyNode(Node):
         self.targets: Dict[str, np.ndarray] = {}
         self.latest_target = None
         self.stale = False
+        self.estop = False                  # latched until ~/reset_estop
         self.status = 'waiting: no joint_states yet'
-        self.counters = {'commands': 0, 'zero_commands': 0, 'stale_events': 0,
+        self.counters = {'commands': 0, 'zero_commands': 0, 'stale_events': 0, 'estops': 0,
                          'states_received': 0, 'states_dropped_nonfinite': 0,
                          'actions_nonfinite': 0, 'targets_ignored': 0,
                          'targets_out_of_reach': 0}
@@ -164,6 +174,9 @@ class PolicyNode(Node):
                                  durability=DurabilityPolicy.TRANSIENT_LOCAL,
                                  history=HistoryPolicy.KEEP_LAST)
         self.create_subscription(PointStamped, 'target', self.on_target, targets_qos)
+        self.create_subscription(Bool, 'estop', self.on_estop,
+                                 QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
+        self.create_service(Trigger, '~/reset_estop', self.on_reset_estop)
         self.diagnostics = Diagnostics(self, 'policy_node: trained policy', self.policy.kind)
         self.timers_by_param = {'control_rate': self.create_timer(1.0, self.on_tick),
                                 'diagnostics_rate': self.create_timer(1.0, self.publish_diag)}
@@ -230,6 +243,26 @@ class PolicyNode(Node):
         self.q, self.qdot = q, qdot
         self.state_time = time.monotonic()
 
+    def on_estop(self, msg: Bool):
+        """Latch the e-stop on ``true`` (``false`` leaves it as it is)."""
+        if msg.data and not self.estop:
+            self.estop = True
+            self.counters['estops'] += 1
+            self.get_logger().error('e-stop: latched; zero effort at every tick until '
+                                    '~/reset_estop')
+            self.on_tick()          # at once, not at the next tick
+
+    def on_reset_estop(self, request, response):
+        """Clear a latched e-stop; commanding resumes at the next tick."""
+        response.success = True
+        if self.estop:
+            self.estop = False
+            response.message = 'e-stop cleared: commanding resumes'
+            self.get_logger().warning(response.message)
+        else:
+            response.message = 'no e-stop was latched'
+        return response
+
     def on_target(self, msg: PointStamped):
         """Keep each arm's goal by its frame (``arm<i>``)."""
         point = np.array([msg.point.x, msg.point.y, msg.point.z])
@@ -275,6 +308,11 @@ class PolicyNode(Node):
     def on_tick(self):
         """Publish one command computed from the newest joint state, or say why not."""
         now = time.monotonic()
+        if self.estop:
+            self.status = 'e-stop latched: zero effort (clear with ~/reset_estop)'
+            if self.num_arms:
+                self.publish(np.zeros((self.num_arms, self.act_dim)), zero=True)
+            return
         if self.state_time is None:
             self.status = 'waiting: no joint_states yet'
             return
@@ -283,13 +321,14 @@ class PolicyNode(Node):
             if not self.stale:
                 self.stale = True
                 self.counters['stale_events'] += 1
-                self.publish(np.zeros((self.num_arms, self.act_dim)), zero=True)
                 self.get_logger().warning(
                     f'joint states are {age:.3f} s old (state_timeout '
-                    f'{self.params["state_timeout"]:g} s): zero effort sent, waiting for fresh '
-                    'joint states')
-            self.status = (f'stale: joint states {age:.2f} s old, zero effort sent, waiting '
-                           'for fresh ones')
+                    f'{self.params["state_timeout"]:g} s): zero effort at every tick until '
+                    'fresh joint states come')
+            # every tick, not once: a forward command controller holds its last command
+            self.publish(np.zeros((self.num_arms, self.act_dim)), zero=True)
+            self.status = (f'stale: joint states {age:.2f} s old, zero effort, waiting for '
+                           'fresh ones')
             return
         target = self.target_array()
         if target is None or isinstance(target, str):
@@ -339,8 +378,10 @@ class PolicyNode(Node):
             num_arms=self.num_arms if self._index is not None else 'n/a',
             policy=self.policy.describe(), policy_kind=self.policy.kind,
             load_seconds=round(self.load_seconds, 3), **self.counters)
+        # diagnostic_updater's habits: idle WARN, stale or stopped ERROR
         level = (DiagnosticStatus.OK if self.status == 'commanding'
-                 else DiagnosticStatus.WARN if self.stale else DiagnosticStatus.OK)
+                 else DiagnosticStatus.ERROR if self.stale or self.estop
+                 else DiagnosticStatus.WARN)
         self.diagnostics.publish(values, level, self.status)
 
 
