@@ -66,7 +66,9 @@ def test_progress_says_starting_then_labels_every_figure(runs):
     assert sps in out
     evaluation = [ln for ln in lines if ln.startswith('deterministic evaluation: return ')]
     assert evaluation == [f"deterministic evaluation: return {summary['eval_return']:.2f} +/- "
-                          f"{summary['eval_return_std']:.2f} over 4 episodes, policy "
+                          f"{summary['eval_return_std']:.2f} over 4 episodes, final distance "
+                          f"{100 * summary['eval_final_distance']:.2f} cm, "
+                          f"{100 * summary['eval_reached']:.0f}% within 2 cm, policy "
                           f"version {summary['policy_version']}"]
     assert "training episodes' mean return (last update): " in out
 

@@ -774,6 +774,8 @@ def main(argv=None) -> int:
     if 'eval_return' in summary:
         print(f"deterministic evaluation: return {summary['eval_return']:.2f} +/- "
               f"{summary['eval_return_std']:.2f} over {summary['eval_episodes']} episodes, "
+              f"final distance {100 * summary['eval_final_distance']:.2f} cm, "
+              f"{100 * summary['eval_reached']:.0f}% within 2 cm, "
               f"policy version {summary['policy_version']}")
     else:
         print('no policy to evaluate: the learner wrote no checkpoint')
