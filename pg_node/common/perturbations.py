@@ -62,7 +62,8 @@ from typing import Dict, Mapping, Optional, Sequence
 
 OPERATIONS = ('scale', 'add', 'abs')
 DISTRIBUTIONS = ('uniform', 'log_uniform', 'gaussian')
-WHEN = ('reset', 'startup', 'every')
+#: the model terms whose value must stay > 0 (the others >= 0)
+POSITIVE = ('mass', 'gear')
 #: the most control steps a command may be late
 MAX_LATENCY = 10
 #: the spawn key of the randomization generators (the task's own have none)
@@ -215,20 +216,20 @@ def _check_bounds(spec: TermSpec):
     elif kind == 'noise':
         if lo < 0:
             raise BadTerm(f'{name}: a noise std must be >= 0 (it can draw {lo:g})')
-    elif spec.operation == 'scale' and lo <= 0 and spec.term in ('mass', 'gear'):
+    elif spec.operation == 'scale' and lo <= 0 and spec.term in POSITIVE:
         raise BadTerm(f'{name}: a {spec.term} scale must stay > 0 (it can draw {lo:g})')
     elif spec.operation == 'scale' and lo < 0:
         raise BadTerm(f'{name}: a {spec.term} scale must stay >= 0 (it can draw {lo:g})')
-    elif spec.operation == 'abs' and (lo < 0 or (lo <= 0 and spec.term in ('mass', 'gear'))):
-        sign = '> 0' if spec.term in ('mass', 'gear') else '>= 0'
+    elif spec.operation == 'abs' and (lo < 0 or (lo <= 0 and spec.term in POSITIVE)):
+        sign = '> 0' if spec.term in POSITIVE else '>= 0'
         raise BadTerm(f'{name}: {spec.term} must stay {sign} (it can draw {lo:g})')
 
 
-def parse_terms(specs: Mapping[str, str]) -> Dict[str, TermSpec]:
-    """Read ``{term: text}``; return the terms that are on."""
+def parse_terms(specs: Mapping[str, object]) -> Dict[str, TermSpec]:
+    """Read ``{term: text or TermSpec}``; return the terms that are on."""
     out = {}
     for term, text in specs.items():
-        spec = parse_term(term, text)
+        spec = text if isinstance(text, TermSpec) else parse_term(term, text)
         if spec is not None:
             out[term] = spec
     return out

@@ -26,6 +26,13 @@ def make_policy(obs_dim: int, act_dim: int, cfg: Dict) -> GaussianPolicy:
                           cfg['normalize_obs'])
 
 
+def policy_from_checkpoint(state: Dict) -> GaussianPolicy:
+    """Return the policy a checkpoint's ``state`` holds: built as configured, weights loaded."""
+    policy = make_policy(int(state['obs_dim']), int(state['act_dim']), state['config'])
+    policy.load_state_dict(state['policy'])
+    return policy
+
+
 class Learner:
     """The policy, its optimiser and its version."""
 

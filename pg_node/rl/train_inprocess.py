@@ -24,17 +24,22 @@ import torch
 def train_inprocess(cfg: Dict[str, Dict], total_steps: int,
                     callback: Optional[Callable[[Dict], None]] = None,
                     eval_episodes: int = 100) -> Dict:
-    """Train for ``total_steps`` environment steps; return the final summary."""
+    """
+    Train for ``total_steps`` environment steps; return the final summary.
+
+    ``cfg`` is :func:`pg_node.common.params.load_config`'s result: every node's section,
+    the simulator's (episode length, reward weights, randomization) included.
+    """
     torch.set_num_threads(1)
     shared = cfg['/**']
     a_cfg, c_cfg, l_cfg = cfg['actor_node'], cfg['critic_node'], cfg['learner_node']
-    sim = cfg.get('sim_node', {})
+    sim = cfg['sim_node']
     # the simulator node's task: its episode length, reward weights and randomization
     task = ArmTask(resolve_model(shared['model']), num_envs=shared['num_envs'],
-                   seed=shared['seed'], frame_skip=sim.get('frame_skip', 2),
-                   max_episode_steps=sim.get('max_episode_steps', 50),
-                   reward_dist_weight=sim.get('reward_dist_weight', 1.0),
-                   reward_control_weight=sim.get('reward_control_weight', 1.0),
+                   seed=shared['seed'], frame_skip=sim['frame_skip'],
+                   max_episode_steps=sim['max_episode_steps'],
+                   reward_dist_weight=sim['reward_dist_weight'],
+                   reward_control_weight=sim['reward_control_weight'],
                    randomization=from_params(sim))
     learner = Learner(task.obs_dim, task.act_dim, {**l_cfg, **a_cfg})
     critic = Critic(task.obs_dim, c_cfg)

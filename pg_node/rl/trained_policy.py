@@ -190,10 +190,9 @@ class TorchPolicy(TrainedPolicy):
         import torch
         if threads is not None:
             torch.set_num_threads(threads)
-        from pg_node.rl.learner import make_policy
+        from pg_node.rl.learner import policy_from_checkpoint
         super().__init__(checkpoint_card(state, file), file)
-        self.policy = make_policy(int(state['obs_dim']), int(state['act_dim']), state['config'])
-        self.policy.load_state_dict(state['policy'])
+        self.policy = policy_from_checkpoint(state)
         self.policy.eval()
         self._torch = torch
 

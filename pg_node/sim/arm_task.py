@@ -65,7 +65,7 @@ from typing import List, Mapping, Optional
 
 import mujoco
 import numpy as np
-from pg_node.common.perturbations import parse_terms, TermSpec
+from pg_node.common.perturbations import parse_terms
 from pg_node.sim.randomization import Randomizer
 
 FINGERTIP_SITE = 'fingertip'
@@ -252,8 +252,8 @@ class ArmTask:
 
         ``num_threads`` threads step the envs (1: a plain loop); by default 1 below
         ``THREADS_FROM_ENVS`` envs, else the number of CPUs (at most 4).
-        ``randomization`` maps terms of :mod:`pg_node.sim.randomization` to their strings
-        (or :class:`~pg_node.sim.randomization.TermSpec`); empty or None: the nominal arm.
+        ``randomization`` maps terms of :mod:`pg_node.common.perturbations` to their strings
+        (or :class:`~pg_node.common.perturbations.TermSpec`); empty or None: the nominal arm.
         """
         if (num_envs < 1 or frame_skip < 1
                 or (max_episode_steps is not None and max_episode_steps < 1)):
@@ -282,9 +282,7 @@ class ArmTask:
         self.episode_return = np.zeros(self.num_envs)
         self._next_episode_id = 0
         self._rngs = []
-        terms = {t: v for t, v in (randomization or {}).items() if isinstance(v, TermSpec)}
-        terms.update(parse_terms({t: v for t, v in (randomization or {}).items()
-                                  if not isinstance(v, TermSpec)}))
+        terms = parse_terms(randomization or {})
         self.randomizer = None
         if terms:
             self.randomizer = Randomizer(self.model, self.spec, terms, self.num_envs,
@@ -431,16 +429,15 @@ class ArmTask:
         obs[:, 2 * nj + k:3 * nj + k] = self._gather('qvel', arms)[:, s.dof_adr]
         obs[:, 2 * nj:2 * nj + k] = (self._gather('mocap_pos', arms)[:, s.target_mocap]
                                      if s.target_mocap >= 0 else qpos[:, s.target_qpos_adr])
-        vec = (self._gather('site_xpos', arms)[:, s.fingertip_site]
-               - self._gather('xpos', arms)[:, s.target_body])
+        target = self._gather('xpos', arms)[:, s.target_body]
+        vec = self._gather('site_xpos', arms)[:, s.fingertip_site] - target
         r = self.randomizer
         if r is not None and r.has_obs_noise:
             # sensors, not the world: the true vec stays for the reward
             seen = vec
             if 'obs_noise' in r.terms:
                 q = q + r.noise_q[arms]
-                seen = (r.fingertips(q)
-                        - self._gather('xpos', arms)[:, s.target_body])
+                seen = r.fingertips(q) - target
             obs[:, 2 * nj + k:3 * nj + k] += r.noise_v[arms]
             obs[:, 2 * nj:2 * nj + k] += r.noise_t[arms]
             obs[:, 3 * nj + k:] = seen[:, :k] - r.noise_t[arms]

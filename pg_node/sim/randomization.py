@@ -9,11 +9,15 @@ the same with and without it.
 """
 import copy
 import math
-from typing import List, Mapping
+from typing import Dict, List, Mapping
 
 import mujoco
 import numpy as np
-from pg_node.common.perturbations import BadTerm, STREAM, TERMS, TermSpec
+from pg_node.common.perturbations import BadTerm, POSITIVE, STREAM, TERMS, TermSpec
+
+#: the joint terms and the ``MjModel`` field of the arm joints' dofs each one changes
+DOF_FIELDS = {'damping': 'dof_damping', 'frictionloss': 'dof_frictionloss',
+              'armature': 'dof_armature'}
 
 
 def _arm_bodies(model: mujoco.MjModel, target_body: int) -> np.ndarray:
@@ -45,19 +49,16 @@ class Randomizer:
         self.act_dim = model.nu
         self.bodies = _arm_bodies(model, spec.target_body)
         self.dofs = np.asarray(spec.dof_adr)
+        self._check_nominal()
         has_model_terms = any(TERMS[t].kind == 'model' for t in self.terms)
         self.models = ([copy.deepcopy(model) for _ in range(num_envs)] if has_model_terms
                        else [model] * num_envs)
         self._scratch = [mujoco.MjData(m) for m in self.models] if has_model_terms else None
-        self.labels = self._labels(model)
-        self.cols, col = {}, 0
-        for term in self.terms:
-            self.cols[term] = slice(col, col + self._width(term))
-            col += self._width(term)
-        self._noise_terms = [(t, w) for t, w in (('obs_noise', self.nj), ('vel_noise', self.nj),
-                                                 ('target_noise', self.k)) if t in self.terms]
-        self._noise_width = sum(w for _, w in self._noise_terms)
-        self._check_nominal(model)
+        # each term's columns of ``values``: one per link / joint / motor it draws for
+        self.cols, self.labels = {}, []
+        for term, labels in self._labels(model).items():
+            self.cols[term] = slice(len(self.labels), len(self.labels) + len(labels))
+            self.labels += labels
         self.values = np.full((num_envs, len(self.labels)), np.nan)
         latency = self.terms.get('latency')
         self.history = (int(math.floor(latency.bounds[1])) + 1) if latency else 1
@@ -66,45 +67,54 @@ class Randomizer:
         self.noise_q = np.zeros((num_envs, self.nj))
         self.noise_v = np.zeros((num_envs, self.nj))
         self.noise_t = np.zeros((num_envs, self.k))
+        # the noise terms that are on: (array the noise goes to, column of its std)
+        self._noise = [(out, self.cols[t].start) for t, out in (
+            ('obs_noise', self.noise_q), ('vel_noise', self.noise_v),
+            ('target_noise', self.noise_t)) if t in self.terms]
+        self._noise_width = sum(out.shape[1] for out, _ in self._noise)
         self.steps = np.zeros(num_envs, dtype=np.int64)
         self._fk = mujoco.MjData(model) if 'obs_noise' in self.terms else None
         self._qpos_adr, self._tip = spec.qpos_adr, spec.fingertip_site
         self.seed(seed)
 
-    def _check_nominal(self, model):
+    def _nominal(self, term: str) -> np.ndarray:
+        """Return the nominal model's values that model term ``term`` changes."""
+        if term == 'mass':
+            return self.base.body_mass[self.bodies]
+        if term == 'gear':
+            return self.base.actuator_gear[:, 0]
+        return getattr(self.base, DOF_FIELDS[term])[self.dofs]
+
+    def _check_nominal(self):
         """Refuse an ``add`` whose range takes a nominal value below zero."""
-        fields = {'mass': model.body_mass[self.bodies],
-                  'damping': model.dof_damping[self.dofs],
-                  'frictionloss': model.dof_frictionloss[self.dofs],
-                  'armature': model.dof_armature[self.dofs],
-                  'gear': model.actuator_gear[:, 0]}
         for term, spec in self.terms.items():
-            if spec.operation != 'add' or term not in fields:
+            if spec.operation != 'add' or TERMS[term].kind != 'model':
                 continue
-            lowest = float(np.min(fields[term])) + spec.bounds[0]
-            positive = term in ('mass', 'gear')
+            lowest = float(np.min(self._nominal(term))) + spec.bounds[0]
+            positive = term in POSITIVE
             if lowest < 0 or (lowest <= 0 and positive):
                 raise BadTerm(f'{term} {spec.text()}: the {term} of this model would reach '
                               f'{lowest:g}; it must stay {"> 0" if positive else ">= 0"}')
         if 'mass' in self.terms and not len(self.bodies):
             raise BadTerm('mass: this model has no links with mass to change')
 
-    def _labels(self, model) -> List[str]:
-        """Name each drawn value: ``mass/<body>``, ``damping/<joint>``, ``latency``..."""
+    def _labels(self, model) -> Dict[str, List[str]]:
+        """Name each term's drawn values: ``mass/<body>``, ``damping/<joint>``, ``latency``."""
         def name(kind, i):
             return mujoco.mj_id2name(model, kind, int(i)) or str(int(i))
-        labels = []
+        labels = {}
         for term in self.terms:
             if term == 'mass':
-                labels += [f'mass/{name(mujoco.mjtObj.mjOBJ_BODY, b)}' for b in self.bodies]
-            elif term in ('damping', 'frictionloss', 'armature'):
-                joints = model.dof_jntid[self.dofs]
-                labels += [f'{term}/{name(mujoco.mjtObj.mjOBJ_JOINT, j)}' for j in joints]
+                labels[term] = [f'mass/{name(mujoco.mjtObj.mjOBJ_BODY, b)}'
+                                for b in self.bodies]
+            elif term in DOF_FIELDS:
+                labels[term] = [f'{term}/{name(mujoco.mjtObj.mjOBJ_JOINT, j)}'
+                                for j in model.dof_jntid[self.dofs]]
             elif term == 'gear':
-                labels += [f'gear/{name(mujoco.mjtObj.mjOBJ_ACTUATOR, a)}'
-                           for a in range(model.nu)]
+                labels[term] = [f'gear/{name(mujoco.mjtObj.mjOBJ_ACTUATOR, a)}'
+                                for a in range(model.nu)]
             else:
-                labels.append(term)
+                labels[term] = [term]
         return labels
 
     def seed(self, seed: int):
@@ -143,15 +153,6 @@ class Randomizer:
         if 'latency' in self.terms:
             self.latency[i] = int(self.values[i, self.cols['latency']][0])
 
-    def _width(self, term: str) -> int:
-        if term == 'mass':
-            return len(self.bodies)
-        if term in ('damping', 'frictionloss', 'armature'):
-            return len(self.dofs)
-        if term == 'gear':
-            return self.act_dim
-        return 1
-
     def value(self, i: int, term: str) -> np.ndarray:
         """Return arm ``i``'s current draw of ``term`` (one value per link/joint/motor)."""
         return self.values[i, self.cols[term]]
@@ -160,8 +161,8 @@ class Randomizer:
         """Write arm ``i``'s model terms over the nominal values of its own ``MjModel``."""
         m, base = self.models[i], self.base
 
-        def applied(term, nominal):
-            spec, v = self.terms[term], self.value(i, term)
+        def applied(term):
+            spec, v, nominal = self.terms[term], self.value(i, term), self._nominal(term)
             if spec.operation == 'scale':
                 return nominal * v
             if spec.operation == 'add':
@@ -170,15 +171,14 @@ class Randomizer:
 
         if 'mass' in self.terms:
             b = self.bodies
-            mass = applied('mass', base.body_mass[b])
+            mass = applied('mass')
             m.body_mass[b] = mass
             m.body_inertia[b] = base.body_inertia[b] * (mass / base.body_mass[b])[:, None]
-        for term, field in (('damping', 'dof_damping'), ('frictionloss', 'dof_frictionloss'),
-                            ('armature', 'dof_armature')):
+        for term, field in DOF_FIELDS.items():
             if term in self.terms:
-                getattr(m, field)[self.dofs] = applied(term, getattr(base, field)[self.dofs])
+                getattr(m, field)[self.dofs] = applied(term)
         if 'gear' in self.terms:
-            m.actuator_gear[:, 0] = applied('gear', base.actuator_gear[:, 0])
+            m.actuator_gear[:, 0] = applied('gear')
         # the constants MuJoCo derives from masses and armature (invweight0, ...)
         mujoco.mj_setConst(m, self._scratch[i])
 
@@ -217,10 +217,9 @@ class Randomizer:
         if not self._noise_width:
             return
         z, col = self.rngs[i].standard_normal(self._noise_width), 0
-        for term, width in self._noise_terms:
-            out = {'obs_noise': self.noise_q, 'vel_noise': self.noise_v,
-                   'target_noise': self.noise_t}[term]
-            out[i] = z[col:col + width] * self.values[i, self.cols[term].start]
+        for out, std_col in self._noise:
+            width = out.shape[1]
+            out[i] = z[col:col + width] * self.values[i, std_col]
             col += width
 
     def take_drawn(self) -> List[int]:

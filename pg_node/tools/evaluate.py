@@ -16,7 +16,7 @@ import json
 import sys
 
 from pg_node.rl.evaluate import evaluate_policy
-from pg_node.rl.learner import make_policy
+from pg_node.rl.learner import policy_from_checkpoint
 from pg_node.rl.trained_policy import find_checkpoint, PolicySourceError
 from pg_node.tools.args import positive_int
 
@@ -55,15 +55,13 @@ def main(argv=None) -> int:
     from pg_node.common.paths import resolve_model
     from pg_node.sim.arm_task import ArmTask
     try:
-        task = ArmTask(resolve_model(model), num_envs=1)
-    except (ValueError, OSError) as exc:
-        print(f'eval: --model {model}: {exc}', file=sys.stderr)
-        return 2
-    try:
-        ArmTask(resolve_model(model), num_envs=1, randomization=perturbation).close()
+        # the perturbation checked against this model too (an add below zero)
+        task = ArmTask(resolve_model(model), num_envs=1, randomization=perturbation)
     except BadTerm as exc:
         print(f'eval: --perturb: {exc}', file=sys.stderr)
-        task.close()
+        return 2
+    except (ValueError, OSError) as exc:
+        print(f'eval: --model {model}: {exc}', file=sys.stderr)
         return 2
     sizes = (task.obs_dim, task.act_dim)
     task.close()
@@ -72,9 +70,8 @@ def main(argv=None) -> int:
               f'policy was trained on {cfg["model"]} with {state["obs_dim"]} and '
               f'{state["act_dim"]}', file=sys.stderr)
         return 2
-    policy = make_policy(state['obs_dim'], state['act_dim'], cfg)
-    policy.load_state_dict(state['policy'])
-    res = evaluate_policy(policy, model, args.episodes, args.seed, perturbation=perturbation)
+    res = evaluate_policy(policy_from_checkpoint(state), model, args.episodes, args.seed,
+                          perturbation=perturbation)
     res['policy_version'] = int(state['version'])
     res['perturbation'] = {t: s.text() for t, s in perturbation.items()}
     del res['eval_returns'], res['eval_final_distances']

@@ -23,7 +23,6 @@ its worst point and the ratio of its final distance to the nominal one.
 import argparse
 import csv
 import json
-import os
 from pathlib import Path
 import subprocess
 import sys
@@ -42,12 +41,10 @@ GRID: Dict[str, List[float]] = {
     'obs_noise': [0.0, 0.01, 0.02, 0.05],
 }
 NOMINAL = {'mass_scale': 1.0, 'armature_scale': 1.0, 'gear_scale': 1.0, 'damping_scale': 1.0,
-           'latency_steps': 0,
-           'obs_noise': 0.0}
+           'latency_steps': 0, 'obs_noise': 0.0}
 LABELS = {'mass_scale': 'link masses (x)', 'armature_scale': 'joint armature (x)',
-          'gear_scale': 'motor strength (x)',
-          'damping_scale': 'joint damping (x)', 'latency_steps': 'command latency (steps)',
-          'obs_noise': 'joint angle noise (rad)'}
+          'gear_scale': 'motor strength (x)', 'damping_scale': 'joint damping (x)',
+          'latency_steps': 'command latency (steps)', 'obs_noise': 'joint angle noise (rad)'}
 FIELDS = ('run', 'axis', 'value', 'return', 'change_se', 'final_distance_cm',
           'reached_share', 'episodes')
 
@@ -58,20 +55,19 @@ class RunError(Exception):
 
 def load_run(path: str):
     """Return ``(name, policy, model)`` of a run directory or checkpoint."""
-    from pg_node.rl.learner import make_policy
+    from pg_node.rl.learner import policy_from_checkpoint
     from pg_node.rl.trained_policy import find_checkpoint, PolicySourceError
     try:
         state, _ = find_checkpoint(path)
     except PolicySourceError as exc:
         raise RunError(str(exc)) from None
-    cfg = state['config']
-    policy = make_policy(state['obs_dim'], state['act_dim'], cfg)
-    policy.load_state_dict(state['policy'])
-    p = Path(path).resolve()
-    name = p.parent.name if p.name == 'checkpoints' or p.suffix == '.pt' else p.name
-    if p.suffix == '.pt':
-        name = p.parent.parent.name
-    return name, policy, cfg['model']
+    # the run's name: <run>, <run>/checkpoints and <run>/checkpoints/ckpt_*.pt all say <run>
+    run = Path(path).resolve()
+    if run.suffix == '.pt':
+        run = run.parent.parent
+    elif run.name == 'checkpoints':
+        run = run.parent
+    return run.name, policy_from_checkpoint(state), state['config']['model']
 
 
 def sweep(policy, model: str, episodes: int, seed: int, grid=None) -> Dict:
@@ -99,6 +95,7 @@ def summarise(sweeps: List[Dict]) -> List[Dict]:
     ``change_se`` is the standard error of the mean change of return from the nominal
     point, over the paired episodes (the same starts and goals at every point).
     """
+    from pg_node.rl.evaluate import REACHED
     rows = []
     for (axis, value) in sweeps[0]:
         ret = np.concatenate([s[(axis, value)][0] for s in sweeps])
@@ -108,7 +105,8 @@ def summarise(sweeps: List[Dict]) -> List[Dict]:
         rows.append({'axis': axis, 'value': value, 'return': float(ret.mean()),
                      'change_se': float(change.std(ddof=1) / np.sqrt(change.size)),
                      'final_distance_cm': float(100 * dist.mean()),
-                     'reached_share': float(np.mean(dist <= 0.02)), 'episodes': int(ret.size)})
+                     'reached_share': float(np.mean(dist <= REACHED)),
+                     'episodes': int(ret.size)})
     return rows
 
 
@@ -188,7 +186,7 @@ def train_presets(presets: List[str], seeds: List[int], steps: int, runs_dir: Pa
                 cmd = [sys.executable, '-m', 'pg_node', 'train', '--config', preset,
                        '--seed', str(seed), '--total-steps', str(steps), '--run-dir',
                        str(run), '--no-progress']
-                res = subprocess.run(cmd, env=os.environ.copy(), stdout=subprocess.DEVNULL)
+                res = subprocess.run(cmd, stdout=subprocess.DEVNULL)
                 if res.returncode != 0:
                     raise RunError(f'training {preset} seed {seed} failed (exit '
                                    f'{res.returncode}); its logs are in {run}/logs')

@@ -485,15 +485,14 @@ def evaluate_run(run_dir: Path, episodes: int) -> dict:
     """Evaluate the newest checkpoint's deterministic policy."""
     from pg_node.rl.checkpoint import load_latest
     from pg_node.rl.evaluate import evaluate_policy
-    from pg_node.rl.learner import make_policy
+    from pg_node.rl.learner import policy_from_checkpoint
     state, problems = load_latest(run_dir / 'checkpoints')
     for p in problems:
         print(p, file=sys.stderr)
     if state is None:
         return {}
-    policy = make_policy(state['obs_dim'], state['act_dim'], state['config'])
-    policy.load_state_dict(state['policy'])
-    res = evaluate_policy(policy, state['config']['model'], episodes, state['config']['seed'])
+    res = evaluate_policy(policy_from_checkpoint(state), state['config']['model'], episodes,
+                          state['config']['seed'])
     res['policy_version'] = int(state['version'])
     res['checkpoint'] = str(sorted((run_dir / 'checkpoints').glob('ckpt_*.pt'))[-1])
     return res
