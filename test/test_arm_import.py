@@ -11,6 +11,7 @@ import os
 from pathlib import Path
 import re
 import shlex
+import shutil
 import struct
 import subprocess
 import sys
@@ -29,6 +30,8 @@ import pytest
 REPO = Path(__file__).resolve().parent.parent
 FIXTURES = Path(__file__).resolve().parent / 'fixtures' / 'urdf'
 TWO_LINK = FIXTURES / 'two_link.urdf'
+DAE = FIXTURES / 'dae_mesh.urdf'
+XACRO = FIXTURES / 'xacro_pkg' / 'urdf' / 'arm.urdf.xacro'
 ARM7 = REPO / 'pg_node' / 'sim' / 'models' / 'arm7.xml'
 
 
@@ -269,28 +272,341 @@ def test_package_uris_resolve_in_the_ament_index_package_paths_and_above_the_urd
         resolve_mesh('package://otherpkg/x.stl', urdf_dir)
 
 
-def test_meshes_compile_and_are_referenced_from_the_written_model(tmp_path, capsys):
+def test_meshes_are_copied_beside_the_model_and_load_from_any_folder(tmp_path, capsys,
+                                                                      monkeypatch):
+    """The meshes go to <model>_meshes/, named by absolute path: no folder matters any more."""
     write_stl(tmp_path / 'ws' / 'src' / 'mypkg' / 'meshes' / 'link.stl')
     urdf = with_mesh(tmp_path / 'ws' / 'src' / 'mypkg' / 'urdf' / 'r.urdf',
                      'package://mypkg/meshes/link.stl')
     out = tmp_path / 'out' / 'arm.xml'
     out.parent.mkdir()
-    code, _, err = run_import(capsys, urdf, '--tip', 'fingertip', '-o', out)
+    code, stdout, err = run_import(capsys, urdf, '--tip', 'fingertip', '-o', out)
     assert code == 0, err
-    model = ArmTask(out).model   # loads from any working directory: paths relative to out
-    assert model.nmesh == 1
-    assert 'file="../ws/src/mypkg/meshes/link.stl"' in out.read_text()
-    # COLLADA: a visual .dae gives way to the collision geometry, with a warning
-    dae = with_mesh(tmp_path / 'dae' / 'r.urdf', 'meshes/link.dae', kind='visual')
-    code, _, err = run_import(capsys, dae, '--tip', 'fingertip', '-o', tmp_path / 'd.xml')
-    assert code == 0 and "visual mesh 'meshes/link.dae' is .dae" in err
-    assert 'collision geometry instead' in err
+    copy = tmp_path / 'out' / 'arm_meshes' / 'link.stl'
+    assert copy.read_bytes() == (tmp_path / 'ws' / 'src' / 'mypkg' / 'meshes' /
+                                 'link.stl').read_bytes()
+    assert f'file="{copy}"' in out.read_text()
+    assert f'meshes: 1 file copied to {copy.parent}' in stdout
+    # the source tree gone, another working directory: the model and its text still load
+    # (a policy's card keeps the text and compiles it wherever play or policy_node run)
+    shutil.rmtree(tmp_path / 'ws')
+    monkeypatch.chdir(tmp_path)
+    assert mujoco.MjModel.from_xml_string(out.read_text()).nmesh == 1
+    assert ArmTask(out).model.nmesh == 1
     # --no-visual-meshes keeps only the collision geometry
     code, _, err = run_import(capsys, TWO_LINK, '--tip', 'fingertip', '--no-visual-meshes',
                               '-o', tmp_path / 'n.xml')
     assert code == 0
     assert mujoco.MjModel.from_xml_path(str(tmp_path / 'n.xml')).ngeom == 3  # ground, link1,
     # target
+    # a model folder that does not exist is said so, and nothing is written
+    bad = tmp_path / 'nowhere' / 'arm.xml'
+    err = one_line_error(capsys, urdf if urdf.exists() else DAE, '--tip', 'tool0', '-o', bad)
+    assert 'cannot write' in err and 'No such file or directory' in err
+    assert not bad.parent.exists()
+
+
+def test_a_policy_card_of_an_imported_arm_loads_from_any_folder(tmp_path, capsys,
+                                                                monkeypatch):
+    """
+    What play, export and policy_node compile: the card's model_xml, from anywhere.
+
+    The card keeps the model's text (pg_node.rl.trained_policy.make_card); play writes it
+    to the run's log folder for sim_node; policy_node compiles it in its own working
+    directory. Relative mesh paths failed there ("Error opening file '../...stl'").
+    """
+    from pg_node.rl.trained_policy import make_card
+    from pg_node.sim.observation import ObservationBuilder
+    run = tmp_path / 'runs' / 'a'
+    run.mkdir(parents=True)
+    out = run / 'arm.xml'
+    code, stdout, err = run_import(capsys, DAE, '--tip', 'tool0', '-o', out)
+    assert code == 0, err
+    assert f'train with: python -m pg_node train model:={out} ' in stdout   # absolute
+    card = make_card(str(out), 3 * 2 + 2 * 3, 2, 2, {})
+    elsewhere = tmp_path / 'elsewhere' / 'deeper'
+    elsewhere.mkdir(parents=True)
+    monkeypatch.chdir(elsewhere)
+    builder = ObservationBuilder(mujoco.MjModel.from_xml_string(card['model_xml']))
+    assert builder.model.nmesh >= 1
+    np.testing.assert_allclose(builder.fingertips(np.zeros((1, 2)))[0], [0.25, 0, 0.16],
+                               atol=1e-9)
+    log = tmp_path / 'log'
+    log.mkdir()
+    (log / 'model.xml').write_text(card['model_xml'])   # play's model for sim_node
+    task = ArmTask(log / 'model.xml', num_envs=2)
+    obs, reward, *_ = task.step(np.ones((2, 2)))
+    assert np.all(np.isfinite(obs)) and np.all(np.isfinite(reward))
+
+
+def stl_bounds(path: Path) -> np.ndarray:
+    """Return the bounding box ``[[min xyz], [max xyz]]`` of a binary STL file."""
+    data = path.read_bytes()
+    (count,) = struct.unpack('<I', data[80:84])
+    records = np.frombuffer(data[84:84 + 50 * count], dtype=np.dtype(
+        [('normal', '<f4', 3), ('v', '<f4', (3, 3)), ('attr', '<u2')]))
+    points = records['v'].reshape(-1, 3)
+    return np.array([points.min(axis=0), points.max(axis=0)])
+
+
+def test_collada_meshes_are_converted_to_stl_in_metres(tmp_path, capsys, monkeypatch):
+    out = tmp_path / 'dae.xml'
+    code, stdout, err = run_import(capsys, DAE, '--tip', 'tool0', '-o', out)
+    assert code == 0 and 'warning' not in err, err
+    assert 'meshes: 1 file (1 converted to STL) copied to' in stdout
+    stl = tmp_path / 'dae_meshes' / 'cube_mm.stl'
+    # 50 mm cube lifted 10 mm by its node, in millimetres: metres, with the node's transform
+    np.testing.assert_allclose(stl_bounds(stl), [[0, 0, 0.01], [0.05, 0.05, 0.06]], atol=1e-7)
+    model = mujoco.MjModel.from_xml_path(str(out))
+    link0 = model.body('link0').id
+    meshes = [g for g in range(model.ngeom) if model.geom_bodyid[g] == link0
+              and model.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH]
+    assert len(meshes) == 2     # the visual and the collision geometry, both from the .dae
+    # a COLLADA file that is not one: the visual gives way to the collision geometry, the
+    # collision mesh to a sphere, each with a warning that says why
+    broken = tmp_path / 'robot'
+    shutil.copytree(DAE.parent / 'meshes', broken / 'meshes')
+    (broken / 'meshes' / 'cube_mm.dae').write_text('<COLLADA><asset>')
+    shutil.copy(DAE, broken / 'dae_mesh.urdf')
+    code, _, err = run_import(capsys, broken / 'dae_mesh.urdf', '--tip', 'tool0', '-o',
+                              tmp_path / 'b.xml')
+    assert code == 0, err
+    assert "visual mesh 'meshes/cube_mm.dae' cannot be converted (" in err
+    assert 'showing the collision geometry instead' in err
+    assert "collision mesh 'meshes/cube_mm.dae' cannot be converted (" in err
+    assert 'a sphere of radius 0.02 m stands in' in err
+    # without trimesh the import still works, and says what to install
+    monkeypatch.setitem(sys.modules, 'trimesh', None)
+    code, _, err = run_import(capsys, DAE, '--tip', 'tool0', '-o', tmp_path / 'c.xml')
+    assert code == 0, err
+    assert 'is .dae, and converting it needs trimesh (pip install trimesh pycollada)' in err
+
+
+def test_an_inertia_mujoco_rejects_is_balanced_with_a_warning(tmp_path, capsys):
+    """
+    Balanced, not refused: vendors ship such inertias, the import must take them.
+
+    MuJoCo's balanceinertia sets the three principal moments to their mean: the warning
+    names the link and both sets, so that the URDF can be fixed where it matters.
+    """
+    out = tmp_path / 'bad.xml'
+    code, _, err = run_import(capsys, FIXTURES / 'bad_inertia.urdf', '--tip', 'tool0', '-o',
+                              out)
+    assert code == 0, err
+    assert ("warning: link 'link1': MuJoCo rejects its inertia (principal moments 0.001 "
+            '0.001 0.003 kg m^2 break A + B >= C); balanced to 0.001667 each' in err)
+    assert 'link0' not in err
+    model = mujoco.MjModel.from_xml_path(str(out))    # the written model needs no balancing
+    np.testing.assert_allclose(model.body('link1').inertia, [0.005 / 3] * 3, rtol=1e-5)
+    np.testing.assert_allclose(np.sort(model.body('link0').inertia), [0.0005, 0.004, 0.004])
+    # an inertia that is not positive definite cannot be balanced: refused, naming the link
+    text = (FIXTURES / 'bad_inertia.urdf').read_text().replace(
+        'ixx="0.001" iyy="0.001" izz="0.003"', 'ixx="0.001" iyy="-0.001" izz="0.001"')
+    (tmp_path / 'neg.urdf').write_text(text)
+    err = one_line_error(capsys, tmp_path / 'neg.urdf', '--tip', 'tool0', '-o', out)
+    assert "link 'link1': its <inertia> is not positive definite (principal moments -0.001 " \
+           '0.001 0.001 kg m^2)' in err
+
+
+def test_links_without_mass_are_named(tmp_path, capsys):
+    out = tmp_path / 'zero.xml'
+    code, _, err = run_import(capsys, FIXTURES / 'zero_mass.urdf', '--tip', 'tool0', '-o',
+                              out)
+    assert code == 0, err
+    lines = [line for line in err.splitlines() if 'mass' in line or 'inertial' in line]
+    assert lines == [
+        'warning: links without an <inertial>, so MuJoCo weighed their collision geometry at '
+        '1000 kg/m^3: link0 (1 kg); give them the real mass and inertia',
+        "warning: links with geometry but no mass: link1; each weighs 0.001 kg (MuJoCo's "
+        'minimum): right for a marker, wrong for a part',
+        "warning: joint 'joint1' moves no mass (links link1, link2, tool0): at 0.001 kg each "
+        "(MuJoCo's minimum) it spins up at any torque; give them <inertial> elements",
+        "warning: joint 'joint2' moves no mass (links link2, tool0): at 0.001 kg each "
+        "(MuJoCo's minimum) it spins up at any torque; give them <inertial> elements"], err
+    model = mujoco.MjModel.from_xml_path(str(out))
+    assert model.body('link0').mass[0] == pytest.approx(1.0)
+    assert model.body('link1').mass[0] == pytest.approx(0.001)
+    # a massless frame on a link with mass (tool0 on a UR, panda_hand_tcp) is not named
+    two = TWO_LINK.read_text()
+    (tmp_path / 'two.urdf').write_text(two)
+    code, _, err = run_import(capsys, tmp_path / 'two.urdf', '--tip', 'fingertip', '-o', out)
+    assert code == 0 and 'mass' not in err and 'inertial' not in err, err
+
+
+def test_continuous_joints_turn_without_end(tmp_path, capsys):
+    out = tmp_path / 'cont.xml'
+    code, stdout, err = run_import(capsys, FIXTURES / 'continuous.urdf', '--tip', 'tip', '-o',
+                                   out)
+    assert code == 0, err
+    assert 'arm joints (2): joint0, joint1' in stdout
+    assert "joint 'joint0' has no effort limit; using 1 N m" in err
+    assert "joint 'joint0' has no velocity limit; its damping stays" in err
+    model = mujoco.MjModel.from_xml_path(str(out))
+    assert not model.jnt_limited.any()
+    np.testing.assert_allclose(model.actuator_gear[:, 0], [1.0, 5.0])
+    np.testing.assert_allclose(model.dof_damping, [0.5, 5.0 / 3.0], rtol=1e-5)  # URDF, e/v
+    # targets all the way round: no gap of more than 20 degrees in their bearings
+    points = ArmTask(out).spec.target_points
+    bearings = np.sort(np.arctan2(points[:, 1], points[:, 0]))
+    gaps = np.diff(np.concatenate([bearings, bearings[:1] + 2 * np.pi]))
+    assert gaps.max() < np.radians(20)
+
+
+def test_mimic_on_the_chain_couples_and_below_the_tip_is_fixed(tmp_path, capsys):
+    """
+    A <mimic> on the chain is MuJoCo's joint equality, and it holds; one below the tip goes.
+
+    joint1 = 0.2 + 0.5 joint0: no actuator, no place in the observation; the targets are
+    drawn with it coupled. The equality is soft: under random commands joint1 lags (the
+    import measures and prints by how much); at rest it settles onto its mimic.
+    """
+    out = tmp_path / 'mimic.xml'
+    code, stdout, err = run_import(capsys, FIXTURES / 'mimic.urdf', '--tip', 'tip', '-o', out)
+    assert code == 0, err
+    assert 'arm joints (2): joint0, joint2' in stdout
+    assert 'fixed joints (2): finger_left_joint, finger_right_joint' in stdout
+    lag = float(re.search(r'joint1 = 0.2 \+ 0.5 x joint0 \(within ([0-9.e-]+) rad', stdout)[1])
+    assert 0 < lag < 0.5
+    model = mujoco.MjModel.from_xml_path(str(out))
+    assert model.nu == 2 and model.njnt == 3 and model.neq == 1     # the fingers' is gone
+    assert model.joint(model.eq_obj1id[0]).name == 'joint1'
+    np.testing.assert_allclose(model.eq_data[0, :2], [0.2, 0.5])
+    task = ArmTask(out, num_envs=1, seed=0, max_episode_steps=None)
+    assert task.spec.joint_names == ('joint0', 'joint2')
+    a0, a1 = (model.joint(n).qposadr[0] for n in ('joint0', 'joint1'))
+    data = task.datas[0]
+    rng = np.random.default_rng(1)
+    errors = []
+    for _ in range(50):
+        task.step(rng.uniform(-1, 1, size=(1, 2)))
+        errors.append(data.qpos[a1] - 0.2 - 0.5 * data.qpos[a0])
+    assert np.all(np.isfinite(errors)) and np.max(np.abs(errors[5:])) < 0.5
+    for _ in range(200):                # at rest (zero command, gravity compensated)
+        task.step(np.zeros((1, 2)))
+    assert abs(data.qpos[a1] - 0.2 - 0.5 * data.qpos[a0]) < 1e-3
+    # every target is the fingertip of joint angles with joint1 on its mimic
+    points = task.spec.target_points
+    angles = np.random.default_rng(0).uniform([-2.5, -2.5], [2.5, 2.5], size=(20, 2))
+    fresh = mujoco.MjData(model)
+    for point, (q0, q2) in zip(points, angles):
+        fresh.qpos[[a0, a1, model.joint('joint2').qposadr[0]]] = q0, 0.2 + 0.5 * q0, q2
+        mujoco.mj_kinematics(model, fresh)
+        np.testing.assert_allclose(fresh.site('fingertip').xpos, point, atol=1e-4)
+
+
+def test_a_gripper_below_the_tip_is_fixed_with_its_mass(tmp_path, capsys):
+    out = tmp_path / 'gripper.xml'
+    code, stdout, err = run_import(capsys, FIXTURES / 'gripper.urdf', '--tip', 'tool0', '-o',
+                                   out)
+    assert code == 0, err
+    assert 'arm joints (2): joint0, joint1' in stdout
+    assert 'fixed joints (4): finger_left, finger_right, slider, camera_pan' in stdout
+    model = mujoco.MjModel.from_xml_path(str(out))
+    assert model.njnt == 2 and model.nu == 2 and model.neq == 0
+    # the hand (0.4 kg), fingers and slider (3 x 0.05) and camera (0.1) ride on link1
+    assert model.body('link1').subtreemass[0] == pytest.approx(0.5 + 0.65 + 0.001)
+    data = mujoco.MjData(model)
+    mujoco.mj_kinematics(model, data)
+    np.testing.assert_allclose(data.site('fingertip').xpos, [0.4, 0, 0.1], atol=1e-12)
+    task = ArmTask(out, num_envs=2)
+    for _ in range(25):
+        obs, reward, *_ = task.step(np.ones((2, 2)))
+    assert np.all(np.isfinite(obs))
+
+
+def test_xacro_files_are_expanded_with_their_arguments(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    code, stdout, err = run_import(capsys, XACRO, '--tip', 'tip')
+    assert code == 0, err
+    assert 'arm joints (2): link0_joint, link1_joint' in stdout
+    assert (tmp_path / 'xacro_arm.xml').is_file()     # the robot's name, not the file's
+    reach = np.linalg.norm(ArmTask('xacro_arm.xml').spec.target_points[:, :2], axis=1).max()
+    assert reach == pytest.approx(0.2, abs=0.005)
+    code, stdout, err = run_import(capsys, XACRO, '--tip', 'left_tip', '--xacro-arg',
+                                   'length:=0.2', '--xacro-arg', 'prefix:=left_', '-o',
+                                   'long.xml')
+    assert code == 0, err
+    assert 'arm joints (2): left_link0_joint, left_link1_joint' in stdout
+    reach = np.linalg.norm(ArmTask('long.xml').spec.target_points[:, :2], axis=1).max()
+    assert reach == pytest.approx(0.4, abs=0.01)
+    # $(find xacro_pkg) is looked for as package:// meshes are: here, above the file; a copy
+    # elsewhere finds it with --package-path, and says where it looked without
+    alone = tmp_path / 'alone' / 'arm.urdf.xacro'
+    alone.parent.mkdir()
+    shutil.copy(XACRO, alone)
+    err = one_line_error(capsys, alone, '--tip', 'tip', '-o', 'x.xml')
+    assert "$(find xacro_pkg): package 'xacro_pkg' not found; looked in:" in err
+    code, _, err = run_import(capsys, alone, '--tip', 'tip', '--package-path', FIXTURES,
+                              '-o', 'x.xml')
+    assert code == 0, err
+    # errors: an undefined argument, broken xacro, --xacro-arg on a URDF, a bad --xacro-arg
+    undefined = tmp_path / 'undefined.urdf.xacro'
+    undefined.write_text(XACRO.read_text().replace('$(arg length)', '$(arg size)'))
+    shutil.copytree(XACRO.parent.parent, tmp_path / 'xacro_pkg')
+    err = one_line_error(capsys, undefined, '--tip', 'tip', '-o', 'x.xml')
+    assert 'Undefined substitution argument size' in err
+    assert '(give it: --xacro-arg size:=VALUE)' in err
+    broken = tmp_path / 'broken.urdf.xacro'
+    broken.write_text(XACRO.read_text().replace('${length} 0 0', '${length +} 0 0'))
+    err = one_line_error(capsys, broken, '--tip', 'tip', '-o', 'x.xml')
+    assert f'xacro cannot expand {broken}' in err
+    err = one_line_error(capsys, TWO_LINK, '--tip', 'fingertip', '--xacro-arg', 'a:=1')
+    assert '--xacro-arg is for .xacro files' in err
+    with pytest.raises(SystemExit) as exc:
+        arm.main(['import', str(XACRO), '--tip', 'tip', '--xacro-arg', 'length=2'])
+    assert exc.value.code == 2 and "'length=2' is not NAME:=VALUE" in capsys.readouterr().err
+
+
+def test_defaults_that_learn_and_what_the_command_says(tmp_path, capsys):
+    """
+    A 0.02 s timestep, velocity damping and gravity compensation by default, and said so.
+
+    The timestep makes 2 s episodes with pg_node's 50 steps of frame_skip 2; the command
+    prints the physics it chose and the train command (frame_skip:= for another timestep).
+    Velocity damping holds full torque to the URDF's velocity limit (10 rad/s here): the
+    old default, 0.002 s without damping, let bang-bang torques spin reacher2's joints past
+    200 rad/s.
+    """
+    out = tmp_path / 'arm.xml'
+    code, stdout, err = run_import(capsys, TWO_LINK, '--tip', 'fingertip', '-o', out)
+    assert code == 0 and not err, err
+    assert ('physics: timestep 0.02 s (implicitfast), velocity damping (effort / velocity '
+            'limit), gravity compensation on, motor actuators') in stdout
+    assert (f'train with: python -m pg_node train model:={out}  (a control step of 2 x 0.02 s '
+            '= 0.04 s, 50-step episodes of 2 s)') in stdout
+    model = mujoco.MjModel.from_xml_path(str(out))
+    assert model.opt.timestep == 0.02
+    np.testing.assert_allclose(model.dof_damping, [200 / 10] * 2)
+    assert model.body_gravcomp[model.body('link1').id] == 1.0
+
+    def fastest(path):
+        task = ArmTask(path, num_envs=4, seed=0)
+        rng = np.random.default_rng(0)
+        top = 0.0
+        for _ in range(50):
+            task.step(rng.choice([-1.0, 1.0], size=(4, 2)))
+            top = max(top, max(np.abs(d.qvel[task.spec.dof_adr]).max() for d in task.datas))
+        return top
+
+    assert fastest(out) < 1.5 * 10
+    code, stdout, err = run_import(capsys, TWO_LINK, '--tip', 'fingertip', '--timestep',
+                                   0.002, '--no-velocity-damping', '--no-gravity-compensation',
+                                   '-o', out)
+    assert code == 0
+    assert 'warning: no velocity damping: torque-driven joints' in err
+    assert "the URDF's damping (no velocity damping), gravity compensation off" in stdout
+    assert (f'model:={out} frame_skip:=20  (a control step of 20 x 0.002 s = 0.04 s, '
+            '50-step episodes of 2 s)') in stdout
+    assert fastest(out) > 100
+    # --damping replaces velocity damping unless that is asked for too
+    code, stdout, err = run_import(capsys, TWO_LINK, '--tip', 'fingertip', '--damping', 3,
+                                   '-o', out)
+    assert code == 0 and 'damping 3 N m s/rad (no velocity damping)' in stdout and not err
+    np.testing.assert_allclose(mujoco.MjModel.from_xml_path(str(out)).dof_damping, [3, 3])
+    code, stdout, err = run_import(capsys, TWO_LINK, '--tip', 'fingertip', '--damping', 3,
+                                   '--velocity-damping', '--timestep', 0.01, '-o', out)
+    np.testing.assert_allclose(mujoco.MjModel.from_xml_path(str(out)).dof_damping, [20, 20])
+    assert 'frame_skip:=4  (a control step of 4 x 0.01 s' in stdout
 
 
 def shipped_command():

@@ -1,62 +1,95 @@
 """
-Turn a robot's URDF into an arm model that pg_node trains with (no ROS here).
+Turn a robot's URDF (or xacro) into an arm model that pg_node trains with (no ROS here).
 
 MuJoCo's own URDF compiler reads the robot (links become bodies, URDF joints hinges or
 slides with their limits, ``<dynamics>`` damping and friction, the effort limit as the
-joint's actuator force range); this module prepares the URDF for it and then edits the
-compiled :class:`mujoco.MjSpec` into pg_node's conventions (:mod:`pg_node.sim.arm_task`):
+joint's actuator force range, ``<mimic>`` a joint equality); this module prepares the URDF
+for it and then edits the compiled :class:`mujoco.MjSpec` into pg_node's conventions
+(:mod:`pg_node.sim.arm_task`):
 
-* **arm joints**: the revolute and continuous joints on the chain from ``base`` (default: the
-  root link) to ``tip``. Every other moving joint (joints above the base, other branches,
-  a gripper below the tip, a floating root) is fixed at its zero position (deleted from the
-  model) and listed in :attr:`ImportResult.fixed_joints`.
+* **xacro**: a file whose name ends in ``.xacro`` is expanded first (the ``xacro``
+  package), with ``xacro_args`` as its ``name:=value`` arguments; ``$(find NAME)`` is
+  looked up as ``package://NAME`` meshes are (below).
+* **arm joints**: the revolute and continuous joints on the chain from ``base`` (default:
+  the root link) to ``tip``. A chain joint with a ``<mimic>`` of an arm joint stays as a
+  **coupled** joint: no actuator, moved by the equality MuJoCo makes of the mimic
+  (:attr:`ImportResult.coupled_joints`). Every other moving joint (joints above the base,
+  other branches, a gripper below the tip, a floating root, a mimic of a fixed joint) is
+  fixed at its zero position (deleted from the model, with its equalities) and listed in
+  :attr:`ImportResult.fixed_joints`.
 * **actuators**, one per arm joint, with normalised commands in ``[-1, 1]`` as the shipped
   models have: ``motor`` applies ``u * effort * effort_scale`` N m (``effort`` is the URDF
   ``<limit effort>``), ``position`` drives the joint to the angle ``u`` maps to linearly
   over the joint's range (``-pi..pi`` for a continuous joint) with stiffness ``kp`` and
   damping ``kv``, its force clamped to ``effort * effort_scale``.
-* ``gravity_compensation``: every body of the arm gets ``gravcomp="1"`` (MuJoCo applies the
-  bodies' weight back as a passive force), as torque-controlled arms do in their firmware.
+* **physics that learns** (the defaults): ``timestep`` 0.02 s, so that pg_node's default
+  ``frame_skip`` (2) and ``max_episode_steps`` (50) make a 0.04 s control step and 2 s
+  episodes, time for a real arm to reach (:func:`training_settings` gives the overrides
+  for another timestep); ``velocity_damping``: each arm joint's damping becomes ``effort /
+  velocity limit`` (the URDF's ``<limit velocity>``), so that the full torque drives the
+  joint at no more than its velocity limit, as the robot's controller enforces (without
+  it a torque-driven joint of small inertia reaches hundreds of rad/s); otherwise
+  ``damping`` (if given) or the URDF's ``<dynamics damping>``; ``gravity_compensation``:
+  every body of the arm gets ``gravcomp="1"`` (MuJoCo applies the bodies' weight back as a
+  passive force), as torque-controlled arms do in their firmware.
+* **inertias**: one that MuJoCo rejects (principal moments breaking ``A + B >= C``) is
+  balanced by MuJoCo's ``balanceinertia`` (all three moments set to their mean), with a
+  warning naming the link and both sets of moments; one that is not positive definite is
+  refused. Moving links with geometry but no ``<inertial>`` (MuJoCo gives them the mass of
+  their collision geometry at 1000 kg/m^3) or with a zero mass (MuJoCo's minimum,
+  0.001 kg), and an arm joint that moves no mass at all, are warned of; a massless link
+  without geometry (a frame such as ``tool0``) is normal and passes silently.
 * a ``fingertip`` site at the tip link's origin plus ``tip_offset`` (in the tip's frame),
   a mocap ``target`` sphere, a floor (visual only) and a light.
 * **reachable targets**: ``targets`` fingertip positions of forward kinematics at joint
-  angles drawn uniformly within the limits (seeded), kept where they are at least
-  ``target_min_height`` high (and within ``target_region``, a ball, when given), stored as
-  the custom numeric ``pg_target_points`` (x y z per point, 0.1 mm resolution); the task
-  draws each goal among them. ``pg_init_qpos`` holds the arm's start pose (``home``, else
-  zero clipped into the limits).
+  angles drawn uniformly within the limits (seeded; coupled joints follow their mimic),
+  kept where they are at least ``target_min_height`` high (and within ``target_region``,
+  a ball, when given), stored as the custom numeric ``pg_target_points`` (x y z per point,
+  0.1 mm resolution); the task draws each goal among them. ``pg_init_qpos`` holds the
+  arm's start pose (``home``, else zero clipped into the limits).
 * **meshes**: ``package://NAME/REL`` is looked up as ROS does, in ``share/NAME`` of every
   prefix of ``AMENT_PREFIX_PATH``, then in each ``package_paths`` folder (``DIR/NAME/REL``,
   or ``DIR/REL`` when ``DIR`` is the package itself), then in the URDF's folder and each of
   its parents (same two forms); ``file://`` and plain paths (relative to the URDF's folder)
-  too. MuJoCo reads STL, OBJ and MSH; a visual mesh in another format (COLLADA ``.dae``)
-  is dropped when the link has collision geometry, else replaced by a small sphere, a
-  collision mesh in another format by a small sphere, each with a warning.
+  too. MuJoCo reads STL, OBJ and MSH; COLLADA (``.dae``), PLY, OFF and glTF meshes are
+  converted to STL (``trimesh``; a COLLADA ``<unit>`` is applied). Every mesh is copied
+  into ``<model>_meshes/`` beside the written model (:func:`write_model`) and named there
+  by its **absolute path**, so that the model, and the copy of its text that a trained
+  policy's card keeps, load from any working directory (move the model and its folder
+  together by importing again). A mesh that cannot be read or converted gives way to the
+  link's collision geometry (visual) or a small sphere, with a warning.
   ``visual_meshes=False`` keeps only the collision geometry (what simulation needs).
-  Mesh files are referenced by paths relative to the written model.
-* ``velocity_damping``: each arm joint's damping becomes ``effort / velocity limit`` (the
-  URDF's ``<limit velocity>``), so that the full torque drives the joint at no more than
-  its velocity limit, as the robot's controller enforces; without it a torque-driven joint
-  of small inertia accelerates to tens of rad/s. Otherwise ``damping`` (if given) or the
-  URDF's ``<dynamics damping>``.
 * contacts are off (pg_node's reaching task has none) unless ``contacts``.
 
 Errors are :class:`UrdfImportError` with a one-line message.
 """
+import contextlib
 from dataclasses import dataclass, field
+import io
 import math
 import os
 from pathlib import Path
-from typing import List, Optional, Sequence, Tuple
+import re
+import shutil
+import tempfile
+from typing import Dict, List, Mapping, Optional, Sequence, Tuple, Union
 import xml.etree.ElementTree as ET
+from xml.sax.saxutils import escape
 
 import mujoco
 import numpy as np
 
 #: mesh formats MuJoCo reads
 MESH_FORMATS = ('.stl', '.obj', '.msh')
+#: mesh formats converted to STL (with trimesh; COLLADA needs pycollada)
+CONVERTED_FORMATS = ('.dae', '.ply', '.off', '.glb', '.gltf')
 ARM_JOINT_TYPES = ('revolute', 'continuous')
 FALLBACK_SPHERE = 0.02
+#: the control step and episode length the defaults give (frame_skip 2 x 0.02 s, 50 steps)
+CONTROL_STEP = 0.04
+EPISODE_SECONDS = 2.0
+#: MuJoCo's minimum body mass here (compiler boundmass): what a massless moving link weighs
+BOUND_MASS = 0.001
 
 
 class UrdfImportError(ValueError):
@@ -73,16 +106,16 @@ class ImportOptions:
     kp: float = 100.0
     kv: float = 10.0
     effort_scale: float = 1.0
-    gravity_compensation: bool = False
+    gravity_compensation: bool = True
     tip_offset: Tuple[float, float, float] = (0.0, 0.0, 0.0)
     package_paths: Sequence[str] = ()
     visual_meshes: bool = True
     contacts: bool = False
-    timestep: float = 0.002
+    timestep: float = 0.02
     integrator: str = 'implicitfast'
     armature: Optional[float] = None
     damping: Optional[float] = None
-    velocity_damping: bool = False
+    velocity_damping: bool = True
     home: Optional[Sequence[float]] = None
     targets: int = 1000
     target_min_height: Optional[float] = 0.0
@@ -90,17 +123,39 @@ class ImportOptions:
     init_qpos_noise: float = 0.1
     init_qvel_noise: float = 0.005
     seed: int = 0
+    xacro_args: Mapping[str, str] = field(default_factory=dict)
 
 
 @dataclass
 class ImportResult:
-    """The MJCF text and what the import did."""
+    """The MJCF text, the mesh files it names, and what the import did."""
 
     xml: str
     arm_joints: List[str]
     fixed_joints: List[str]
     warnings: List[str] = field(default_factory=list)
     n_targets: int = 0
+    #: coupled joint -> (its leader, multiplier, offset): URDF ``<mimic>`` on the chain
+    coupled_joints: Dict[str, Tuple[str, float, float]] = field(default_factory=dict)
+    #: the folder the meshes go to (named by absolute path in ``xml``)
+    mesh_dir: Optional[Path] = None
+    #: file name in ``mesh_dir`` -> the file to copy, or the converted file's bytes
+    mesh_files: Dict[str, Union[Path, bytes]] = field(default_factory=dict)
+    converted_meshes: int = 0
+    timestep: float = 0.02
+    #: coupled joint -> the largest distance from its mimic seen under random commands, rad
+    coupling_error: Dict[str, float] = field(default_factory=dict)
+
+
+def training_settings(timestep: float) -> Tuple[int, int]:
+    """
+    Return ``(frame_skip, max_episode_steps)`` that make a 0.04 s control step, 2 s episodes.
+
+    >>> training_settings(0.02), training_settings(0.002), training_settings(0.01)
+    ((2, 50), (20, 50), (4, 50))
+    """
+    frame_skip = max(1, round(CONTROL_STEP / timestep))
+    return frame_skip, max(1, round(EPISODE_SECONDS / (frame_skip * timestep)))
 
 
 def _one_line(exc: Exception) -> str:
@@ -116,6 +171,20 @@ def _floats(text: Optional[str], n: int, default: float = 0.0) -> List[float]:
     return values
 
 
+def _check_robot(root: ET.Element, path: Path) -> ET.Element:
+    if root.tag != 'robot':
+        raise UrdfImportError(f'{path} is not a URDF file: its root element is <{root.tag}>, '
+                              'not <robot>')
+    if root.find('link') is None:
+        raise UrdfImportError(f'{path} is not a URDF file: it has no <link>')
+    return root
+
+
+def is_xacro(path) -> bool:
+    """Return whether ``path`` names a xacro file (``.xacro``, e.g. ``robot.urdf.xacro``)."""
+    return str(path).lower().endswith('.xacro')
+
+
 def read_urdf(path) -> ET.Element:
     """Return the ``<robot>`` element of the URDF at ``path``, or raise UrdfImportError."""
     path = Path(path)
@@ -125,12 +194,73 @@ def read_urdf(path) -> ET.Element:
         raise UrdfImportError(f'cannot read {path}: {exc.strerror}') from None
     except ET.ParseError as exc:
         raise UrdfImportError(f'{path} is not a URDF file: not valid XML ({exc})') from None
-    if root.tag != 'robot':
-        raise UrdfImportError(f'{path} is not a URDF file: its root element is <{root.tag}>, '
-                              'not <robot>')
-    if root.find('link') is None:
-        raise UrdfImportError(f'{path} is not a URDF file: it has no <link>')
-    return root
+    return _check_robot(root, path)
+
+
+def expand_xacro(path, args: Mapping[str, str] = None, package_paths: Sequence[str] = (),
+                 warnings: Optional[List[str]] = None) -> str:
+    """
+    Return the URDF text of the xacro file at ``path`` with ``args`` (``name -> value``).
+
+    ``$(find NAME)`` names the first folder of :func:`package_dirs` that exists. What xacro
+    prints (deprecations and the like) is appended to ``warnings``.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise UrdfImportError(f'cannot read {path}: No such file or directory')
+    try:
+        import xacro
+        import xacro.substitution_args as substitution
+    except ImportError:
+        raise UrdfImportError(f'{path} is a xacro file and the xacro package is not '
+                              f'installed: pip install xacro, or expand it first: xacro '
+                              f'{path} > robot.urdf') from None
+    original = substitution._eval_find
+
+    def find(package):
+        for folder in package_dirs(package, path.parent, package_paths):
+            if folder.is_dir():
+                return str(folder)
+        raise UrdfImportError(f'$(find {package}): package {package!r} not found; looked in: '
+                              + ', '.join(str(p) for p in package_dirs(
+                                  package, path.parent, package_paths)))
+
+    said = io.StringIO()
+    substitution._eval_find = find
+    try:
+        with contextlib.redirect_stderr(said):
+            doc = xacro.process_file(str(path.resolve()), mappings=dict(args or {}))
+        text = doc.toxml()
+    except UrdfImportError:
+        raise
+    except Exception as exc:  # noqa: B902 - xacro raises XacroException, ExpatError, NameError...
+        reason = _one_line(exc) or type(exc).__name__
+        undefined = re.search(r'Undefined substitution argument (\S+)', reason)
+        if undefined:
+            reason += f' (give it: --xacro-arg {undefined[1].rstrip(";")}:=VALUE)'
+        raise UrdfImportError(f'xacro cannot expand {path}: {reason}') from None
+    finally:
+        substitution._eval_find = original
+    if warnings is not None:
+        warnings.extend(f'xacro: {line.strip()}' for line in said.getvalue().splitlines()
+                        if line.strip())
+    return text
+
+
+def load_robot(path, xacro_args: Mapping[str, str] = None, package_paths: Sequence[str] = (),
+               warnings: Optional[List[str]] = None) -> ET.Element:
+    """Return the ``<robot>`` of a URDF, or of a xacro file expanded; UrdfImportError else."""
+    path = Path(path)
+    if not is_xacro(path):
+        if xacro_args:
+            raise UrdfImportError(f'--xacro-arg is for .xacro files; {path} is not one')
+        return read_urdf(path)
+    text = expand_xacro(path, xacro_args, package_paths, warnings)
+    try:
+        root = ET.fromstring(text)
+    except ET.ParseError as exc:
+        raise UrdfImportError(f'{path} expands to invalid XML ({exc})') from None
+    return _check_robot(root, path)
 
 
 def ament_prefixes() -> List[Path]:
@@ -138,18 +268,22 @@ def ament_prefixes() -> List[Path]:
     return [Path(p) for p in os.environ.get('AMENT_PREFIX_PATH', '').split(os.pathsep) if p]
 
 
+def package_dirs(package: str, urdf_dir: Path, package_paths: Sequence[str] = ()
+                 ) -> List[Path]:
+    """Return the folders package ``package`` may be, in the order they are tried."""
+    out = [prefix / 'share' / package for prefix in ament_prefixes()]
+    for folder in [Path(p) for p in package_paths] + [urdf_dir, *urdf_dir.parents]:
+        out.append(folder / package)
+        if folder.name == package:
+            out.append(folder)
+    return list(dict.fromkeys(out))
+
+
 def mesh_candidates(uri: str, urdf_dir: Path, package_paths: Sequence[str] = ()) -> List[Path]:
     """Return the files a mesh URI may name, in the order they are tried."""
     if uri.startswith('package://'):
         package, _, rel = uri[len('package://'):].partition('/')
-        out = [prefix / 'share' / package / rel for prefix in ament_prefixes()]
-        folders = [Path(p) for p in package_paths]
-        folders += [urdf_dir, *urdf_dir.parents]
-        for folder in folders:
-            out.append(folder / package / rel)
-            if folder.name == package:
-                out.append(folder / rel)
-        return out
+        return [folder / rel for folder in package_dirs(package, urdf_dir, package_paths)]
     if uri.startswith('file://'):
         return [Path(uri[len('file://'):])]
     path = Path(uri)
@@ -166,8 +300,90 @@ def resolve_mesh(uri: str, urdf_dir: Path, package_paths: Sequence[str] = ()) ->
     raise UrdfImportError(f'mesh {uri!r} not found; looked in: {where}')
 
 
+def convert_mesh(source: Path) -> Tuple[bytes, List[str]]:
+    """
+    Return a binary STL of the mesh file ``source`` (COLLADA, PLY, ...) and notes on it.
+
+    Every triangle of the file, with its node transforms, becomes one mesh; a COLLADA
+    ``<unit meter>`` scales it to metres (as rviz does). Raises ValueError when the file
+    cannot be read or holds no triangles, ImportError without trimesh (or pycollada).
+    """
+    import trimesh
+    if source.suffix.lower() == '.dae':
+        import collada  # noqa: F401 - trimesh reads COLLADA through pycollada
+    notes = []
+    try:
+        mesh = trimesh.load(str(source), force='mesh')
+    except Exception as exc:  # noqa: B902 - trimesh and pycollada raise many kinds
+        raise ValueError(_one_line(exc) or type(exc).__name__) from None
+    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+        raise ValueError('it holds no triangles')
+    if source.suffix.lower() == '.dae':
+        unit, up = _collada_asset(source)
+        if unit != 1.0:
+            mesh.apply_scale(unit)
+        if up not in ('Z_UP', None):
+            notes.append(f'its up axis is {up}, which is not applied (URDF tools differ on '
+                         'it): check the link in a render')
+    return mesh.export(file_type='stl'), notes
+
+
+def _collada_asset(path: Path) -> Tuple[float, Optional[str]]:
+    """Return a COLLADA file's ``<unit meter>`` (1 when absent) and ``<up_axis>``."""
+    unit, up = 1.0, None
+    try:
+        for _, elem in ET.iterparse(path):
+            tag = elem.tag.rpartition('}')[2]
+            if tag == 'unit' and elem.get('meter'):
+                unit = float(elem.get('meter'))
+            elif tag == 'up_axis':
+                up = (elem.text or '').strip()
+            elif tag == 'asset':
+                break
+    except (ET.ParseError, ValueError):
+        pass
+    return unit, up
+
+
+class _Meshes:
+    """The mesh files of one import: what MuJoCo compiles from, what is copied where."""
+
+    def __init__(self, scratch: Path):
+        self.scratch = scratch        # converted files, while the import compiles
+        self.compiled = {}            # source -> the path MuJoCo reads
+        self.names = {}               # the path MuJoCo reads -> file name in the mesh folder
+        self.files = {}               # file name -> source path or converted bytes
+        self.converted = 0
+
+    def _name(self, stem: str, suffix: str) -> str:
+        name, k = stem + suffix, 1
+        while name in self.files:
+            k += 1
+            name = f'{stem}_{k}{suffix}'
+        return name
+
+    def add(self, source: Path, what: str, warnings: List[str]) -> Path:
+        """Return the file MuJoCo reads for ``source``; convert it when MuJoCo cannot."""
+        if source in self.compiled:
+            return self.compiled[source]
+        if source.suffix.lower() in MESH_FORMATS:
+            name = self._name(source.stem, source.suffix.lower())
+            self.files[name] = path = source
+        else:
+            data, notes = convert_mesh(source)
+            name = self._name(source.stem, '.stl')
+            self.files[name] = data
+            path = self.scratch / name
+            path.write_bytes(data)
+            self.converted += 1
+            warnings.extend(f'{what}: {note}' for note in notes)
+        self.compiled[source] = path
+        self.names[str(path)] = name
+        return path
+
+
 def _chain(robot: ET.Element, base: Optional[str], tip: str):
-    """Return ``(base, root, arm joint names, every joint by name)``; check the links."""
+    """Return ``(base, root, chain joint names, every joint by name)``; check the links."""
     links = [link.get('name') for link in robot.findall('link')]
     joints = {j.get('name'): j for j in robot.findall('joint')}
     parent_of = {}
@@ -204,15 +420,43 @@ def _chain(robot: ET.Element, base: Optional[str], tip: str):
                                   "robot's tree")
         link, joint = parent_of[link]
         path.append(joint)
-    arm = [j.get('name') for j in reversed(path) if j.get('type') in ARM_JOINT_TYPES]
-    if not arm:
+    chain = [j.get('name') for j in reversed(path) if j.get('type') in ARM_JOINT_TYPES]
+    if not chain:
         raise UrdfImportError(f'no revolute joint between {base!r} and {tip!r}')
-    return base, root, arm, joints
+    return base, root, chain, joints
+
+
+def _couplings(chain: List[str], joints: Dict[str, ET.Element]):
+    """
+    Split the chain's joints into actuated ones and coupled ones (a ``<mimic>`` of an arm joint).
+
+    Returns ``(actuated, {coupled: (leader, multiplier, offset)})``; a mimic whose leader
+    is not on the chain (so not moving) is neither, and gets fixed.
+    """
+    mimics = {}
+    for name in chain:
+        mimic = joints[name].find('mimic')
+        if mimic is not None:
+            mimics[name] = (mimic.get('joint'), float(mimic.get('multiplier', 1.0)),
+                            float(mimic.get('offset', 0.0)))
+    actuated = [name for name in chain if name not in mimics]
+    coupled = {}
+    grew = True
+    while grew:   # a mimic of a mimic of an arm joint is coupled too
+        grew = False
+        for name, (leader, *_) in mimics.items():
+            if name not in coupled and (leader in actuated or leader in coupled):
+                coupled[name] = mimics[name]
+                grew = True
+    if not actuated:
+        raise UrdfImportError(f'every revolute joint on the chain mimics another: '
+                              f'{", ".join(chain)}')
+    return actuated, {name: coupled[name] for name in chain if name in coupled}
 
 
 def _prepare_meshes(robot: ET.Element, urdf_dir: Path, opts: ImportOptions,
-                    warnings: List[str]):
-    """Resolve every mesh to an absolute path; drop or replace what MuJoCo cannot read."""
+                    warnings: List[str], meshes: _Meshes):
+    """Resolve every mesh, convert what MuJoCo cannot read; drop or replace what fails."""
     for link in robot.findall('link'):
         name = link.get('name')
         collisions = link.findall('collision')
@@ -226,20 +470,29 @@ def _prepare_meshes(robot: ET.Element, urdf_dir: Path, opts: ImportOptions,
                     continue
                 uri = mesh.get('filename', '')
                 suffix = Path(uri).suffix.lower()
-                if suffix not in MESH_FORMATS:
-                    geometry = elem.find('geometry')
-                    what = f'link {name!r}: {kind} mesh {uri!r} is {suffix or "no known format"}'
-                    if kind == 'visual' and collisions:
-                        link.remove(elem)
-                        warnings.append(f'{what}, which MuJoCo cannot read; showing the '
-                                        'collision geometry instead')
-                    else:
-                        geometry.remove(mesh)
-                        ET.SubElement(geometry, 'sphere', radius=str(FALLBACK_SPHERE))
-                        warnings.append(f'{what}, which MuJoCo cannot read; a sphere of '
-                                        f'radius {FALLBACK_SPHERE} m stands in')
-                    continue
-                mesh.set('filename', str(resolve_mesh(uri, urdf_dir, opts.package_paths)))
+                what = f'link {name!r}: {kind} mesh {uri!r}'
+                reason = None
+                if suffix in MESH_FORMATS + CONVERTED_FORMATS:
+                    source = resolve_mesh(uri, urdf_dir, opts.package_paths)
+                    try:
+                        mesh.set('filename', str(meshes.add(source, what, warnings)))
+                        continue
+                    except ImportError as exc:
+                        reason = (f'is {suffix}, and converting it needs {exc.name} (pip '
+                                  'install trimesh pycollada)')
+                    except ValueError as exc:
+                        reason = f'cannot be converted ({exc})'
+                else:
+                    reason = f'is {suffix or "no known format"}, which MuJoCo cannot read'
+                geometry = elem.find('geometry')
+                if kind == 'visual' and collisions:
+                    link.remove(elem)
+                    warnings.append(f'{what} {reason}; showing the collision geometry instead')
+                else:
+                    geometry.remove(mesh)
+                    ET.SubElement(geometry, 'sphere', radius=str(FALLBACK_SPHERE))
+                    warnings.append(f'{what} {reason}; a sphere of radius {FALLBACK_SPHERE} m '
+                                    'stands in')
 
 
 def _compile(spec: mujoco.MjSpec) -> mujoco.MjModel:
@@ -247,6 +500,116 @@ def _compile(spec: mujoco.MjSpec) -> mujoco.MjModel:
         return spec.compile()
     except ValueError as exc:
         raise UrdfImportError(f'MuJoCo cannot compile the robot: {_one_line(exc)}') from None
+
+
+def _principal_moments(link: ET.Element) -> Optional[np.ndarray]:
+    """Return the sorted principal moments of a link's URDF inertia, or None without one."""
+    inertia = link.find('inertial/inertia')
+    if inertia is None:
+        return None
+    v = {k: float(inertia.get(k, 0.0)) for k in ('ixx', 'iyy', 'izz', 'ixy', 'ixz', 'iyz')}
+    tensor = np.array([[v['ixx'], v['ixy'], v['ixz']], [v['ixy'], v['iyy'], v['iyz']],
+                       [v['ixz'], v['iyz'], v['izz']]])
+    return np.linalg.eigvalsh(tensor)
+
+
+def _parse(robot: ET.Element, urdf_path: Path) -> mujoco.MjSpec:
+    try:
+        return mujoco.MjSpec.from_string(ET.tostring(robot, encoding='unicode'))
+    except ValueError as exc:
+        raise UrdfImportError(f'MuJoCo cannot read the URDF {urdf_path}: '
+                              f'{_one_line(exc)}') from None
+
+
+def _load_spec(robot: ET.Element, urdf_path: Path, warnings: List[str]):
+    """
+    Return ``(spec, model)`` of the prepared URDF; balance the inertias MuJoCo rejects.
+
+    A link whose inertia breaks ``A + B >= C`` is balanced (MuJoCo's ``balanceinertia``
+    sets its principal moments to their mean) and named in a warning; one that is not
+    positive definite is refused in one line.
+    """
+    spec = _parse(robot, urdf_path)
+    try:
+        return spec, spec.compile()
+    except ValueError as exc:
+        text = _one_line(exc)
+    found = re.search(r"Element name '([^']*)'", text)
+    link = next((link for link in robot.findall('link')
+                 if found and link.get('name') == found.group(1)), None)
+    if 'positive eigenvalues' in text and link is not None:
+        moments = _principal_moments(link)
+        raise UrdfImportError(
+            f'link {link.get("name")!r}: its <inertia> is not positive definite (principal '
+            f'moments {_fmt(moments, 4)} kg m^2): no body has such an inertia and MuJoCo '
+            'cannot balance it; fix the URDF')
+    if 'balanceinertia' not in text:
+        raise UrdfImportError(f'MuJoCo cannot compile the robot: {text}')
+    robot.find('mujoco/compiler').set('balanceinertia', 'true')
+    spec = _parse(robot, urdf_path)
+    model = _compile(spec)
+    for link in robot.findall('link'):
+        moments = _principal_moments(link)
+        body = model.body(link.get('name')).id
+        now = np.sort(model.body_inertia[body])
+        if (moments is None or moments[0] <= 0 or np.allclose(now, moments, rtol=1e-6)
+                or np.ptp(now) > 1e-9 * now.max()):
+            continue
+        warnings.append(f'link {link.get("name")!r}: MuJoCo rejects its inertia (principal '
+                        f'moments {_fmt(moments, 4)} kg m^2 break A + B >= C); balanced to '
+                        f'{now[0]:.4g} each (balanceinertia): fix the URDF for the real '
+                        'values')
+    return spec, model
+
+
+def _links_below(joints: Dict[str, ET.Element], link: str) -> List[str]:
+    """Return ``link`` and every link below it."""
+    children = {}
+    for j in joints.values():
+        children.setdefault(j.find('parent').get('link'), []).append(j.find('child').get('link'))
+    out, todo = [], [link]
+    while todo:
+        out.append(todo.pop())
+        todo.extend(children.get(out[-1], []))
+    return out
+
+
+def _mass_warnings(robot: ET.Element, model: mujoco.MjModel, joints: Dict[str, ET.Element],
+                   moved: List[str]) -> List[str]:
+    """Warn of moving links without mass or inertial, and of joints that move no mass."""
+    links = {link.get('name'): link for link in robot.findall('link')}
+    first = joints[moved[0]].find('child').get('link')
+    from_geometry, zero, mass = [], [], {}
+    for name in _links_below(joints, first):
+        link = links[name]
+        inertial = link.find('inertial')
+        geometry = bool(link.findall('collision') or link.findall('visual'))
+        if inertial is None:
+            mass[name] = float(model.body_mass[model.body(name).id]) if link.findall(
+                'collision') else 0.0
+            if mass[name] > BOUND_MASS:
+                from_geometry.append(f'{name} ({mass[name]:.3g} kg)')
+                continue
+        else:
+            element = inertial.find('mass')
+            mass[name] = float(element.get('value', 0.0)) if element is not None else 0.0
+        if mass[name] <= 0 and geometry:
+            zero.append(name)
+    out = []
+    if from_geometry:
+        out.append('links without an <inertial>, so MuJoCo weighed their collision geometry '
+                   f'at 1000 kg/m^3: {", ".join(from_geometry)}; give them the real mass '
+                   'and inertia')
+    if zero:
+        out.append(f'links with geometry but no mass: {", ".join(zero)}; each weighs '
+                   f"{BOUND_MASS} kg (MuJoCo's minimum): right for a marker, wrong for a part")
+    for name in moved:
+        group = _links_below(joints, joints[name].find('child').get('link'))
+        if not any(mass.get(link, 0.0) > 0 for link in group):
+            out.append(f'joint {name!r} moves no mass (links {", ".join(group)}): at '
+                       f"{BOUND_MASS} kg each (MuJoCo's minimum) it spins up at any torque; "
+                       'give them <inertial> elements')
+    return out
 
 
 def _subtree(spec: mujoco.MjSpec, name: str) -> List:
@@ -273,30 +636,70 @@ def _effort(joint: ET.Element, warnings: List[str]) -> float:
     return effort
 
 
-def _fmt(values) -> str:
-    return ' '.join(f'{v:g}' for v in np.asarray(values, dtype=float).ravel())
+def _fmt(values, digits: int = 6) -> str:
+    return ' '.join(f'{v:.{digits}g}' for v in np.asarray(values, dtype=float).ravel())
 
 
-def import_urdf(urdf_path, opts: ImportOptions, out_path=None, command: str = ''
-                ) -> ImportResult:
+def default_output(urdf_path, robot: ET.Element) -> str:
+    """Return the model file ``arm import`` writes by default: ``<robot name>.xml``."""
+    stem = Path(urdf_path).name.split('.')[0]
+    return (robot.get('name') or stem) + '.xml'
+
+
+def import_urdf(urdf_path, opts: ImportOptions, out_path=None, command: str = '',
+                robot: Optional[ET.Element] = None) -> ImportResult:
     """
     Return the MJCF of the arm in ``urdf_path`` (see the module docstring).
 
-    ``out_path`` (default: beside the URDF) is where the model will be written: mesh paths
-    are made relative to its folder. ``command``, the command line that made the model, is
-    kept as the custom text ``pg_import_command`` (an XML comment at the top says so).
+    ``out_path`` (default: ``<robot name>.xml`` beside the URDF) is where the model will be
+    written: its meshes go to ``<model>_meshes/`` beside it (:func:`write_model` writes
+    both). ``command``, the command line that made the model, is kept as the custom text
+    ``pg_import_command`` (an XML comment at the top says so). ``robot``: the URDF's
+    ``<robot>`` already read (it is changed), else read from ``urdf_path``.
     """
     urdf_path = Path(urdf_path).resolve() if Path(urdf_path).exists() else Path(urdf_path)
-    robot = read_urdf(urdf_path)
-    urdf_dir = urdf_path.parent
     warnings: List[str] = []
-    base, root, arm, joints = _chain(robot, opts.base, opts.tip)
+    if robot is None:
+        robot = load_robot(urdf_path, opts.xacro_args, opts.package_paths, warnings)
+    urdf_dir = urdf_path.parent
+    out = Path(out_path).resolve() if out_path else urdf_dir / default_output(urdf_path, robot)
+    base, root, chain, joints = _chain(robot, opts.base, opts.tip)
+    arm, coupled = _couplings(chain, joints)
     if opts.actuator not in ('motor', 'position'):
         raise UrdfImportError(f'unknown actuator {opts.actuator!r}; use motor or position')
     if opts.home is not None and len(opts.home) != len(arm):
         raise UrdfImportError(f'--home needs {len(arm)} angles (the arm joints '
                               f'{", ".join(arm)}), got {len(opts.home)}')
-    _prepare_meshes(robot, urdf_dir, opts, warnings)
+    with tempfile.TemporaryDirectory(prefix='pg_node_meshes_') as scratch:
+        meshes = _Meshes(Path(scratch))
+        _prepare_meshes(robot, urdf_dir, opts, warnings, meshes)
+        xml, n_targets, fixed, lag = _build(robot, urdf_path, opts, base, arm, coupled,
+                                            joints, warnings, command)
+    for name, error in lag.items():
+        if error > 0.05:
+            warnings.append(f'coupled joint {name!r} is up to {error:.2g} rad off its <mimic> '
+                            "under random commands: MuJoCo's joint equality is soft; a smaller "
+                            '--timestep or an --armature tightens it')
+    mesh_dir = out.parent / f'{out.stem}_meshes'
+    for compiled, name in meshes.names.items():   # absolute paths: load from anywhere
+        xml = xml.replace(f'file="{escape(compiled, {chr(34): "&quot;"})}"',
+                          f'file="{escape(str(mesh_dir / name), {chr(34): "&quot;"})}"')
+    if command:
+        note = (f'  Its meshes are in {mesh_dir.name}/ beside it, named by absolute path:\n'
+                '  import again to move them.\n' if meshes.files else '')
+        xml = ('<!--\n  Written by python -m pg_node arm import from ' + urdf_path.name
+               + '; the exact command is the\n  custom text pg_import_command below. Do not '
+               'edit: change the URDF or the options\n  and import again.\n' + note + '-->\n'
+               + xml)
+    return ImportResult(xml=xml, arm_joints=arm, fixed_joints=fixed, warnings=warnings,
+                        n_targets=n_targets, coupled_joints=coupled,
+                        mesh_dir=mesh_dir if meshes.files else None,
+                        mesh_files=meshes.files, converted_meshes=meshes.converted,
+                        timestep=opts.timestep, coupling_error=lag)
+
+
+def _build(robot, urdf_path, opts, base, arm, coupled, joints, warnings, command):
+    """Compile the prepared URDF, edit it into the arm; return ``(xml, targets, fixed)``."""
     # a floating or planar joint (a mobile base) is fixed like every other non-arm joint;
     # MuJoCo would refuse a free joint below the URDF's root body anyway
     fixed = []
@@ -310,17 +713,14 @@ def import_urdf(urdf_path, opts: ImportOptions, out_path=None, command: str = ''
     # visuals were dropped above when unwanted: MuJoCo's discardvisual would also drop the
     # collision geoms once their contacts are off
     ET.SubElement(ext, 'compiler', fusestatic='false', strippath='false',
-                  discardvisual='false', boundmass='0.001', boundinertia='1e-06')
+                  discardvisual='false', boundmass=str(BOUND_MASS), boundinertia='1e-06')
     robot.insert(0, ext)
-    try:
-        spec = mujoco.MjSpec.from_string(ET.tostring(robot, encoding='unicode'))
-    except ValueError as exc:
-        raise UrdfImportError(f'MuJoCo cannot read the URDF {urdf_path}: '
-                              f'{_one_line(exc)}') from None
-    _compile(spec)
+    spec, model = _load_spec(robot, urdf_path, warnings)
+    warnings.extend(_mass_warnings(robot, model, joints, arm + list(coupled)))
 
     # joints: the chain's revolute joints stay, every other moving joint is fixed
-    others = [j.name for j in spec.joints if j.name not in arm]
+    keep = set(arm) | set(coupled)
+    others = [j.name for j in spec.joints if j.name not in keep]
     for eq in list(spec.equalities):   # URDF <mimic> becomes a joint equality
         if eq.type == mujoco.mjtEq.mjEQ_JOINT and {eq.name1, eq.name2} & set(others):
             spec.delete(eq)
@@ -334,12 +734,15 @@ def import_urdf(urdf_path, opts: ImportOptions, out_path=None, command: str = ''
                               'implicitfast': mujoco.mjtIntegrator.mjINT_IMPLICITFAST
                               }[opts.integrator]
     efforts = {}
-    for name in arm:
+    for name in [*arm, *coupled]:
         joint = spec.joint(name)
         effort = _effort(joints[name], warnings) * opts.effort_scale
         efforts[name] = effort
-        joint.actfrclimited = mujoco.mjtLimited.mjLIMITED_TRUE
-        joint.actfrcrange = [-effort, effort]
+        if name in arm:
+            joint.actfrclimited = mujoco.mjtLimited.mjLIMITED_TRUE
+            joint.actfrcrange = [-effort, effort]
+        # a coupled joint is damped too: undamped, MuJoCo's soft equality lets it oscillate
+        # and, at 0.02 s, blow up (seen: 5.8 rad off its mimic, then NaN)
         if opts.armature is not None:
             joint.armature = opts.armature
         if opts.damping is not None:
@@ -351,6 +754,10 @@ def import_urdf(urdf_path, opts: ImportOptions, out_path=None, command: str = ''
                 joint.damping = [effort / velocity, 0.0, 0.0]
             else:
                 warnings.append(f'joint {name!r} has no velocity limit; its damping stays')
+    if opts.actuator == 'motor' and not opts.velocity_damping and opts.damping is None:
+        warnings.append('no velocity damping: torque-driven joints of small inertia can reach '
+                        'hundreds of rad/s, and at a coarse timestep the simulation can blow '
+                        'up (--velocity-damping, or --damping D)')
     moving = _subtree(spec, base)
     if opts.gravity_compensation:
         for body in moving:
@@ -403,7 +810,7 @@ def import_urdf(urdf_path, opts: ImportOptions, out_path=None, command: str = ''
     else:
         home = np.clip(0.0, ranges[:, 0], ranges[:, 1])
     model = _compile(spec)
-    points = _reachable_points(model, arm, ranges, opts)
+    points = _reachable_points(model, arm, ranges, opts, coupled)
     if len(points) == 0:
         raise UrdfImportError('no reachable target is left after the height/region filter')
     target = world.add_body(name='target', mocap=True, pos=list(points[0]))
@@ -417,33 +824,69 @@ def import_urdf(urdf_path, opts: ImportOptions, out_path=None, command: str = ''
     if command:
         spec.add_text(name='pg_import_command', data=command)
     _compile(spec)
+    return spec.to_xml(), len(points), fixed, _coupling_error(model, arm, coupled, home, opts)
 
-    out_dir = Path(out_path).resolve().parent if out_path else urdf_dir
-    xml = spec.to_xml()
-    for mesh in spec.meshes:   # relative to the written model (MuJoCo's rule for file=)
-        if os.path.isabs(mesh.file):
-            xml = xml.replace(f'file="{mesh.file}"',
-                              f'file="{os.path.relpath(mesh.file, out_dir)}"')
-    if command:
-        xml = ('<!--\n  Written by python -m pg_node arm import from ' + urdf_path.name
-               + '; the exact command is the\n  custom text pg_import_command below. Do not '
-               'edit: change the URDF or the options\n  and import again.\n-->\n' + xml)
-    return ImportResult(xml=xml, arm_joints=arm, fixed_joints=fixed, warnings=warnings,
-                        n_targets=len(points))
+
+def _coupling_error(model: mujoco.MjModel, arm: List[str],
+                    coupled: Mapping[str, Tuple[str, float, float]], home: np.ndarray,
+                    opts: ImportOptions) -> Dict[str, float]:
+    """
+    Return how far each coupled joint gets from its mimic (rad) under random commands.
+
+    2 s from the start pose, a uniform random command every control step (the frame_skip
+    of :func:`training_settings`): MuJoCo's joint equality is soft, so a coupled joint
+    lags its leader when the arm accelerates hard.
+    """
+    if not coupled:
+        return {}
+    frame_skip, steps = training_settings(opts.timestep)
+    data = mujoco.MjData(model)
+    adr = {name: model.joint(name).qposadr[0] for name in [*arm, *coupled]}
+    data.qpos[[adr[name] for name in arm]] = home
+    for _ in coupled:
+        for name, (leader, multiplier, offset) in coupled.items():
+            data.qpos[adr[name]] = offset + multiplier * data.qpos[adr[leader]]
+    rng = np.random.default_rng(opts.seed)
+    worst = dict.fromkeys(coupled, 0.0)
+    for _ in range(steps):
+        data.ctrl[:] = rng.uniform(-1.0, 1.0, model.nu)
+        mujoco.mj_step(model, data, nstep=frame_skip)
+        for name, (leader, multiplier, offset) in coupled.items():
+            error = abs(data.qpos[adr[name]] - offset - multiplier * data.qpos[adr[leader]])
+            worst[name] = max(worst[name], float(error) if np.isfinite(error) else math.inf)
+    return worst
+
+
+def write_model(result: ImportResult, out_path) -> None:
+    """Write the model to ``out_path`` and its meshes to ``result.mesh_dir`` (OSError)."""
+    if result.mesh_files:
+        result.mesh_dir.mkdir(exist_ok=True)   # not its parents: the model's folder must exist
+        for name, data in result.mesh_files.items():
+            dest = result.mesh_dir / name
+            if isinstance(data, bytes):
+                dest.write_bytes(data)
+            elif not (dest.exists() and dest.samefile(data)):
+                shutil.copyfile(data, dest)
+    Path(out_path).write_text(result.xml)
 
 
 def _reachable_points(model: mujoco.MjModel, arm: List[str], ranges: np.ndarray,
-                      opts: ImportOptions) -> np.ndarray:
+                      opts: ImportOptions, coupled: Mapping[str, Tuple[str, float, float]]
+                      ) -> np.ndarray:
     """Return fingertip positions at uniform joint angles within the limits, filtered."""
     rng = np.random.default_rng(opts.seed)
     data = mujoco.MjData(model)
     site = model.site('fingertip').id
     adr = [model.joint(name).qposadr[0] for name in arm]
+    qpos = {name: model.joint(name).qposadr[0] for name in [*arm, *coupled]}
     keep = []
     tries = 0
     while len(keep) < opts.targets and tries < 50 * opts.targets:
         tries += 1
         data.qpos[adr] = rng.uniform(ranges[:, 0], ranges[:, 1])
+        for _ in coupled:   # in chain order; a mimic of a mimic settles in as many passes
+            for name, (leader, multiplier, offset) in coupled.items():
+                data.qpos[qpos[name]] = offset + multiplier * data.qpos[qpos[leader]]
         mujoco.mj_kinematics(model, data)
         p = data.site_xpos[site].copy()
         if opts.target_min_height is not None and p[2] < opts.target_min_height:

@@ -2,11 +2,16 @@
 ``python -m pg_node arm import ROBOT.urdf --tip LINK``: your robot's URDF as a pg_node arm.
 
 Writes an MJCF (``-o``, default ``<robot>.xml`` in the current folder) that ``model:=FILE``
-trains with; see :mod:`pg_node.sim.urdf_import` for what it holds. It prints which joints
-became arm joints and which were fixed, and every warning (meshes MuJoCo cannot read).
-A bad input ends in one line on stderr and exit status 1 (2 for a usage error).
+trains with, and its meshes in ``<model>_meshes/`` beside it; see
+:mod:`pg_node.sim.urdf_import` for what it holds. A ``.xacro`` file is expanded first
+(``--xacro-arg NAME:=VALUE``). It prints which joints became arm joints and which were
+fixed or coupled, the physics chosen, where the meshes went, the ``train`` command with
+the settings that fit the timestep, and every warning (inertias balanced, links without
+mass, meshes converted or replaced). A bad input ends in one line on stderr and exit
+status 1 (2 for a usage error). Documentation: docs/own_arm.md.
 """
 import argparse
+from pathlib import Path
 import shlex
 import sys
 
@@ -15,6 +20,14 @@ from pg_node.tools.args import positive_float, positive_int
 
 def _height(text: str):
     return None if text.lower() == 'none' else float(text)
+
+
+def _xacro_arg(text: str):
+    """Return ``NAME:=VALUE`` as ``(NAME, VALUE)``, or raise argparse's type error."""
+    name, sep, value = text.partition(':=')
+    if not sep or not name.strip():
+        raise argparse.ArgumentTypeError(f'{text!r} is not NAME:=VALUE')
+    return name.strip(), value
 
 
 def parser() -> argparse.ArgumentParser:
@@ -26,7 +39,10 @@ def parser() -> argparse.ArgumentParser:
                        description='Write an MJCF arm model (fingertip site, mocap target, '
                                    'one actuator per arm joint, reachable targets) from a '
                                    "URDF, through MuJoCo's URDF compiler.")
-    p.add_argument('urdf', help='the robot description (.urdf; expand a .xacro first)')
+    p.add_argument('urdf', help='the robot description: a .urdf, or a .xacro that is '
+                                'expanded first')
+    p.add_argument('--xacro-arg', type=_xacro_arg, action='append', default=[],
+                   metavar='NAME:=VALUE', help='an argument of the .xacro file; repeatable')
     p.add_argument('--tip', required=True, help='link whose origin is the fingertip')
     p.add_argument('--base', help='link the arm starts at (default: the root link); joints '
                                   'above it are fixed')
@@ -40,9 +56,10 @@ def parser() -> argparse.ArgumentParser:
                    help='position actuators: damping in N m s/rad (default: %(default)s)')
     p.add_argument('--effort-scale', type=positive_float, default=1.0,
                    help='multiplies every URDF effort limit (default: %(default)s)')
-    p.add_argument('--gravity-compensation', action='store_true',
+    p.add_argument('--gravity-compensation', action=argparse.BooleanOptionalAction,
+                   default=True,
                    help="compensate the arm's weight (MuJoCo gravcomp), as torque-controlled "
-                        'arms do in firmware')
+                        'arms do in firmware (default: on)')
     p.add_argument('--tip-offset', type=float, nargs=3, metavar=('X', 'Y', 'Z'),
                    default=(0.0, 0.0, 0.0), help="fingertip in the tip link's frame, m")
     p.add_argument('--package-path', action='append', default=[], metavar='DIR',
@@ -52,16 +69,18 @@ def parser() -> argparse.ArgumentParser:
                    help='keep only the collision geometry')
     p.add_argument('--contacts', action='store_true',
                    help='keep collision contacts (default: off, as in the shipped arms)')
-    p.add_argument('--timestep', type=positive_float, default=0.002,
-                   help='physics step in s (default: %(default)s)')
+    p.add_argument('--timestep', type=positive_float, default=0.02,
+                   help='physics step in s (default: %(default)s: with the default frame_skip '
+                        '2 a 0.04 s control step, 50 steps a 2 s episode)')
     p.add_argument('--integrator', choices=('euler', 'rk4', 'implicit', 'implicitfast'),
                    default='implicitfast', help='default: %(default)s')
     p.add_argument('--armature', type=float, help='rotor inertia added to every arm joint')
     p.add_argument('--damping', type=float,
                    help='damping of every arm joint (default: the URDF <dynamics>)')
-    p.add_argument('--velocity-damping', action='store_true',
+    p.add_argument('--velocity-damping', action=argparse.BooleanOptionalAction,
                    help='damping of each arm joint = effort / URDF velocity limit, so that '
-                        'full torque moves it at most at its velocity limit')
+                        'full torque moves it at most at its velocity limit (default: on, '
+                        'unless --damping is given)')
     p.add_argument('--home', type=float, nargs='+', metavar='Q',
                    help='start pose, one angle per arm joint (default: 0 clipped to limits)')
     p.add_argument('--targets', type=positive_int, default=1000,
@@ -84,31 +103,28 @@ def options(args):
         tip_offset=tuple(args.tip_offset), package_paths=args.package_path,
         visual_meshes=not args.no_visual_meshes, contacts=args.contacts,
         timestep=args.timestep, integrator=args.integrator, armature=args.armature,
-        damping=args.damping, velocity_damping=args.velocity_damping, home=args.home,
+        damping=args.damping, home=args.home,
+        velocity_damping=(args.damping is None if args.velocity_damping is None
+                          else args.velocity_damping),
         targets=args.targets,
         target_min_height=args.target_min_height,
         target_region=tuple(args.target_region) if args.target_region else None,
-        seed=args.seed)
+        seed=args.seed, xacro_args=dict(args.xacro_arg))
 
 
 def main(argv=None) -> int:
     """Run ``python -m pg_node arm``."""
     argv = list(sys.argv[1:] if argv is None else argv)
     args = parser().parse_args(argv)
-    from pathlib import Path
-    from pg_node.sim.urdf_import import import_urdf, UrdfImportError
+    from pg_node.sim.urdf_import import (default_output, import_urdf, load_robot,
+                                         UrdfImportError, write_model)
     opts = options(args)
-    out = args.output
-    if out is None:
-        from pg_node.sim.urdf_import import read_urdf
-        try:
-            out = (read_urdf(args.urdf).get('name') or Path(args.urdf).stem) + '.xml'
-        except UrdfImportError as exc:
-            print(f'arm import: {exc}', file=sys.stderr)
-            return 1
     command = 'python -m pg_node arm ' + ' '.join(shlex.quote(a) for a in argv)
+    warnings = []
     try:
-        result = import_urdf(args.urdf, opts, out_path=out, command=command)
+        robot = load_robot(args.urdf, opts.xacro_args, opts.package_paths, warnings)
+        out = args.output or default_output(args.urdf, robot)
+        result = import_urdf(args.urdf, opts, out_path=out, command=command, robot=robot)
     except UrdfImportError as exc:
         print(f'arm import: {exc}', file=sys.stderr)
         return 1
@@ -117,14 +133,59 @@ def main(argv=None) -> int:
         print(f'arm import: {args.urdf}: {reason}', file=sys.stderr)
         return 1
     try:
-        Path(out).write_text(result.xml)
+        write_model(result, out)
     except OSError as exc:
-        print(f'arm import: cannot write {out}: {exc.strerror}', file=sys.stderr)
+        print(f'arm import: cannot write {exc.filename or out}: {exc.strerror}',
+              file=sys.stderr)
         return 1
-    for text in result.warnings:
+    for text in warnings + result.warnings:
         print(f'warning: {text}', file=sys.stderr)
-    print(f'arm joints ({len(result.arm_joints)}): {", ".join(result.arm_joints)}')
-    print(f'fixed joints ({len(result.fixed_joints)}): '
-          f'{", ".join(result.fixed_joints) or "none"}')
-    print(f'{result.n_targets} reachable targets; wrote {out} (train with model:={out})')
+    for line in report(result, opts, out):
+        print(line)
     return 0
+
+
+def report(result, opts, out) -> list:
+    """Return the lines that say what the import made and chose, and how to train it."""
+    from pg_node.common.params import SIM_PARAMS
+    from pg_node.sim.urdf_import import training_settings
+    lines = [f'arm joints ({len(result.arm_joints)}): {", ".join(result.arm_joints)}',
+             f'fixed joints ({len(result.fixed_joints)}): '
+             f'{", ".join(result.fixed_joints) or "none"}']
+    if result.coupled_joints:
+        coupled = ', '.join(f'{name} = {offset:g} + {multiplier:g} x {leader} (within '
+                            f'{result.coupling_error.get(name, 0.0):.2g} rad under random '
+                            'commands)' for name, (leader, multiplier, offset)
+                            in result.coupled_joints.items())
+        lines.append(f'coupled joints ({len(result.coupled_joints)}, URDF <mimic>, no '
+                     f'actuator): {coupled}')
+    if opts.velocity_damping:
+        damping = 'velocity damping (effort / velocity limit)'
+    elif opts.damping is not None:
+        damping = f'damping {opts.damping:g} N m s/rad (no velocity damping)'
+    else:
+        damping = "the URDF's damping (no velocity damping)"
+    lines.append(f'physics: timestep {opts.timestep:g} s ({opts.integrator}), {damping}, '
+                 f'gravity compensation {"on" if opts.gravity_compensation else "off"}, '
+                 f'{opts.actuator} actuators')
+    if result.mesh_files:
+        converted = (f' ({result.converted_meshes} converted to STL)'
+                     if result.converted_meshes else '')
+        n = len(result.mesh_files)
+        lines.append(f'meshes: {n} file{"s" if n > 1 else ""}{converted} copied to '
+                     f'{result.mesh_dir}; the model names them by absolute path, so that it '
+                     "and a trained policy's card load from any folder (import again to "
+                     'move them)')
+    frame_skip, steps = training_settings(result.timestep)
+    defaults = (SIM_PARAMS['frame_skip'].default, SIM_PARAMS['max_episode_steps'].default)
+    extra = ''.join(f' {key}:={value}' for key, value, default in
+                    (('frame_skip', frame_skip, defaults[0]),
+                     ('max_episode_steps', steps, defaults[1])) if value != default)
+    lines.append(f'{result.n_targets} reachable targets; wrote {out}')
+    # the absolute path: the run keeps it, and play, export and policy_node find the model
+    # from any folder
+    model = shlex.quote(str(Path(out).resolve()))
+    lines.append(f'train with: python -m pg_node train model:={model}{extra}  (a control step '
+                 f'of {frame_skip} x {result.timestep:g} s = {frame_skip * result.timestep:g} '
+                 f's, {steps}-step episodes of {steps * frame_skip * result.timestep:g} s)')
+    return lines
