@@ -609,6 +609,67 @@ def test_defaults_that_learn_and_what_the_command_says(tmp_path, capsys):
     assert 'frame_skip:=4  (a control step of 4 x 0.01 s' in stdout
 
 
+#: the arms of PyPI's example-robot-data: (URDF under robots/, tip link, arm joints)
+EXAMPLE_ARMS = {
+    'ur3': ('ur_description/urdf/ur3_robot.urdf', 'tool0', 6),
+    'ur5': ('ur_description/urdf/ur5_robot.urdf', 'tool0', 6),
+    'ur10': ('ur_description/urdf/ur10_robot.urdf', 'tool0', 6),
+    'panda': ('panda_description/urdf/panda.urdf', 'panda_hand_tcp', 7),
+    'kinova': ('kinova_description/robots/kinova.urdf', 'j2s6s200_end_effector', 6),
+    'xarm7': ('xarm_description/urdf/xarm7.urdf', 'link_eef', 7),
+    'z1': ('z1_description/urdf/z1.urdf', 'gripperStator', 6),
+    'so100': ('so_arm_description/urdf/so100.urdf', 'gripper', 5),
+    'so101': ('so_arm_description/urdf/so101.urdf', 'gripper_frame_link', 5),
+}
+
+
+@pytest.fixture(scope='module')
+def example_robot_data():
+    """Return the share/ folder of PyPI's example-robot-data, or skip when not installed."""
+    from importlib.metadata import distribution, PackageNotFoundError
+    try:
+        dist = distribution('example-robot-data')
+    except PackageNotFoundError:
+        pytest.skip('example-robot-data is not installed (pip install example-robot-data)')
+    share = Path(dist.locate_file('cmeel.prefix/share'))
+    assert (share / 'example-robot-data' / 'robots').is_dir(), share
+    return share
+
+
+@pytest.mark.parametrize('name', list(EXAMPLE_ARMS))
+def test_example_robot_data_arms_import_and_simulate(name, example_robot_data, tmp_path,
+                                                     capsys, monkeypatch):
+    """
+    Vendors' URDFs as they ship (COLLADA meshes, massless frames, grippers, continuous joints).
+
+    Each imports with the defaults, has its arm joints, and 50 control steps of bang-bang
+    commands from another folder stay finite, every joint within 5x its URDF velocity limit
+    (without velocity damping these reach 10^5 rad/s and MuJoCo resets them as unstable).
+    """
+    rel, tip, joints = EXAMPLE_ARMS[name]
+    urdf = example_robot_data / 'example-robot-data' / 'robots' / rel
+    out = tmp_path / 'models' / f'{name}.xml'
+    out.parent.mkdir()
+    code, stdout, err = run_import(capsys, urdf, '--tip', tip, '--package-path',
+                                   example_robot_data, '--targets', 100, '-o', out)
+    assert code == 0, err
+    assert f'arm joints ({joints}): ' in stdout
+    monkeypatch.chdir(tmp_path)
+    task = ArmTask(out, num_envs=2, seed=0)
+    assert len(task.spec.joint_names) == task.model.nu == joints
+    robot = read_urdf(urdf)
+    limits = np.array([float(robot.find(f'joint[@name="{j}"]/limit').get('velocity'))
+                       for j in task.spec.joint_names])
+    rng = np.random.default_rng(0)
+    fastest = np.zeros(joints)
+    for _ in range(50):
+        obs, reward, *_ = task.step(rng.choice([-1.0, 1.0], size=(2, joints)))
+        assert np.all(np.isfinite(obs)) and np.all(np.isfinite(reward))
+        for data in task.datas:
+            fastest = np.maximum(fastest, np.abs(data.qvel[task.spec.dof_adr]))
+    assert np.all(fastest < 5 * limits), (fastest, limits)
+
+
 def shipped_command():
     """Return the import command kept in arm7.xml, as argv after ``python -m pg_node arm``."""
     model = mujoco.MjModel.from_xml_path(str(ARM7))
