@@ -1,6 +1,7 @@
 """The ament_python layout, checked by building the package with colcon into a temp dir."""
 import os
 from pathlib import Path
+import re
 import shutil
 import subprocess
 import sys
@@ -77,8 +78,14 @@ def test_package_xml_is_format_3_and_declares_dependencies():
     assert root.tag == 'package' and root.get('format') == '3'
     assert root.findtext('name') == 'pg_node'
     deps = {e.text for e in root.iter('exec_depend')}
-    assert {'rclpy', 'std_msgs', 'sensor_msgs', 'geometry_msgs', 'visualization_msgs',
-            'diagnostic_msgs', 'rosgraph_msgs', 'std_srvs', 'rcl_interfaces'} <= deps
+    # every ROS interface package the code imports (``from x_msgs.msg import ...``) is one
+    imported = set()
+    for path in (REPO / 'pg_node').rglob('*.py'):
+        imported |= set(re.findall(r'^\s*from (\w+_(?:msgs|srvs|interfaces))\.(?:msg|srv) import',
+                                   path.read_text(), re.M))
+    assert {'trajectory_msgs', 'sensor_msgs', 'std_srvs'} <= imported
+    # rclpy.lifecycle (policy_node) needs lifecycle_msgs
+    assert imported | {'rclpy', 'lifecycle_msgs'} <= deps, sorted(imported - deps)
     assert root.find('export/build_type').text == 'ament_python'
     assert {'ament_flake8', 'ament_pep257'} <= {e.text for e in root.iter('test_depend')}
 

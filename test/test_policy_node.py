@@ -9,6 +9,7 @@ episode, lock-step runs of the very episodes the simulator drew (same seed, same
 the policy's mean action, and with zero torque. Other tests feed policy_node joint states
 and targets from this process: stale states, joint order, missing joints.
 """
+from pathlib import Path
 import subprocess
 import sys
 import threading
@@ -62,6 +63,10 @@ def trained(tmp_path_factory):
 
 #: the simulator as the robot's stand-in: it takes commands where a controller would
 AS_ROBOT = (f'{COMMANDS}:={CONTROLLER_COMMANDS}',)
+#: ... in N m, as policy_node sends them
+SIM_AS_ROBOT = ('command_interface:=effort',)
+#: reacher2's gear: N m per unit of control
+GEAR = 200.0
 
 
 def start(tmp_path, module, *params, remap=()):
@@ -73,6 +78,12 @@ def start(tmp_path, module, *params, remap=()):
         args += ['-r', rule]
     log = tmp_path / f'{module.rsplit(".", 1)[-1]}_{time.monotonic_ns()}.log'
     return processes.start_logged(args, log, processes.child_env(DOMAIN_ID))
+
+
+def start_policy(tmp_path, *params, remap=()):
+    """Start policy_node configured and active at once, without a ramp (play's way)."""
+    return start(tmp_path, 'pg_node.ros.policy_node', 'autostart:=true', 'ramp_time:=0.0',
+                 *params, remap=remap)
 
 
 class Client:
@@ -132,11 +143,13 @@ class Client:
             assert time.monotonic() < deadline, f'timed out waiting for {what}'
             time.sleep(0.02)
 
-    def send_state(self, names, position, velocity):
-        """Publish one JointState."""
+    def send_state(self, names, position, velocity, stamp_offset=0.0):
+        """Publish one JointState stamped now + ``stamp_offset`` s (None: a zero stamp)."""
         msg = JointState(name=list(names), position=[float(v) for v in position],
                          velocity=[float(v) for v in velocity])
-        msg.header.stamp = self.node.get_clock().now().to_msg()
+        if stamp_offset is not None:
+            now = self.node.get_clock().now().nanoseconds + int(stamp_offset * 1e9)
+            msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(now, 1_000_000_000)
         self.pub_joints.publish(msg)
 
     def send_target(self, frame, xyz):
@@ -207,13 +220,14 @@ def lock_step_returns(policy, num_envs, rounds, seed):
 
 def run_real_time(tmp_path, client, trained, num_envs, min_episodes, policy_path):
     """Run sim_node (real time) and policy_node until ``min_episodes`` counted ones."""
-    pol = start(tmp_path, 'pg_node.ros.policy_node', f'policy:={policy_path}')
+    pol = start_policy(tmp_path, f'policy:={policy_path}', 'use_sim_time:=true')
     sim = None
     try:
         client.wait(lambda: any(m.startswith('waiting') for m, _ in client.diagnostics),
                     what='policy_node to load its policy')
         sim = start(tmp_path, 'pg_node.ros.sim_node', 'mode:=real_time',
-                    f'num_envs:={num_envs}', f'seed:={SIM_SEED}', remap=AS_ROBOT)
+                    f'num_envs:={num_envs}', f'seed:={SIM_SEED}', *SIM_AS_ROBOT,
+                    remap=AS_ROBOT)
         client.wait(lambda: client.commands, what='the first command')
         with client.lock:
             first_seq = client.transitions[-1].seq if client.transitions else 0
@@ -274,14 +288,14 @@ def test_stale_joint_states_give_zero_effort_then_resume(tmp_path, client, train
     in force. Diagnostics say ERROR while stale, WARN while waiting, OK commanding.
     """
     timeout, rate = 0.2, 50.0
-    pol = start(tmp_path, 'pg_node.ros.policy_node', f'policy:={trained["onnx"]}',
-                f'state_timeout:={timeout}', f'control_rate:={rate}')
+    pol = start_policy(tmp_path, f'policy:={trained["onnx"]}',
+                       f'state_timeout:={timeout}', f'control_rate:={rate}')
     try:
         client.wait(lambda: any(m.startswith('waiting') for m, _ in client.diagnostics),
                     what='policy_node to load its policy')
         with client.lock:
             waiting = [d for m, d in client.diagnostics if m.startswith('waiting')][0]
-        client.send_target('arm0', [0.1, 0.1, 0.01])
+        client.send_target('base_link', [0.1, 0.1, 0.01])
         rng = np.random.default_rng(0)
         gaps = []
         for _ in range(2):
@@ -315,14 +329,14 @@ def test_stale_joint_states_give_zero_effort_then_resume(tmp_path, client, train
     assert log.count('joint states are') == 2            # one warning per stale spell
     assert int(diag[1]['stale_events']) == 2 and diag[0].startswith('stale')
     assert diag[1]['level'] == 2 and waiting['level'] == 1          # ERROR, WARN
-    assert all(np.all(np.isfinite(c)) and np.all(np.abs(c) <= 1.0) for c in cmds)
+    assert all(np.all(np.isfinite(c)) and np.all(np.abs(c) <= GEAR) for c in cmds)
 
 
 def test_estop_latches_zero_effort_until_reset(tmp_path, client, trained):
     """An e-stop holds zero effort at every tick, fresh states or not, until ~/reset_estop."""
     rate = 50.0
-    pol = start(tmp_path, 'pg_node.ros.policy_node', f'policy:={trained["onnx"]}',
-                'state_timeout:=5.0', f'control_rate:={rate}')
+    pol = start_policy(tmp_path, f'policy:={trained["onnx"]}',
+                       'state_timeout:=5.0', f'control_rate:={rate}')
     rng = np.random.default_rng(1)
 
     def feed(seconds):
@@ -333,7 +347,7 @@ def test_estop_latches_zero_effort_until_reset(tmp_path, client, trained):
     try:
         client.wait(lambda: any(m.startswith('waiting') for m, _ in client.diagnostics),
                     what='policy_node to load its policy')
-        client.send_target('arm0', [0.1, 0.1, 0.01])
+        client.send_target('base_link', [0.1, 0.1, 0.01])
         feed(0.5)
         client.wait(lambda: client.commands and client.commands[-1][1].any(),
                     what='commanding')
@@ -366,8 +380,8 @@ def test_estop_latches_zero_effort_until_reset(tmp_path, client, trained):
 
 def test_joint_order_and_extra_joints_give_the_same_command(tmp_path, client, trained):
     """A JointState in another order with extra joints commands as one in model order."""
-    pol = start(tmp_path, 'pg_node.ros.policy_node', f'policy:={trained["run"]}',
-                'state_timeout:=5.0')
+    pol = start_policy(tmp_path, f'policy:={trained["run"]}',
+                       'state_timeout:=5.0')
     q, qd = np.array([0.3, -1.2]), np.array([0.5, -0.25])
     try:
         client.wait(lambda: any(m.startswith('waiting') for m, _ in client.diagnostics),
@@ -390,7 +404,7 @@ def test_joint_order_and_extra_joints_give_the_same_command(tmp_path, client, tr
     assert code == 0, log[-2000:]
     model = mujoco.MjModel.from_xml_string(trained['policy'].card['model_xml'])
     obs = ObservationBuilder(model)(q[None], qd[None], np.array([[0.12, -0.05, 0.01]]))
-    want = np.clip(trained['policy'].mean(obs), -1, 1)[0]
+    want = GEAR * np.clip(trained['policy'].mean(obs), -1, 1)[0]
     assert np.array_equal(in_order, shuffled)
     assert np.array_equal(nan_state, shuffled)
     np.testing.assert_allclose(in_order, want, atol=1e-9)
@@ -405,7 +419,7 @@ def test_joint_order_and_extra_joints_give_the_same_command(tmp_path, client, tr
 def test_a_missing_joint_stops_the_node_with_one_line(tmp_path, client, trained, names,
                                                       velocities, missing):
     """Exit code 2 and one line; before, a FATAL callback error and a traceback came first."""
-    pol = start(tmp_path, 'pg_node.ros.policy_node', f'policy:={trained["onnx"]}')
+    pol = start_policy(tmp_path, f'policy:={trained["onnx"]}')
     try:
         client.wait(lambda: any(m.startswith('waiting') for m, _ in client.diagnostics),
                     what='policy_node to load its policy')
@@ -421,36 +435,152 @@ def test_a_missing_joint_stops_the_node_with_one_line(tmp_path, client, trained,
     assert len(errors) == 1 and missing in errors[0], log
 
 
-def test_an_unreachable_or_non_finite_target_is_warned_about_once(tmp_path, client, trained):
-    """(5, 5) is far out of reacher2's 0.21 m; NaN was ignored without a word (issue 33)."""
-    pol = start(tmp_path, 'pg_node.ros.policy_node', f'policy:={trained["onnx"]}')
+def test_targets_out_of_reach_are_clamped_and_other_frames_refused(
+        tmp_path, client, trained):
+    """
+    Clamp targets out of reach, refuse other frames, ignore non-finite ones: warned once.
+
+    (5, 5) is far out of reacher2's 0.21 m: clamped onto its reach, and the command is the
+    policy's for the clamped goal; NaN was ignored without a word (issue 33); a frame that
+    is not the base frame is refused without tf2_ros, naming it; each warned about once.
+    """
+    pol = start_policy(tmp_path, f'policy:={trained["onnx"]}', 'state_timeout:=5.0')
+    q, qd = np.array([0.3, -1.2]), np.array([0.5, -0.25])
     try:
         client.wait(lambda: any(m.startswith('waiting') for m, _ in client.diagnostics),
                     what='policy_node to load its policy')
         for _ in range(3):
-            client.send_target('arm0', [float('nan'), 0.1, 0.01])
-            client.send_target('arm0', [5.0, 5.0, 0.01])
-            client.send_target('arm0', [0.1, 0.1, 0.01])        # within reach: no word
+            client.send_target('odom', [0.1, 0.1, 0.01])
+            client.send_target('base_link', [float('nan'), 0.1, 0.01])
+            client.send_target('base_link', [0.1, 0.1, 0.01])        # within reach: no word
+            client.send_target('base_link', [5.0, 5.0, 0.01])
         client.wait(lambda: client.diagnostics[-1][1]['targets_out_of_reach'] == '3'
-                    and client.diagnostics[-1][1]['targets_ignored'] == '3',
+                    and client.diagnostics[-1][1]['targets_ignored'] == '6',
                     what='the targets counted in /diagnostics')
+        client.send_state(PLAIN, q, qd)
+        client.wait(lambda: client.commands, what='a command')
+        cmd = client.commands[-1][1]
     finally:
         code, log = processes.stop_logged(pol)
     assert code == 0, log[-2000:]
     warnings = [line for line in log.splitlines() if '[WARN]' in line]
-    assert len(warnings) == 2, log
-    assert 'ignored a target with a non-finite coordinate for arm0: (nan, 0.1, 0.01)' in log
-    assert ("target (5, 5, 0.01) for arm0 is 7.07 m from the arm's base, beyond its reach of "
-            '0.21 m') in log
+    assert len(warnings) == 3, log
+    assert ('ignored a target with a non-finite coordinate for base_link: (nan, 0.1, 0.01)'
+            in log)
+    assert ("target (5, 5, 0.01) in base_link is 7.07 m from the arm's base, beyond its reach "
+            'of 0.21 m: clamped to (0.148, 0.148, 0.01)') in log
+    assert "ignored targets in frame 'odom': only the base frame 'base_link'" in log
+    model = mujoco.MjModel.from_xml_string(trained['policy'].card['model_xml'])
+    builder = ObservationBuilder(model)
+    base, reach = builder.reach()
+    goal = base + (np.array([5.0, 5.0, 0.01]) - base) * reach / np.linalg.norm(
+        np.array([5.0, 5.0, 0.01]) - base)
+    want = GEAR * np.clip(trained['policy'].mean(builder(q[None], qd[None], goal[None])),
+                          -1, 1)[0]
+    np.testing.assert_allclose(cmd, want, atol=1e-6)
+
+
+def test_state_age_is_read_from_header_stamp(tmp_path, client, trained):
+    """
+    Read the state's age from header.stamp too, not only from its arrival.
+
+    Fresh on arrival but stamped 1 s ago (or 1 s ahead): stale, zero effort at every tick;
+    a zero stamp is aged by arrival (commanding), as is a fresh stamp.
+    """
+    rate = 50.0
+    pol = start_policy(tmp_path, f'policy:={trained["onnx"]}', 'state_timeout:=0.3',
+                       f'control_rate:={rate}')
+    q, qd = np.array([0.3, -1.2]), np.array([0.5, -0.25])
+
+    def run(offset, seconds=0.6):
+        start = time.monotonic()
+        while time.monotonic() - start < seconds:
+            client.send_state(PLAIN, q, qd, stamp_offset=offset)
+            time.sleep(1 / rate)
+        with client.lock:
+            return [c for t, c in client.commands if t > start + 0.2]
+
+    try:
+        client.wait(lambda: any(m.startswith('waiting') for m, _ in client.diagnostics),
+                    what='policy_node to load its policy')
+        client.send_target('', [0.1, 0.1, 0.01])
+        fresh, old, _, ahead, unstamped = run(0.0), run(-1.0), run(0.0), run(1.0), run(None)
+    finally:
+        code, log = processes.stop_logged(pol)
+    assert code == 0, log[-2000:]
+    for got in (fresh, old, ahead, unstamped):
+        assert len(got) >= 10, [len(g) for g in (fresh, old, ahead, unstamped)]
+    assert all(c.any() for c in fresh) and all(c.any() for c in unstamped)
+    assert not any(c.any() for c in old) and not any(c.any() for c in ahead)
+    assert 'old by header.stamp (state_timeout 0.3 s)' in log
+    assert 'old by header.stamp, in the future' in log
+
+
+@pytest.fixture(scope='module')
+def position_policy(tmp_path_factory):
+    """Train one update of reacher2 with position servos (u is the angle 3 u rad)."""
+    from test_safety import POSITION_XML
+    from pg_node.rl.train_inprocess import train_inprocess
+    run = tmp_path_factory.mktemp('position_run')
+    (run / 'reacher2_position.xml').write_text(POSITION_XML)
+    cfg = load_config(None, [f'model={run / "reacher2_position.xml"}', 'num_envs=4',
+                             'n_steps=8', 'seed=0'])
+    train_inprocess(cfg, 32, eval_episodes=1)['learner'].save(run / 'checkpoints')
+    return run
+
+
+def test_position_interface_commands_angles_and_holds_where_the_arm_is(
+        tmp_path, client, position_policy):
+    """
+    Command angles in rad with position servos, and hold where the arm is.
+
+    Position servos: commands in rad (3 u), the target kept joint_limit_margin inside
+    joint1's [-3, 3]; stale states hold the measured angles; effort is refused in one line.
+    """
+    from pg_node.rl.trained_policy import load_trained_policy
+    policy = load_trained_policy(position_policy)
+    q, qd, goal = np.array([0.3, 2.99]), np.array([0.0, 0.0]), [0.1, 0.1, 0.01]
+    pol = start_policy(tmp_path, f'policy:={position_policy}', 'command_interface:=position',
+                       'state_timeout:=0.3', 'joint_limit_margin:=0.1', 'control_rate:=50.0')
+    try:
+        client.wait(lambda: any(m.startswith('waiting') for m, _ in client.diagnostics),
+                    what='policy_node to load its policy')
+        client.send_target('', goal)
+        for _ in range(10):
+            client.send_state(PLAIN, q, qd)
+            time.sleep(0.02)
+        client.wait(lambda: client.commands, what='a command')
+        commanded = client.commands[-1][1]
+        sent = time.monotonic()
+        client.wait(lambda: client.commands[-1][0] > sent + 0.6, what='stale ticks')
+        held = client.commands[-1][1]
+    finally:
+        code, log = processes.stop_logged(pol)
+    assert code == 0, log[-2000:]
+    model = mujoco.MjModel.from_xml_string(policy.card['model_xml'])
+    obs = ObservationBuilder(model)(q[None], qd[None], np.array([goal]))
+    want = np.clip(3 * np.clip(policy.mean(obs), -1, 1)[0], [-np.inf, -2.9], [np.inf, 2.9])
+    np.testing.assert_allclose(commanded, want, atol=1e-9)
+    np.testing.assert_allclose(held, q, atol=1e-9)          # position held, not zero torque
+    assert 'commands position in rad' in log
+    res = subprocess.run([sys.executable, '-m', 'pg_node.ros.policy_node', '--ros-args', '-p',
+                          'autostart:=true', '-p', f'policy:={position_policy}'],
+                         env=processes.child_env(DOMAIN_ID), capture_output=True, text=True,
+                         timeout=60)
+    assert res.returncode == 2 and len(res.stderr.strip().splitlines()) == 1, res.stderr
+    assert 'command_interface effort needs motor actuators' in res.stderr
 
 
 def test_bad_policy_parameter_is_one_line(tmp_path):
     for params, words in ((['-p', 'policy:=/nonexistent/run'], 'no such file or directory'),
                           ([], 'is required'),
-                          (['-p', 'control_rate:=-1.0'], 'control_rate')):
+                          (['-p', 'control_rate:=-1.0'], 'control_rate'),
+                          (['-p', 'smoothing:=1.5'], "'policy_node.smoothing'"),
+                          (['-p', 'command_interface:=velocity'], 'command_interface')):
         res = subprocess.run([sys.executable, '-m', 'pg_node.ros.policy_node', '--ros-args',
-                              *params], env=processes.child_env(DOMAIN_ID),
-                             capture_output=True, text=True, timeout=60)
+                              '-p', 'autostart:=true', *params],
+                             env=processes.child_env(DOMAIN_ID), capture_output=True, text=True,
+                             timeout=60)
         assert res.returncode == 2, res.stderr
         assert words in res.stderr and 'Traceback' not in res.stderr, res.stderr
         assert len(res.stderr.strip().splitlines()) == 1, res.stderr
@@ -459,7 +589,8 @@ def test_bad_policy_parameter_is_one_line(tmp_path):
 def test_an_exported_policy_runs_without_torch(trained):
     code = ('import sys, rclpy\n'
             'from pg_node.ros.policy_node import PolicyNode\n'
-            f'rclpy.init(args=["x", "--ros-args", "-p", "policy:={trained["onnx"]}"],'
+            f'rclpy.init(args=["x", "--ros-args", "-p", "policy:={trained["onnx"]}", '
+            '"-p", "autostart:=true"],'
             f' domain_id={DOMAIN_ID})\n'
             'node = PolicyNode()\n'
             'print(node.policy.kind, "torch" in sys.modules)\n'
@@ -538,3 +669,190 @@ def test_play_on_a_perturbed_arm_as_on_hardware(tmp_path, trained):
                              timeout=120)
         assert res.returncode == 2 and words in res.stderr, res.stderr
         assert 'Traceback' not in res.stderr and len(res.stderr.strip().splitlines()) == 1
+
+
+def call(client, srv_type, name, request, timeout=20.0):
+    """Call service ``name`` from the test's node and return the response."""
+    cli = client.node.create_client(srv_type, name)
+    assert cli.wait_for_service(timeout_sec=timeout), f'no service {name}'
+    future = cli.call_async(request)
+    client.wait(future.done, timeout=timeout, what=f'the answer of {name}')
+    return future.result()
+
+
+def transition_to(client, label):
+    """Ask policy_node for the lifecycle transition ``label``; return whether it succeeded."""
+    from lifecycle_msgs.msg import Transition
+    from lifecycle_msgs.srv import ChangeState
+    ids = {'configure': Transition.TRANSITION_CONFIGURE,
+           'activate': Transition.TRANSITION_ACTIVATE,
+           'deactivate': Transition.TRANSITION_DEACTIVATE,
+           'cleanup': Transition.TRANSITION_CLEANUP}
+    request = ChangeState.Request()
+    request.transition.id = ids[label]
+    return call(client, ChangeState, '/policy_node/change_state', request).success
+
+
+def lifecycle_state(client):
+    from lifecycle_msgs.srv import GetState
+    return call(client, GetState, '/policy_node/get_state', GetState.Request()).current_state.label
+
+
+def test_lifecycle_configure_checks_activate_ramps_deactivate_holds(tmp_path, client, trained):
+    """
+    Run the lifecycle: configure checks, activate ramps in, deactivate holds once.
+
+    Managed: nothing is published until activate; activate ramps in from zero effort;
+    deactivate sends one zero and stops; configure refuses a robot_description of another
+    arm, in one line, and takes reacher2's own.
+    """
+    from std_msgs.msg import String
+    rate, ramp = 50.0, 0.6
+    description_qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                                 durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    pub_description = client.node.create_publisher(String, '/robot_description',
+                                                   description_qos)
+    urdf = (Path(__file__).parent / 'fixtures' / 'reacher2.urdf').read_text()
+    q, qd, goal = np.array([0.3, -1.2]), np.array([0.5, -0.25]), [0.12, -0.05, 0.01]
+    model = mujoco.MjModel.from_xml_string(trained['policy'].card['model_xml'])
+    obs = ObservationBuilder(model)(q[None], qd[None], np.array([goal]))
+    want = GEAR * np.clip(trained['policy'].mean(obs), -1, 1)[0]
+    pol = start(tmp_path, 'pg_node.ros.policy_node', f'policy:={trained["onnx"]}',
+                'state_timeout:=5.0', f'control_rate:={rate}', f'ramp_time:={ramp}')
+    stop = threading.Event()
+
+    def feed():
+        while not stop.is_set():
+            client.send_state(PLAIN, q, qd)
+            time.sleep(1 / rate)
+
+    feeder = threading.Thread(target=feed, daemon=True)
+    try:
+        client.wait(lambda: any(m.startswith('unconfigured') for m, _ in client.diagnostics),
+                    what='policy_node to start unconfigured')
+        assert lifecycle_state(client) == 'unconfigured'
+        client.send_target('', goal)
+        feeder.start()
+        pub_description.publish(String(data=urdf.replace('xyz="0.1 0 0"', 'xyz="0.2 0 0"')))
+        time.sleep(0.5)
+        assert not transition_to(client, 'configure')
+        pub_description.publish(String(data=urdf))
+        time.sleep(0.5)
+        assert transition_to(client, 'configure')
+        assert lifecycle_state(client) == 'inactive'
+        time.sleep(0.5)
+        assert not client.commands                      # configured is not commanding
+        assert transition_to(client, 'activate')
+        client.wait(lambda: len(client.commands) > rate * (ramp + 0.4), what='commands')
+        assert transition_to(client, 'deactivate')
+        deactivated = time.monotonic()
+        time.sleep(0.6)
+        with client.lock:
+            cmds = [c for _, c in client.commands]
+            after = [c for t, c in client.commands if t > deactivated + 0.1]
+        assert transition_to(client, 'cleanup')
+        assert lifecycle_state(client) == 'unconfigured'
+    finally:
+        stop.set()
+        code, log = processes.stop_logged(pol)
+    assert code == 0, log[-3000:]
+    assert ("configure failed: robot_description is not the policy's arm: joint joint1 is "
+            '100.0 mm away') in log
+    assert 'kinematics match robot_description' in log
+    # the ramp: a share of the policy's command rising from near 0 to 1, then 1 to the end
+    shares = np.array([c @ want / (want @ want) for c in cmds[:-1]])
+    np.testing.assert_allclose([c - s * want for c, s in zip(cmds[:-1], shares)], 0,
+                               atol=1e-3)       # N m: the ONNX policy here, torch's there
+    assert shares[0] < 0.2 and np.all(np.diff(shares) >= -1e-6), shares
+    assert abs(shares[-1] - 1.0) < 1e-6, shares
+    assert 0.6 * ramp * rate <= np.sum(shares < 1 - 1e-6) <= 1.5 * ramp * rate, shares
+    assert not cmds[-1].any() and not after                 # one hold, then silence
+
+
+def test_guards_act_on_sim_node_and_every_tick_is_recorded(tmp_path, client, trained):
+    """
+    Make the guards act on sim_node and record every tick.
+
+    Against sim_node (real time, N m): a rate limit bounds each change of command, an
+    over-speed limit below the arm's speeds holds it, each counted; SIGINT ends with one
+    zero; the record holds every command sent, with the policy's sha256.
+    """
+    import hashlib
+    from pg_node.bag.reader import read_metadata_yaml
+    from mcap_ros2.reader import read_ros2_messages
+    from pg_node.ros.policy_node import tick_from_msg
+    max_change, record = 0.05, tmp_path / 'ticks'
+    pol = start_policy(tmp_path, f'policy:={trained["onnx"]}', 'use_sim_time:=true',
+                       f'max_change:={max_change}', 'max_velocity:=2.0', 'smoothing:=0.3',
+                       f'record:={record}')
+    sim = None
+    try:
+        client.wait(lambda: any(m.startswith('waiting') for m, _ in client.diagnostics),
+                    what='policy_node to load its policy')
+        sim = start(tmp_path, 'pg_node.ros.sim_node', 'mode:=real_time', 'num_envs:=4',
+                    f'seed:={SIM_SEED}', *SIM_AS_ROBOT, remap=AS_ROBOT)
+        client.wait(lambda: len(client.commands) > 150, what='commands')
+        client.wait(lambda: int(client.diagnostics[-1][1]['guard_over_speed']) > 0
+                    and int(client.diagnostics[-1][1]['guard_rate_limited']) > 0,
+                    what='both guards to act')
+        diag = client.diagnostics[-1][1]
+        code, log = processes.stop_logged(pol)
+        pol = None
+        time.sleep(0.3)
+        with client.lock:
+            cmds = np.array([c for _, c in client.commands])
+    finally:
+        logs = [processes.stop_logged(p) for p in (pol, sim) if p is not None]
+    assert code == 0 and all(c == 0 for c, _ in logs), log[-3000:]
+    # per arm: each change is within the rate limit, except into a hold (over-speed: at once)
+    per_arm = cmds.reshape(len(cmds), 4, 2)
+    change = np.abs(np.diff(per_arm, axis=0)).max(axis=2)
+    into_hold = ~per_arm[1:].any(axis=2)
+    assert change[~into_hold].max() <= max_change * 2 * GEAR + 1e-6, change[~into_hold].max()
+    assert into_hold.any() and np.isclose(change[~into_hold].max(), max_change * 2 * GEAR)
+    assert 'over-speed guard' in log and float(diag['commands_per_second']) > 0
+    assert not cmds[-1].any()                               # SIGINT: one zero at the end
+    ticks = [tick_from_msg(m.ros_msg) for m in read_ros2_messages(
+        str(next(record.glob('*.mcap'))))]
+    sha = hashlib.sha256(trained['onnx'].read_bytes()).hexdigest()
+    assert read_metadata_yaml(record)['custom_data']['policy_sha256'] == sha
+    # every command sent is a tick (the subscriber here may lose some at most)
+    assert len(cmds) <= len(ticks) <= len(cmds) + 5, (len(ticks), len(cmds))
+    np.testing.assert_array_equal([t['command_si'].ravel() for _, t in ticks[-20:]],
+                                  cmds[-20:])
+    assert all(h[1] == int(sha[:12], 16) for h, _ in ticks)
+    header, last = ticks[-2]
+    np.testing.assert_allclose(last['command_si'], GEAR * last['command'])
+    assert last['observation'].shape == (4, 10) and np.all(last['state_age'] < 1.0)
+
+
+def test_trajectory_message_carries_efforts_for_a_trajectory_controller(
+        tmp_path, client, trained):
+    """command_message:=trajectory: one point one period ahead, efforts in N m, measured q."""
+    from trajectory_msgs.msg import JointTrajectory
+    got = []
+    client.node.create_subscription(JointTrajectory, '/arm_controller/joint_trajectory',
+                                    got.append, 10)
+    q, qd, goal = np.array([0.3, -1.2]), np.array([0.5, -0.25]), [0.12, -0.05, 0.01]
+    pol = start_policy(tmp_path, f'policy:={trained["onnx"]}', 'state_timeout:=5.0',
+                       'command_message:=trajectory', 'control_rate:=25.0')
+    try:
+        client.wait(lambda: any(m.startswith('waiting') for m, _ in client.diagnostics),
+                    what='policy_node to load its policy')
+        client.send_target('base_link', goal)
+        client.send_state(PLAIN, q, qd)
+        client.wait(lambda: got, what='a trajectory')
+    finally:
+        code, log = processes.stop_logged(pol)
+    assert code == 0, log[-2000:]
+    assert not client.commands                          # nothing on the forward topic
+    model = mujoco.MjModel.from_xml_string(trained['policy'].card['model_xml'])
+    obs = ObservationBuilder(model)(q[None], qd[None], np.array([goal]))
+    want = GEAR * np.clip(trained['policy'].mean(obs), -1, 1)[0]
+    msg = got[0]
+    (point,) = msg.points
+    assert list(msg.joint_names) == PLAIN
+    np.testing.assert_allclose(point.effort, want, atol=1e-3)
+    np.testing.assert_array_equal(point.positions, q)
+    np.testing.assert_array_equal(point.velocities, qd)
+    assert (point.time_from_start.sec, point.time_from_start.nanosec) == (0, 40_000_000)

@@ -249,6 +249,11 @@ SIM_PARAMS: Dict[str, Param] = {
                                    low=0.0),
     'mode': Param('lock_step', 'lock_step: one control step per command; real_time: wall '
                                'clock', choices=('lock_step', 'real_time')),
+    'command_interface': Param('control', 'what pg_node/commands carries: control (the '
+                                          "policy's units, what the actor sends), or as a "
+                                          "robot's controller takes them: effort (N m) or "
+                                          'position (rad)',
+                               choices=('control', 'effort', 'position')),
     'lock_step_timeout': Param(1.0, 'seconds without a command before the last transition '
                                     'is re-sent (lock_step)', **POSITIVE, live=True),
     'command_timeout': Param(0.5, 'seconds after which a held command drops to zero torque '
@@ -282,8 +287,9 @@ POLICY_PARAMS: Dict[str, Param] = {
                         'file or an exported .onnx file (with its .json card beside it)'),
     'control_rate': Param(0.0, 'commands per second of wall time (0: one per control step of '
                                'the policy, 1 / control_step)', low=0.0, live=True),
-    'state_timeout': Param(0.2, 'seconds after which joint states count as stale: zero effort '
-                                'is sent at every tick until fresh states come',
+    'state_timeout': Param(0.2, 'seconds after which joint states count as stale, by arrival '
+                                'or by header.stamp: the hold command is sent at every tick '
+                                'until fresh states come',
                            **POSITIVE, live=True),
     'deterministic': Param(True, 'command the mean action; false: sample from the Gaussian',
                            live=True),
@@ -291,6 +297,32 @@ POLICY_PARAMS: Dict[str, Param] = {
     'num_arms': Param(0, 'arms to command (0: as many as joint_states holds, arm<i>/ '
                          'prefixed names, or one arm with plain names)', low=0),
     'diagnostics_rate': Param(1.0, 'diagnostics rate in Hz of wall time', **POSITIVE, live=True),
+    'autostart': Param(False, 'configure and activate at start (what play does); false: a '
+                              'managed node that waits for its lifecycle transitions'),
+    'command_interface': Param('effort', 'what the commands are: joint efforts in N m (motor '
+                                         'actuators) or joint positions in rad (position '
+                                         'actuators)', choices=('effort', 'position')),
+    'ramp_time': Param(0.5, 'seconds over which commands ramp in from hold after activation '
+                            '(0: at once)', low=0.0, live=True),
+    'smoothing': Param(0.0, 'low-pass filter: weight of the previous command, 0 (off) to 0.95',
+                       low=0.0, high=0.95, live=True),
+    'max_change': Param(0.0, 'largest change of a command per control tick, as a share of '
+                             "the actuator's range (0: no limit)", low=0.0, high=1.0,
+                        live=True),
+    'joint_limit_margin': Param(0.05, 'rad: within this of a joint limit, no command drives '
+                                      'the joint further', low=0.0, live=True),
+    'max_velocity': Param(0.0, 'rad/s: an arm with a faster joint gets the hold command (0: '
+                               'no check)', low=0.0, live=True),
+    'command_message': Param('forward', 'forward: std_msgs/Float64MultiArray on '
+                                        'arm_controller/commands (forward command '
+                                        'controllers); trajectory: one-point '
+                                        'trajectory_msgs/JointTrajectory on '
+                                        'arm_controller/joint_trajectory (the joint '
+                                        'trajectory controller, whose cmd_timeout then acts)',
+                             choices=('forward', 'trajectory')),
+    'base_frame': Param('base_link', "frame_id of targets in the arm's base frame (an empty "
+                                     'frame_id is taken as this one too)'),
+    'record': Param('', 'bag directory to record every control tick into (MCAP; empty: none)'),
 }
 
 SCHEMA: Dict[str, Dict[str, Param]] = {

@@ -1,10 +1,24 @@
 """
-policy_node: a trained policy commanding arms in real time, as on a robot.
+policy_node: a trained policy commanding arms in real time, with a robot's safety habits.
 
 The policy (parameter ``policy``: a run directory, its ``checkpoints/``, a ``ckpt_*.pt`` file
 or an exported ``.onnx`` file with its card, :mod:`pg_node.rl.trained_policy`) brings its
 card: the arm model, its joint names, the observation layout, the control range and step.
 An exported policy runs on onnxruntime: torch is then never imported.
+
+**Lifecycle** (a managed node, as Nav2's and ros2_control's): it starts *unconfigured*.
+
+* ``configure`` loads the policy, warms it up, checks the joints of any joint state already
+  received and, when ``robot_description`` (``std_msgs/String``, transient local, as
+  robot_state_publisher offers it) was received, the kinematics
+  (:mod:`pg_node.sim.kinematics_check`) against the policy's model; it opens the ``record``;
+  a failure is logged in one line and the node stays unconfigured;
+* ``activate`` starts commanding, ramping in from the hold command over ``ramp_time`` s;
+* ``deactivate`` sends one hold command and stops publishing;
+* ``cleanup`` unloads the policy; ``shutdown`` (and SIGINT/SIGTERM) holds once if active.
+
+``autostart:=true`` configures and activates at start (what ``play`` does; a failure is then
+one line and exit code 2).
 
 Subscribed:
 
@@ -15,64 +29,103 @@ Subscribed:
   and velocity are needed; a message with a non-finite one is dropped and counted. A model
   joint missing from the message is an error that stops the node (exit code 2, one line);
 * ``target`` (``geometry_msgs/PointStamped``, reliable + transient-local as ``sim_node``
-  publishes it): the goal of arm ``i`` with ``frame_id`` ``arm<i>``, in that arm's frame;
-  with plain joint names, any frame is the one arm's goal. A target beyond the arm's reach
-  (:meth:`pg_node.sim.observation.ObservationBuilder.reach`) is commanded, with a warning
-  once per arm; a non-finite one is ignored, with a warning once per arm (both counted in
-  ``/diagnostics``).
+  publishes it): the goal, in the arm's base frame: ``frame_id`` ``base_frame`` or empty
+  (every arm), or ``arm<i>`` (``sim_node``'s frame of arm ``i``'s base). Choose among
+  robots by namespace (``-r __ns:=/left``), not by frame. Another frame goes through tf2
+  where ``tf2_ros`` can be imported (a full ROS install; it is not on PyPI); otherwise it
+  is refused, with one warning naming it. A target beyond the arm's reach
+  (:meth:`pg_node.sim.observation.ObservationBuilder.reach`) is clamped onto it, with a
+  warning once; a non-finite one is ignored, with a warning once (both counted in
+  ``/diagnostics``);
+* ``estop`` (``std_msgs/Bool``, reliable): ``true`` latches an emergency stop; ``false``
+  does not clear it. Service ``~/reset_estop`` (``std_srvs/Trigger``) clears it.
 
 Published:
 
 * ``arm_controller/commands`` (``std_msgs/Float64MultiArray``, arms x actuators, arm-major,
-  untagged: what ros2_control's forward command controller takes), from a timer at
-  ``control_rate`` Hz (0: one per control step of the policy). Each command is the policy's
-  mean action (``deterministic``; else a sample) for the observation built as training
-  builds it (:class:`pg_node.sim.observation.ObservationBuilder`: the fingertip by forward
-  kinematics at the measured angles), clipped to the control range; a non-finite action
-  is replaced by zero effort, so no command is ever non-finite or out of range;
-* ``/diagnostics``: state (commanding, or why not: no joint states yet, no target yet,
-  stale joint states, e-stop latched), achieved command rate, the age of the joint state
-  each command was computed from (median and p99 over the last commands), stale events,
-  e-stops, dropped states, CPU share and the policy's source.
+  untagged: what ros2_control's forward command controllers take), from a timer at
+  ``control_rate`` Hz of steady time (0: one per control step of the policy), in SI units
+  (REP-103), ``command_interface`` ``effort`` (N m, from the model's gear: motor
+  actuators) or ``position`` (rad, from the joint range: position actuators),
+  :mod:`pg_node.sim.actuation`. Each command is the policy's mean action
+  (``deterministic``; else a sample) for the observation built as training builds it
+  (:class:`pg_node.sim.observation.ObservationBuilder`), through the guards of
+  :class:`pg_node.sim.safety.CommandGuard`: control range, ramp, low-pass ``smoothing``,
+  ``max_change`` per tick, ``joint_limit_margin``, ``max_velocity``. No command is ever
+  non-finite or out of range. ``command_message:=trajectory`` sends each command instead as
+  a one-point ``trajectory_msgs/JointTrajectory`` on ``arm_controller/joint_trajectory``
+  (reached one control period ahead; with the effort interface as the point's efforts, its
+  positions and velocities the measured ones), for a joint trajectory controller whose
+  ``cmd_timeout`` then holds the arm if this node falls silent;
+* ``/diagnostics``: lifecycle and state (commanding, or why not), achieved command rate,
+  the age of the joint state each command was computed from (median and p99), stale
+  events, e-stops, each guard's acting, dropped states, CPU share, the policy's source and
+  sha256.
 
-* ``estop`` (``std_msgs/Bool``, reliable): ``true`` latches an emergency stop; ``false``
-  does not clear it. Service ``~/reset_estop`` (``std_srvs/Trigger``) clears it.
+Safety: the **hold** command is zero effort, or with the position interface the newest
+measured angles. When the newest joint state is older than ``state_timeout`` s, since it
+arrived or by its ``header.stamp`` (the node's clock: give ``use_sim_time:=true`` with a
+simulator), the hold command is published at every control tick (never one message only:
+a forward command controller holds the last command it got) and a warning logged once per
+stale spell; commanding resumes with the next fresh joint state. A latched e-stop holds at
+every tick too. Before the first joint state and target nothing is published.
+Diagnostics levels follow diagnostic_updater's habits: commanding OK; unconfigured,
+inactive or waiting WARN; stale states or a latched e-stop ERROR.
 
-Safety: when the newest joint state is older than ``state_timeout`` s, zero effort is
-published at every control tick (never one message only: a forward command controller
-holds the last command it got) and a warning logged once per stale spell; commanding
-resumes with the next fresh joint state. A latched e-stop publishes zero effort at every
-tick too, whatever the states, until ``~/reset_estop``. Before the first joint state and
-target nothing is published. Diagnostics levels follow diagnostic_updater's habits:
-commanding OK, waiting (no states or no target yet) WARN, stale states or a latched e-stop
-ERROR.
+``record`` (a bag directory) keeps every tick on ``/policy_node/ticks`` (a table per tick,
+:mod:`pg_node.ros.table_msg`: header stamp and policy id, the first 48 bits of the policy's
+sha256; per arm the state's age, observation, mean, action, guarded command and the command
+in SI units; NaN for hold ticks); the bag's metadata holds the policy's full sha256.
 
 Parameters: :data:`pg_node.common.params.POLICY_PARAMS`.
 """
 from collections import deque
+import hashlib
+from pathlib import Path
 import re
 import sys
 import time
-from typing import Dict, List, Sequence
+from typing import Dict, List, Optional, Sequence
 
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PointStamped
 import mujoco
 import numpy as np
+from pg_node.bag.writer import BagWriter
 from pg_node.common.params import ConfigError, POLICY_PARAMS
 from pg_node.rl.trained_policy import control_range, load_trained_policy, PolicySourceError
 from pg_node.ros import command
+from pg_node.ros import table_msg
 from pg_node.ros.node_utils import Diagnostics, RateCounter, run
 from pg_node.ros.parameters import declare_params
+from pg_node.sim.actuation import Actuation, UNITS
+from pg_node.sim.kinematics_check import compare_kinematics
 from pg_node.sim.observation import ObservationBuilder
-from rclpy.node import Node
+from pg_node.sim.safety import CommandGuard, EVENTS, GuardSettings
+from rclpy.clock import Clock, ClockType
+from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, qos_profile_sensor_data, QoSProfile,
                        ReliabilityPolicy)
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Bool, Float64MultiArray
+from std_msgs.msg import Bool, Float64MultiArray, String
 from std_srvs.srv import Trigger
+from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 PREFIXED = re.compile(r'^arm(\d+)/(.+)$')
+#: sim_node's frame of arm ``i``'s base
+ARM_FRAME = re.compile(r'arm(\d+)')
+#: the parameters of :class:`pg_node.sim.safety.GuardSettings`
+GUARD_PARAMS = ('smoothing', 'max_change', 'joint_limit_margin', 'max_velocity', 'ramp_time')
+#: the guards whose acting is logged (at most once a second each)
+WARNED = {'nonfinite': 'the policy gave a non-finite action: hold command sent',
+          'joint_limit': 'joint limit guard: a command towards a joint limit was held back',
+          'over_speed': 'over-speed guard: a joint is faster than max_velocity, hold command'}
+#: calls of the policy on configure before the first real one
+WARM_UP = 5
+#: the record's topic: one message per control tick
+TICKS_TOPIC = '/policy_node/ticks'
+#: its table's columns, one row per arm
+TICK_FIELDS = ('arm', 'state_age', 'observation', 'mean', 'action', 'command', 'command_si')
 #: a target this much beyond the arm's reach (ObservationBuilder.reach) is warned about
 REACH_MARGIN = 1.05
 #: commands whose state ages the diagnostics summarise
@@ -123,76 +176,84 @@ def _missing(joint: str, joints: Sequence[str], names: Sequence[str]) -> str:
             f'names [{shown}] (remap joint_states, or give a model with these joint names)')
 
 
-class PolicyNode(Node):
-    """Turn joint states and targets into torque commands with a trained policy."""
+class PolicyNode(LifecycleNode):
+    """Turn joint states and targets into guarded commands with a trained policy (managed)."""
 
     def __init__(self):
-        """Load the policy, declare parameters, subscribe and start the control timer."""
+        """Declare parameters, subscribe, start the timers; configure and activate if asked."""
         super().__init__('policy_node')
         self.params = p = declare_params(self, POLICY_PARAMS, self.on_parameter)
         if not p['policy']:
             raise ConfigError("parameter 'policy_node.policy' is required: a run directory, a "
                               'ckpt_*.pt file or an exported .onnx file (-p policy:=PATH)')
-        t0 = time.perf_counter()
-        try:
-            self.policy = load_trained_policy(p['policy'])
-            card = self.policy.card
-            self.builder = ObservationBuilder(mujoco.MjModel.from_xml_string(card['model_xml']))
-        except (PolicySourceError, ValueError) as exc:
-            raise ConfigError(f"parameter 'policy_node.policy': {exc}") from None
-        self.load_seconds = time.perf_counter() - t0
-        self.base, self.reach = self.builder.reach()
         self.exit_code = None               # set on a fatal input: run() ends the process
-        self.told = set()                   # the target warnings given (once each)
-        self.joints = list(card['joint_names'])
-        self.low, self.high = control_range(card)
-        self.act_dim = self.policy.act_dim
-        self.rng = np.random.default_rng(p['seed'])
+        self.told = set()                   # the warnings given (once each)
+        self.lifecycle = 'unconfigured'
+        self.policy = self.guard = self.recorder = self.tf_buffer = None
+        self.settings = GuardSettings(**{k: p[k] for k in GUARD_PARAMS})
         self.num_arms = p['num_arms']
         self.plain = False
         self._names: List[str] = []
         self._index = None
         self.q = self.qdot = None
-        self.state_time = None
-        self.targets: Dict[str, np.ndarray] = {}
-        self.latest_target = None
+        self.state_time = None              # monotonic arrival of the newest joint state
+        self.state_stamp = None             # its header.stamp in s (None: zero stamp)
+        self.raw_targets: Dict[str, np.ndarray] = {}    # frame_id -> point, as received
+        self.targets: Dict[object, np.ndarray] = {}     # 'base' or arm index -> goal
+        self.description = None             # robot_description, when published
         self.stale = False
         self.estop = False                  # latched until ~/reset_estop
-        self.status = 'waiting: no joint_states yet'
-        self.counters = {'commands': 0, 'zero_commands': 0, 'stale_events': 0, 'estops': 0,
+        self.status = 'unconfigured: waiting for configure'
+        self.counters = {'commands': 0, 'hold_commands': 0, 'stale_events': 0, 'estops': 0,
                          'states_received': 0, 'states_dropped_nonfinite': 0,
-                         'actions_nonfinite': 0, 'targets_ignored': 0,
-                         'targets_out_of_reach': 0}
+                         'targets_ignored': 0, 'targets_out_of_reach': 0,
+                         **{f'guard_{k}': 0 for k in EVENTS}}
         self.ages = deque(maxlen=AGE_WINDOW)
         self.rate = RateCounter()
         self._cpu = (time.process_time(), time.monotonic())
 
-        self.pub = self.create_publisher(Float64MultiArray, 'arm_controller/commands', 10)
+        if p['command_message'] == 'trajectory':
+            self.pub = self.create_publisher(JointTrajectory, 'arm_controller/joint_trajectory',
+                                             10)
+        else:
+            self.pub = self.create_publisher(Float64MultiArray, 'arm_controller/commands', 10)
         self.create_subscription(JointState, 'joint_states', self.on_joint_state,
                                  qos_profile_sensor_data)
-        targets_qos = QoSProfile(depth=256, reliability=ReliabilityPolicy.RELIABLE,
-                                 durability=DurabilityPolicy.TRANSIENT_LOCAL,
-                                 history=HistoryPolicy.KEEP_LAST)
-        self.create_subscription(PointStamped, 'target', self.on_target, targets_qos)
+        latched = QoSProfile(depth=256, reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL,
+                             history=HistoryPolicy.KEEP_LAST)
+        self.create_subscription(PointStamped, 'target', self.on_target, latched)
+        self.create_subscription(String, 'robot_description', self.on_description, latched)
         self.create_subscription(Bool, 'estop', self.on_estop,
                                  QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
         self.create_service(Trigger, '~/reset_estop', self.on_reset_estop)
-        self.diagnostics = Diagnostics(self, 'policy_node: trained policy', self.policy.kind)
-        self.timers_by_param = {'control_rate': self.create_timer(1.0, self.on_tick),
-                                'diagnostics_rate': self.create_timer(1.0, self.publish_diag)}
+        self.diagnostics = Diagnostics(self, 'policy_node: trained policy', 'policy_node')
+        # steady clock: with use_sim_time the watchdog must still tick when /clock stops
+        steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self.timers_by_param = {
+            'control_rate': self.create_timer(1.0, self.on_tick, clock=steady),
+            'diagnostics_rate': self.create_timer(1.0, self.publish_diag, clock=steady)}
         for name in self.timers_by_param:
             self.on_parameter(name, p[name])
-        self.get_logger().info(
-            f'policy {self.policy.describe()} loaded in {self.load_seconds:.2f} s: '
-            f"{card['model']} (joints {', '.join(self.joints)}), "
-            f'{self.control_rate():g} Hz, state_timeout {p["state_timeout"]:g} s')
+        if p['autostart']:
+            if self.trigger_configure() != TransitionCallbackReturn.SUCCESS:
+                raise ConfigError(self.failure)
+            self.trigger_activate()
+        else:
+            self.get_logger().info('unconfigured: waiting for the lifecycle transitions '
+                                   '(configure, then activate; or autostart:=true)')
 
     def control_rate(self) -> float:
         """Return the command rate in Hz: the parameter, or one per control step."""
-        return self.params['control_rate'] or 1.0 / self.policy.card['control_step']
+        if self.params['control_rate'] or self.policy is None:
+            return self.params['control_rate'] or 50.0
+        return 1.0 / self.policy.card['control_step']
 
     def on_parameter(self, name: str, value) -> None:
-        """Apply a live parameter: the timers follow their rates."""
+        """Apply a live parameter: the timers follow their rates, the guards their settings."""
+        if name in GUARD_PARAMS:
+            setattr(self.settings, name, value)
+            return
         if name == 'control_rate':
             period = 1.0 / self.control_rate()
         elif name == 'diagnostics_rate':
@@ -203,11 +264,146 @@ class PolicyNode(Node):
         timer.timer_period_ns = int(period * 1e9)
         timer.reset()
 
+    # --- lifecycle ------------------------------------------------------------------------
+
+    def on_configure(self, state) -> TransitionCallbackReturn:
+        """Load and warm up the policy, check joints and kinematics, open the record."""
+        self.failure = self._configure()
+        if self.failure is not None:
+            if self.params['autostart']:        # run() reports it, in one line, and exits
+                return TransitionCallbackReturn.FAILURE
+            self.get_logger().error(f'configure failed: {self.failure}')
+            return TransitionCallbackReturn.FAILURE
+        return TransitionCallbackReturn.SUCCESS
+
+    def _configure(self) -> Optional[str]:
+        p = self.params
+        t0 = time.perf_counter()
+        try:
+            policy = load_trained_policy(p['policy'])
+            model = mujoco.MjModel.from_xml_string(policy.card['model_xml'])
+            builder = ObservationBuilder(model)
+        except (PolicySourceError, ValueError) as exc:
+            return f"parameter 'policy_node.policy': {exc}"
+        card, interface = policy.card, p['command_interface']
+        actuation = Actuation(model)
+        reason = actuation.check(interface)
+        if reason is not None:
+            return reason
+        joints = list(card['joint_names'])
+        if self._names:
+            try:
+                joint_columns(self._names, joints, self.num_arms)
+            except ConfigError as exc:
+                return str(exc)
+        if self.description is not None:
+            reason = compare_kinematics(model, joints, self.description)
+            if reason is not None:
+                return f"robot_description is not the policy's arm: {reason}"
+        load_seconds = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        for _ in range(WARM_UP):                # the first calls allocate; not on the robot
+            policy.mean_std(np.zeros((max(self.num_arms, 1), policy.obs_dim)))
+        warm_ms = 1e3 * (time.perf_counter() - t0) / WARM_UP
+        digest = file_digest(policy.source)
+        if p['record']:
+            try:
+                self.recorder = BagWriter(Path(p['record']).expanduser(), custom_data={
+                    'policy': policy.describe(), 'policy_sha256': digest,
+                    'command_interface': interface})
+                self.recorder.add_topic(TICKS_TOPIC, Float64MultiArray)
+            except (OSError, ValueError) as exc:
+                return f"parameter 'policy_node.record': {exc}"
+        self.policy, self.builder, self.actuation = policy, builder, actuation
+        self.guard = CommandGuard(model, joints, interface, self.settings)
+        self.joints, self.digest = joints, digest
+        self.policy_id = int(digest[:12], 16)
+        self.low, self.high = control_range(card)
+        self.act_dim = policy.act_dim
+        self.base, self.reach = builder.reach()
+        self.rng = np.random.default_rng(p['seed'])
+        self.lifecycle = 'inactive'
+        self.status = 'inactive: configured, waiting for activate'
+        self._tf_listener()
+        for frame, point in list(self.raw_targets.items()):
+            self._take_target(frame, point)
+        self.on_parameter('control_rate', p['control_rate'])
+        low, high = actuation.si_range(interface)
+        unit = UNITS[interface]
+        self.get_logger().info(
+            f'configured: policy {policy.describe()} (sha256 {digest[:12]}) loaded in '
+            f'{load_seconds:.2f} s, {warm_ms:.2f} ms per call warmed up: {card["model"]} '
+            f"(joints {', '.join(joints)}); commands {interface} in {unit}, "
+            f'{_ranges(low, high)} at {self.control_rate():g} Hz; state_timeout '
+            f'{p["state_timeout"]:g} s' + ('; kinematics match robot_description'
+                                           if self.description is not None else ''))
+        return None
+
+    def on_activate(self, state) -> TransitionCallbackReturn:
+        """Start commanding, ramping in from hold over ``ramp_time``."""
+        self.guard.start_ramp(time.monotonic())
+        self.lifecycle = 'active'
+        self.status = 'waiting: no joint_states yet'
+        self.get_logger().info(f'active: commanding, ramping in from hold over '
+                               f'{self.settings.ramp_time:g} s')
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_deactivate(self, state) -> TransitionCallbackReturn:
+        """Send one hold command and stop publishing."""
+        self.lifecycle = 'inactive'
+        self._hold_once()
+        self.status = 'inactive: deactivated, one hold command sent'
+        self.get_logger().info(self.status)
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_cleanup(self, state) -> TransitionCallbackReturn:
+        """Unload the policy and close the record."""
+        self._close_record()
+        self.policy = self.guard = self.builder = None
+        self.targets.clear()
+        self.lifecycle = 'unconfigured'
+        self.status = 'unconfigured: cleaned up, waiting for configure'
+        self.get_logger().info(self.status)
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_shutdown(self, state) -> TransitionCallbackReturn:
+        """Hold (if active) and close the record."""
+        self.stop()
+        self.lifecycle = 'finalized'
+        self.status = 'finalized'
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_error(self, state) -> TransitionCallbackReturn:
+        """Hold, close the record and go back to unconfigured."""
+        self.stop()
+        self.policy = self.guard = None
+        self.lifecycle = 'unconfigured'
+        return TransitionCallbackReturn.SUCCESS
+
+    def stop(self):
+        """On shutdown or a signal: one hold command if commanding, and the record closed."""
+        if self.lifecycle == 'active':
+            self.lifecycle = 'inactive'
+            self._hold_once()
+        self._close_record()
+
+    def _hold_once(self):
+        if self.guard is not None and self._index is not None:
+            self.publish_hold()
+
+    def _close_record(self):
+        if self.recorder is not None:
+            self.recorder.close()
+            self.recorder = None
+
     # --- inputs ---------------------------------------------------------------------------
 
     def on_joint_state(self, msg: JointState):
         """Keep the model joints' positions and velocities; end the node on a fatal mismatch."""
         if self.exit_code is not None:
+            return
+        if self.policy is None:
+            self._names = list(msg.name)    # checked on configure
             return
         try:
             self._take_joint_state(msg)
@@ -226,7 +422,7 @@ class PolicyNode(Node):
                                   f'{len(self._index)}')
             self._index, self._names = index, list(names)
             self.num_arms = len(index)
-            self.plain = self._index is not None and self.joints[0] in names
+            self.plain = self.joints[0] in names
         n = len(names)
         if len(msg.position) != n or len(msg.velocity) != n:
             raise ConfigError(f'joint_states needs a position and a velocity for every joint: '
@@ -242,13 +438,20 @@ class PolicyNode(Node):
             return
         self.q, self.qdot = q, qdot
         self.state_time = time.monotonic()
+        stamp = msg.header.stamp
+        self.state_stamp = (stamp.sec + 1e-9 * stamp.nanosec) if stamp.sec or stamp.nanosec \
+            else None
+
+    def on_description(self, msg: String):
+        """Keep ``robot_description`` (URDF) for the kinematics check on configure."""
+        self.description = msg.data
 
     def on_estop(self, msg: Bool):
         """Latch the e-stop on ``true`` (``false`` leaves it as it is)."""
         if msg.data and not self.estop:
             self.estop = True
             self.counters['estops'] += 1
-            self.get_logger().error('e-stop: latched; zero effort at every tick until '
+            self.get_logger().error('e-stop: latched; hold command at every tick until '
                                     '~/reset_estop')
             self.on_tick()          # at once, not at the next tick
 
@@ -264,26 +467,78 @@ class PolicyNode(Node):
         return response
 
     def on_target(self, msg: PointStamped):
-        """Keep each arm's goal by its frame (``arm<i>``)."""
+        """Keep a goal by its frame: the base frame, or ``arm<i>`` (sim_node's arm frames)."""
         point = np.array([msg.point.x, msg.point.y, msg.point.z])
-        frame = msg.header.frame_id or 'the arm'
+        frame = msg.header.frame_id
         if not np.all(np.isfinite(point)):
             self.counters['targets_ignored'] += 1
             self.warn_once(('nonfinite', frame),
-                           f'ignored a target with a non-finite coordinate for {frame}: '
-                           f'({point[0]:g}, {point[1]:g}, {point[2]:g}); the last finite one '
-                           'still holds (counted in /diagnostics as targets_ignored)')
+                           f'ignored a target with a non-finite coordinate for '
+                           f'{frame or "the arm"}: ({point[0]:g}, {point[1]:g}, '
+                           f'{point[2]:g}); the last finite one still holds (counted in '
+                           '/diagnostics as targets_ignored)')
             return
+        self.raw_targets[frame] = point
+        if self.policy is not None:
+            self._take_target(frame, point)
+
+    def _take_target(self, frame: str, point: np.ndarray):
+        """Resolve ``frame`` (base, arm, or tf2), clamp to the reach, and keep the goal."""
+        key = self.frame_key(frame)
+        if key is None:
+            point = self._transform(frame, point)
+            if point is None:
+                self.counters['targets_ignored'] += 1
+                return
+            key = 'base'
         distance = float(np.linalg.norm(point - self.base))
         if distance > REACH_MARGIN * self.reach:
             self.counters['targets_out_of_reach'] += 1
+            clamped = self.base + (point - self.base) * (self.reach / distance)
             self.warn_once(('reach', frame),
-                           f'target ({point[0]:g}, {point[1]:g}, {point[2]:g}) for {frame} is '
-                           f"{distance:.3g} m from the arm's base, beyond its reach of "
-                           f'{self.reach:.3g} m: commanded anyway, the arm cannot get there '
+                           f'target ({point[0]:g}, {point[1]:g}, {point[2]:g}) in '
+                           f"{frame or 'the base frame'} is {distance:.3g} m from the arm's "
+                           f'base, beyond its reach of {self.reach:.3g} m: clamped to '
+                           f'({clamped[0]:.3g}, {clamped[1]:.3g}, {clamped[2]:.3g}) '
                            '(counted in /diagnostics as targets_out_of_reach)')
-        self.targets[msg.header.frame_id] = point
-        self.latest_target = point
+            point = clamped
+        self.targets[key] = point
+
+    def frame_key(self, frame: str):
+        """Return ``'base'`` for the base frame (or none), ``i`` for ``arm<i>``, else None."""
+        if frame in ('', self.params['base_frame']):
+            return 'base'
+        match = ARM_FRAME.fullmatch(frame)
+        return int(match.group(1)) if match else None
+
+    def _tf_listener(self):
+        """Listen to tf2 where it can be imported (a full ROS install; not on PyPI)."""
+        try:
+            import tf2_ros
+        except ImportError:
+            return
+        self.tf_buffer = tf2_ros.Buffer()
+        self._tf = tf2_ros.TransformListener(self.tf_buffer, self)
+
+    def _transform(self, frame: str, point: np.ndarray) -> Optional[np.ndarray]:
+        """Return ``point`` in the base frame through tf2, or None (warned once)."""
+        base = self.params['base_frame']
+        if self.tf_buffer is None:
+            self.warn_once(('frame', frame),
+                           f'ignored targets in frame {frame!r}: only the base frame '
+                           f'{base!r} (or an empty frame_id) is taken, and tf2_ros, which '
+                           'would transform others, is not installed (counted in '
+                           '/diagnostics as targets_ignored)')
+            return None
+        try:
+            from rclpy.time import Time
+            tf = self.tf_buffer.lookup_transform(base, frame, Time()).transform
+        except Exception as exc:  # noqa: B902 - tf2's lookup errors, any of them: one line
+            self.warn_once(('tf', frame), f'ignored targets in frame {frame!r}: no transform '
+                                          f'to {base!r} ({type(exc).__name__})')
+            return None
+        r, t = tf.rotation, tf.translation
+        return quat_rotate((r.w, r.x, r.y, r.z), point) + np.array([t.x, t.y, t.z])
 
     def warn_once(self, key, text: str):
         """Log ``text`` as a warning the first time ``key`` comes up."""
@@ -293,75 +548,138 @@ class PolicyNode(Node):
 
     def target_array(self):
         """Return the goals ``(arms, 3)``, or the name of an arm without one."""
-        if self.plain:
-            return self.latest_target if self.latest_target is None else self.latest_target[None]
         out = np.empty((self.num_arms, 3))
         for i in range(self.num_arms):
-            point = self.targets.get(f'arm{i}')
+            point = self.targets.get('base') if self.plain else \
+                self.targets.get(i, self.targets.get('base'))
             if point is None:
-                return f'arm{i}'
+                return 'the arm' if self.plain else f'arm{i}'
             out[i] = point
         return out
 
     # --- the control loop -----------------------------------------------------------------
 
+    def state_age(self, now: float):
+        """Return the newest joint state's age in s: since arrival, or by its header.stamp."""
+        age, how = now - self.state_time, 'since arrival'
+        ros_now = self.get_clock().now().nanoseconds * 1e-9
+        if self.state_stamp is not None and ros_now > 0:
+            by_stamp = ros_now - self.state_stamp
+            if by_stamp > age or by_stamp < -self.params['state_timeout']:
+                age, how = abs(by_stamp), ('by header.stamp' if by_stamp > 0
+                                           else 'by header.stamp, in the future')
+        return age, how
+
     def on_tick(self):
         """Publish one command computed from the newest joint state, or say why not."""
+        if self.lifecycle != 'active':
+            return
         now = time.monotonic()
         if self.estop:
-            self.status = 'e-stop latched: zero effort (clear with ~/reset_estop)'
-            if self.num_arms:
-                self.publish(np.zeros((self.num_arms, self.act_dim)), zero=True)
+            self.status = 'e-stop latched: hold command (clear with ~/reset_estop)'
+            self._hold_once()
             return
         if self.state_time is None:
             self.status = 'waiting: no joint_states yet'
             return
-        age = now - self.state_time
-        if age > self.params['state_timeout']:
+        age, how = self.state_age(now)
+        timeout = self.params['state_timeout']
+        if age > timeout:
             if not self.stale:
                 self.stale = True
                 self.counters['stale_events'] += 1
+                hint = (' (a simulator stamps simulated time: give policy_node '
+                        'use_sim_time:=true)' if 'stamp' in how and age > 1e4 else '')
                 self.get_logger().warning(
-                    f'joint states are {age:.3f} s old (state_timeout '
-                    f'{self.params["state_timeout"]:g} s): zero effort at every tick until '
-                    'fresh joint states come')
+                    f'joint states are {age:.3f} s old {how} (state_timeout {timeout:g} s): '
+                    f'hold command at every tick until fresh joint states come{hint}')
             # every tick, not once: a forward command controller holds its last command
-            self.publish(np.zeros((self.num_arms, self.act_dim)), zero=True)
-            self.status = (f'stale: joint states {age:.2f} s old, zero effort, waiting for '
-                           'fresh ones')
+            self.publish_hold()
+            self.status = (f'stale: joint states {age:.2f} s old {how}, hold command, '
+                           'waiting for fresh ones')
             return
         target = self.target_array()
-        if target is None or isinstance(target, str):
-            status = f'waiting: no target yet for {target or "the arm"}'
+        if isinstance(target, str):
+            status = f'waiting: no target yet for {target}'
             if status != self.status:
-                self.get_logger().info(f'not commanding: no target yet for '
-                                       f'{target or "the arm"} (on topic target)')
+                self.get_logger().info(f'not commanding: no target yet for {target} (on '
+                                       f"topic target, frame_id {self.params['base_frame']!r}"
+                                       f"{'' if self.plain else ' or arm<i>'})")
             self.status = status
             return
         if self.stale:
             self.stale = False
             self.get_logger().info('fresh joint states: commanding again')
         obs = self.builder(self.q, self.qdot, target)
-        if self.params['deterministic']:
-            act = self.policy.mean(obs)
-        else:
-            mu, std = self.policy.mean_std(obs)
-            act = mu + std * self.rng.standard_normal(mu.shape)
-        if not np.all(np.isfinite(act)):
-            self.counters['actions_nonfinite'] += 1
-            self.get_logger().warning('the policy gave a non-finite action: zero effort sent',
-                                      throttle_duration_sec=1.0)
-            act = np.zeros_like(act)
-        self.publish(np.clip(act, self.low, self.high))
+        mean, std = self.policy.mean_std(obs)
+        act = mean if self.params['deterministic'] else \
+            mean + std * self.rng.standard_normal(mean.shape)
+        cmd, acted = self.guard(act, self.q, self.qdot, now)
+        for kind, arms in acted.items():
+            if arms.any():
+                self.counters[f'guard_{kind}'] += 1
+                if kind in WARNED:
+                    self.get_logger().warning(WARNED[kind], throttle_duration_sec=1.0)
+        self.publish(cmd)
+        self.record(obs, mean, act, cmd, age)
         self.ages.append(time.monotonic() - self.state_time)
         self.status = 'commanding'
 
-    def publish(self, act: np.ndarray, zero: bool = False):
-        """Publish ``act`` (arms x actuators) as an untagged forward command."""
-        self.pub.publish(command.to_msg(act))
+    def publish_hold(self):
+        """Publish the hold command: zero effort, or the newest measured angles held."""
+        hold = self.guard.hold(self.q, self.num_arms)
+        self.guard.sent(hold)
+        self.publish(hold, hold=True)
+        obs = np.full((self.num_arms, self.policy.obs_dim), np.nan)
+        act = np.full((self.num_arms, self.act_dim), np.nan)
+        self.record(obs, act, act, hold, np.nan)
+
+    def publish(self, ctrl: np.ndarray, hold: bool = False):
+        """Publish controls ``ctrl`` (arms x actuators) as a command in SI units."""
+        si = self.actuation.to_si(ctrl, self.guard.interface)
+        if self.params['command_message'] == 'trajectory':
+            self.pub.publish(self.trajectory(si))
+        else:
+            self.pub.publish(command.to_msg(si))
         self.counters['commands'] += 1
-        self.counters['zero_commands'] += int(zero)
+        self.counters['hold_commands'] += int(hold)
         self.rate.add()
+
+    def trajectory(self, si: np.ndarray) -> JointTrajectory:
+        """
+        Return ``si`` as a one-point trajectory, reached one control period from now.
+
+        Position interface: the point's positions are the commanded angles. Effort interface:
+        its efforts are the commanded torques, its positions and velocities the measured ones,
+        so that the trajectory controller's PID (on the effort interface) sees no error and
+        passes the efforts through as its feed-forward.
+        """
+        cols = self.guard.cols
+        names = [self.joints[c] for c in cols]
+        point = JointTrajectoryPoint()
+        if self.guard.interface == 'position':
+            point.positions = si.ravel().tolist()
+        else:
+            point.positions = self.q[:, cols].ravel().tolist()
+            point.velocities = self.qdot[:, cols].ravel().tolist()
+            point.effort = si.ravel().tolist()
+        period = int(1e9 / self.control_rate())
+        point.time_from_start.sec, point.time_from_start.nanosec = divmod(period, 1_000_000_000)
+        msg = JointTrajectory(points=[point])
+        msg.joint_names = names if self.plain else [f'arm{i}/{n}' for i in range(self.num_arms)
+                                                    for n in names]
+        return msg
+
+    def record(self, obs, mean, action, cmd, age):
+        """Write one tick into the record: per arm what came in, what the guards made of it."""
+        if self.recorder is None:
+            return
+        arms = len(cmd)
+        fields = dict(zip(TICK_FIELDS, (np.arange(arms), np.full(arms, age), obs, mean, action,
+                                        cmd, self.actuation.to_si(cmd, self.guard.interface))))
+        stamp = self.get_clock().now().nanoseconds
+        msg = table_msg.to_msg(*table_msg.pack([stamp * 1e-9, self.policy_id], fields))
+        self.recorder.write(TICKS_TOPIC, msg, time.time_ns())
 
     def publish_diag(self):
         """Publish state, rate, state ages, counters and the policy's source."""
@@ -370,14 +688,17 @@ class PolicyNode(Node):
         self._cpu = (cpu, wall)
         ages = np.array(self.ages) * 1e3
         values = dict(
-            state=self.status, commands_per_second=round(self.rate.rate(), 1),
+            state=self.status, lifecycle=self.lifecycle,
+            commands_per_second=round(self.rate.rate(), 1),
             control_rate=round(self.control_rate(), 3),
+            command_interface=self.params['command_interface'],
             state_age_median_ms=round(float(np.median(ages)), 3) if ages.size else 'n/a',
             state_age_p99_ms=round(float(np.percentile(ages, 99)), 3) if ages.size else 'n/a',
             state_age_window=int(ages.size), cpu_percent=round(100 * cpu_share, 1),
             num_arms=self.num_arms if self._index is not None else 'n/a',
-            policy=self.policy.describe(), policy_kind=self.policy.kind,
-            load_seconds=round(self.load_seconds, 3), **self.counters)
+            policy=self.policy.describe() if self.policy is not None else 'not loaded',
+            policy_sha256=self.digest if self.policy is not None else 'n/a',
+            **self.counters)
         # diagnostic_updater's habits: idle WARN, stale or stopped ERROR
         level = (DiagnosticStatus.OK if self.status == 'commanding'
                  else DiagnosticStatus.ERROR if self.stale or self.estop
@@ -385,9 +706,41 @@ class PolicyNode(Node):
         self.diagnostics.publish(values, level, self.status)
 
 
+def tick_from_msg(msg: Float64MultiArray):
+    """Return ``(header, {field: (arms, width)})`` of a recorded tick (header: stamp, id)."""
+    return table_msg.unpack(*table_msg.from_msg(msg), header_size=2,
+                            widths=dict.fromkeys(TICK_FIELDS))
+
+
+def file_digest(path: Path) -> str:
+    """Return the sha256 of the file ``path`` in hex."""
+    h = hashlib.sha256()
+    with open(path, 'rb') as f:
+        for block in iter(lambda: f.read(1 << 20), b''):
+            h.update(block)
+    return h.hexdigest()
+
+
+def quat_rotate(wxyz, v: np.ndarray) -> np.ndarray:
+    """
+    Rotate ``v`` by the unit quaternion ``(w, x, y, z)``.
+
+    >>> np.round(quat_rotate((np.cos(np.pi / 4), 0, 0, np.sin(np.pi / 4)), [1.0, 0, 0]), 9)
+    array([0., 1., 0.])
+    """
+    out = np.empty(3)
+    mujoco.mju_rotVecQuat(out, np.asarray(v, dtype=float), np.asarray(wxyz, dtype=float))
+    return out
+
+
+def _ranges(low: np.ndarray, high: np.ndarray) -> str:
+    pairs = sorted({(float(a), float(b)) for a, b in zip(low, high)})
+    return ', '.join(f'[{a:g}, {b:g}]' for a, b in pairs)
+
+
 def main(args=None):
-    """Run policy_node until Ctrl-C or an external shutdown."""
-    return run(PolicyNode, args)
+    """Run policy_node until Ctrl-C or an external shutdown (one hold command, if active)."""
+    return run(PolicyNode, args, cleanup=lambda node: node.stop())
 
 
 if __name__ == '__main__':

@@ -35,10 +35,12 @@ Topics published:
 
 Subscribed: ``pg_node/commands`` (``std_msgs/Float64MultiArray``, as ros2_control's
 forward_command_controller): ``num_envs * n_actuators`` values, arm-major (arm 0's
-actuators in model order, then arm 1's...), taken as serialised bytes (``raw=True``) and
-decoded into numpy; bytes that do not decode count as a message of another size. A
-message of another size, with a non-finite value or with an absurd one (beyond
-``ABSURD_COMMAND``, e.g. 1e300) is dropped, counted and warned about (at most once a
+actuators in model order, then arm 1's...), in the policy's control units, or with
+``command_interface`` ``effort`` / ``position`` in N m / rad as a robot's controller takes
+them (``policy_node`` sends those; :mod:`pg_node.sim.actuation` maps them back), taken as
+serialised bytes (``raw=True``) and decoded into numpy; bytes that do not decode count as
+a message of another size. A message of another size, with a non-finite value or with an
+absurd one (beyond ``ABSURD_COMMAND``, e.g. 1e300) is dropped, counted and warned about (at most once a
 second); other values outside the actuators' control range are clipped to it, counted
 (``commands_clipped``) and warned about.
 In lock-step every accepted command is a control step, so dropping an absurd command (rather
@@ -94,7 +96,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Point, PointStamped
 import numpy as np
 from pg_node.bag.ros_types import float64_field
-from pg_node.common.params import params_for
+from pg_node.common.params import ConfigError, params_for
 from pg_node.common.paths import resolve_model
 from pg_node.common.perturbations import from_params
 from pg_node.common.run import COMMANDS
@@ -103,6 +105,7 @@ from pg_node.ros import table_msg
 from pg_node.ros import transition
 from pg_node.ros.node_utils import EndWithLearner, RANDOMIZATION, run, RunGuard
 from pg_node.ros.parameters import declare_params
+from pg_node.sim.actuation import Actuation
 from pg_node.sim.arm_task import arm_groups, ArmTask
 from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.node import Node
@@ -161,6 +164,11 @@ class SimNode(Node):
                             reward_control_weight=p['reward_control_weight'],
                             randomization=from_params(p))
         self.params = p
+        self.interface = p['command_interface']
+        self.actuation = Actuation(self.task.model)
+        if self.interface != 'control' and self.actuation.check(self.interface):
+            raise ConfigError(f"parameter 'sim_node.command_interface': "
+                              f'{self.actuation.check(self.interface)}')
         self.run = RunGuard(self, p['run_id'])
         self.end_with_learner = EndWithLearner(self, self.run)   # ros2 run: end with it
         n, spec = self.task.num_envs, self.task.spec
@@ -328,6 +336,8 @@ class SimNode(Node):
                 self.trip_log.append(trip)
             self.sent_ns[g] = None
         cmd = cmd.reshape(n_arms, self.task.act_dim)
+        if self.interface != 'control':       # the robot's stand-in: N m or rad in
+            cmd = self.actuation.from_si(cmd, self.interface)
         clipped = np.clip(cmd, self.task.spec.ctrl_low, self.task.spec.ctrl_high)
         if not np.array_equal(clipped, cmd):
             self.counters['commands_clipped'] += 1

@@ -10,9 +10,11 @@ never trains: no torch optimiser runs beside the OpenGL context), from the obser
 simulator published: the angles from ``cos q``/``sin q``, the goal from the target field.
 
 The two nodes run in a namespace of their own (``/play_<pid>``), where ``policy_node``
-publishes ``arm_controller/commands`` as on a robot and the simulator, the robot's stand-in,
-takes them there; and on this machine only (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``
-unless the environment sets it): a real controller on the lab network never hears them.
+publishes ``arm_controller/commands`` as on a robot (efforts in N m, ramped in from zero
+over its ``ramp_time``; ``autostart``, on simulated time) and the simulator, the robot's
+stand-in, takes them there (``command_interface:=effort``); and on this machine only
+(``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` unless the environment sets it): a real
+controller on the lab network never hears them.
 
 ``--perturb KEY=VALUE ...`` (the keys of ``eval --perturb``) makes the simulator an arm that
 is not the policy's model, as hardware is: ``mass_scale=1.5 gear_scale=0.7
@@ -215,7 +217,8 @@ def main(argv=None) -> int:
         with processes.terminate_as_interrupt():
             procs['policy_node'] = processes.start_logged(
                 [sys.executable, '-m', 'pg_node.ros.policy_node', '--ros-args', '-r',
-                 f'__ns:={namespace}', '-p', f'policy:={source}'],
+                 f'__ns:={namespace}', '-p', f'policy:={source}', '-p', 'autostart:=true',
+                 '-p', 'use_sim_time:=true'],
                 log_dir / 'policy_node.log', env)
             # the simulator starts once the policy is loaded (torch's import alone can take
             # seconds), so that the first episodes are not spent without commands
@@ -226,7 +229,8 @@ def main(argv=None) -> int:
             procs['sim_node'] = processes.start_logged(
                 [sys.executable, '-m', 'pg_node.ros.sim_node', '--ros-args',
                  '-r', f'__ns:={namespace}', '-r', f'{COMMANDS}:={CONTROLLER_COMMANDS}',
-                 '-p', 'mode:=real_time', '-p', f'num_envs:={args.arms}', '-p',
+                 '-p', 'mode:=real_time', '-p', 'command_interface:=effort',
+                 '-p', f'num_envs:={args.arms}', '-p',
                  f'seed:={args.seed}', '-p', f'model:={model}',
                  '-p', f'real_time_factor:={args.real_time_factor}', *perturb_params],
                 log_dir / 'sim_node.log', env)

@@ -1,0 +1,79 @@
+"""
+Whether a robot's description (URDF) has the kinematics of a policy's arm model (no ROS).
+
+``policy_node`` asks this on configure when ``/robot_description`` is published (as
+``robot_state_publisher`` does): a policy trained on another arm than the one it drives
+computes its observation's fingertip from the wrong forward kinematics. The URDF is
+compiled by MuJoCo with its geometry removed (meshes are not needed and often not found);
+then, at a few joint configurations drawn within the limits, each arm joint's anchor
+(relative to the first joint's) and axis are compared between the two models. This covers
+the chain up to the last joint; the fingertip's offset beyond it is not in a URDF.
+"""
+from typing import Optional, Sequence
+import xml.etree.ElementTree as ET
+
+import mujoco
+import numpy as np
+
+#: metres and unit-vector components: anchors and axes that differ less are the same
+TOLERANCE = 1e-3
+CONFIGURATIONS = 5
+
+
+def _urdf_model(urdf: str) -> mujoco.MjModel:
+    root = ET.fromstring(urdf)
+    for link in root.iter('link'):
+        for tag in ('visual', 'collision'):
+            for element in link.findall(tag):
+                link.remove(element)
+    for element in root.findall('mujoco'):
+        root.remove(element)
+    compiler = ET.SubElement(ET.SubElement(root, 'mujoco'), 'compiler')
+    compiler.attrib.update(balanceinertia='true', boundmass='0.001', boundinertia='1e-6',
+                           discardvisual='true', fusestatic='false')
+    return mujoco.MjModel.from_xml_string(ET.tostring(root, encoding='unicode'))
+
+
+def _pose(model: mujoco.MjModel, joints: Sequence[str], q: np.ndarray):
+    data = mujoco.MjData(model)
+    for name, value in zip(joints, q):
+        data.qpos[model.jnt_qposadr[model.joint(name).id]] = value
+    mujoco.mj_kinematics(model, data)
+    ids = [model.joint(name).id for name in joints]
+    anchors = data.xanchor[ids] - data.xanchor[ids[0]]
+    return anchors, data.xaxis[ids]
+
+
+def compare_kinematics(model: mujoco.MjModel, joints: Sequence[str], urdf: str,
+                       seed: int = 0) -> Optional[str]:
+    """Return how ``urdf`` differs from ``model`` on ``joints`` (one line), or None."""
+    try:
+        other = _urdf_model(urdf)
+    except (ET.ParseError, ValueError) as exc:
+        return f'robot_description does not compile: {" ".join(str(exc).split())[:200]}'
+    names = {other.joint(i).name for i in range(other.njnt)}
+    missing = [j for j in joints if j not in names]
+    if missing:
+        return (f'robot_description has no joint {", ".join(missing)} '
+                f'(it has {", ".join(sorted(names)[:8])})')
+    for j in joints:
+        if model.jnt_type[model.joint(j).id] != other.jnt_type[other.joint(j).id]:
+            return f'joint {j} is of another type in robot_description'
+    rng = np.random.default_rng(seed)
+    ids = [model.joint(j).id for j in joints]
+    low = np.where(model.jnt_limited[ids], model.jnt_range[ids, 0], -np.pi)
+    high = np.where(model.jnt_limited[ids], model.jnt_range[ids, 1], np.pi)
+    for _ in range(CONFIGURATIONS):
+        q = rng.uniform(low, high)
+        a, b = _pose(model, joints, q), _pose(other, joints, q)
+        for k, j in enumerate(joints):
+            gap = float(np.linalg.norm(a[0][k] - b[0][k]))
+            if gap > TOLERANCE:
+                return (f"joint {j} is {1000 * gap:.1f} mm away from where the policy's "
+                        f'model has it (relative to {joints[0]}, at angles '
+                        f'{np.round(q, 2).tolist()})')
+            if np.linalg.norm(a[1][k] - b[1][k]) > TOLERANCE:
+                return (f'joint {j} turns about {np.round(b[1][k], 3).tolist()} in '
+                        f'robot_description, about {np.round(a[1][k], 3).tolist()} in the '
+                        "policy's model")
+    return None
