@@ -40,9 +40,9 @@ actuators in model order, then arm 1's...), in the policy's control units, or wi
 them (``policy_node`` sends those; :mod:`pg_node.sim.actuation` maps them back), taken as
 serialised bytes (``raw=True``) and decoded into numpy; bytes that do not decode count as
 a message of another size. A message of another size, with a non-finite value or with an
-absurd one (beyond ``ABSURD_COMMAND``, e.g. 1e300) is dropped, counted and warned about (at most once a
-second); other values outside the actuators' control range are clipped to it, counted
-(``commands_clipped``) and warned about.
+absurd one (beyond ``ABSURD_COMMAND``, e.g. 1e300) is dropped, counted and warned about
+(at most once a second); other values outside the actuators' control range are clipped to
+it, counted (``commands_clipped``) and warned about.
 In lock-step every accepted command is a control step, so dropping an absurd command (rather
 than clipping it) also keeps the actor's command/outcome pairing intact; and only the command
 that answers the current transition is accepted (its layout's tag, :mod:`pg_node.ros.command`):
