@@ -301,7 +301,7 @@ def test_meshes_are_copied_beside_the_model_and_load_from_any_folder(tmp_path, c
     # target
     # a model folder that does not exist is said so, and nothing is written
     bad = tmp_path / 'nowhere' / 'arm.xml'
-    err = one_line_error(capsys, urdf if urdf.exists() else DAE, '--tip', 'tool0', '-o', bad)
+    err = one_line_error(capsys, DAE, '--tip', 'tool0', '-o', bad)
     assert 'cannot write' in err and 'No such file or directory' in err
     assert not bad.parent.exists()
 

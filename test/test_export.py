@@ -83,6 +83,9 @@ def test_card_describes_observation_joints_range_step_and_model(tmp_path):
     assert card['action'] == {'size': 2, 'low': [-1.0, -1.0], 'high': [1.0, 1.0],
                               'meaning': card['action']['meaning']}
     assert card['control_step'] == pytest.approx(0.02) and card['frame_skip'] == 2
+    # what policy_node sends a robot: reacher2's motors, gear 200
+    assert card['command_interfaces'] == {'effort': {'unit': 'N m', 'low': [-200.0, -200.0],
+                                                     'high': [200.0, 200.0]}}
     assert card['model'] == 'reacher2' and card['onnx'] == 'policy.onnx'
     assert [(f['name'], f['size']) for f in card['observation']['layout']] == [
         ('cos_q', 2), ('sin_q', 2), ('target', 2), ('qdot', 2), ('fingertip_minus_target', 2)]
