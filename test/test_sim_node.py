@@ -299,6 +299,19 @@ def test_a_round_trip_log_in_a_missing_directory_is_refused_at_start(tmp_path):
 
 
 @pytest.mark.e2e
+def test_a_command_interface_the_arm_lacks_is_refused_at_start(tmp_path):
+    """reacher2 has motors: commands in rad (position servos) cannot drive it."""
+    proc = start_node(tmp_path, 'mode:=real_time', 'command_interface:=position')
+    rc = proc.wait(timeout=60)
+    _, text = stop_node(proc)
+    assert rc == 2, text
+    assert text.strip().splitlines()[-1] == (
+        "configuration error: parameter 'sim_node.command_interface': command_interface "
+        "position needs position actuators; this arm's are joint0 (motor), joint1 (motor) "
+        '(use command_interface effort, or an arm imported with --actuator position)')
+
+
+@pytest.mark.e2e
 def test_lock_step_steps_only_on_the_answer_to_its_transition(tmp_path, client):
     """A second publisher of valid commands cannot step a lock-step simulator out of turn."""
     proc = start_node(tmp_path, 'lock_step_timeout:=5.0')
