@@ -272,8 +272,7 @@ def test_package_uris_resolve_in_the_ament_index_package_paths_and_above_the_urd
         resolve_mesh('package://otherpkg/x.stl', urdf_dir)
 
 
-def test_meshes_are_copied_beside_the_model_and_load_from_any_folder(tmp_path, capsys,
-                                                                      monkeypatch):
+def test_meshes_are_copied_beside_the_model_and_load_anywhere(tmp_path, capsys, monkeypatch):
     """The meshes go to <model>_meshes/, named by absolute path: no folder matters any more."""
     write_stl(tmp_path / 'ws' / 'src' / 'mypkg' / 'meshes' / 'link.stl')
     urdf = with_mesh(tmp_path / 'ws' / 'src' / 'mypkg' / 'urdf' / 'r.urdf',
@@ -335,6 +334,7 @@ def test_a_policy_card_of_an_imported_arm_loads_from_any_folder(tmp_path, capsys
     log.mkdir()
     (log / 'model.xml').write_text(card['model_xml'])   # play's model for sim_node
     task = ArmTask(log / 'model.xml', num_envs=2)
+    task.reset()
     obs, reward, *_ = task.step(np.ones((2, 2)))
     assert np.all(np.isfinite(obs)) and np.all(np.isfinite(reward))
 
@@ -473,6 +473,7 @@ def test_mimic_on_the_chain_couples_and_below_the_tip_is_fixed(tmp_path, capsys)
     np.testing.assert_allclose(model.eq_data[0, :2], [0.2, 0.5])
     task = ArmTask(out, num_envs=1, seed=0, max_episode_steps=None)
     assert task.spec.joint_names == ('joint0', 'joint2')
+    task.reset()
     a0, a1 = (model.joint(n).qposadr[0] for n in ('joint0', 'joint1'))
     data = task.datas[0]
     rng = np.random.default_rng(1)
@@ -509,6 +510,7 @@ def test_a_gripper_below_the_tip_is_fixed_with_its_mass(tmp_path, capsys):
     mujoco.mj_kinematics(model, data)
     np.testing.assert_allclose(data.site('fingertip').xpos, [0.4, 0, 0.1], atol=1e-12)
     task = ArmTask(out, num_envs=2)
+    task.reset()
     for _ in range(25):
         obs, reward, *_ = task.step(np.ones((2, 2)))
     assert np.all(np.isfinite(obs))
@@ -581,6 +583,7 @@ def test_defaults_that_learn_and_what_the_command_says(tmp_path, capsys):
 
     def fastest(path):
         task = ArmTask(path, num_envs=4, seed=0)
+        task.reset()
         rng = np.random.default_rng(0)
         top = 0.0
         for _ in range(50):
@@ -643,8 +646,9 @@ def test_example_robot_data_arms_import_and_simulate(name, example_robot_data, t
     Vendors' URDFs as they ship (COLLADA meshes, massless frames, grippers, continuous joints).
 
     Each imports with the defaults, has its arm joints, and 50 control steps of bang-bang
-    commands from another folder stay finite, every joint within 5x its URDF velocity limit
-    (without velocity damping these reach 10^5 rad/s and MuJoCo resets them as unstable).
+    commands from another folder stay finite, every joint within 3x its URDF velocity limit
+    (seen: 1.0-2.4x; without velocity damping UR5, Z1 and SO-101 reach 10^4-10^8 rad/s and
+    MuJoCo resets them as unstable).
     """
     rel, tip, joints = EXAMPLE_ARMS[name]
     urdf = example_robot_data / 'example-robot-data' / 'robots' / rel
@@ -657,6 +661,12 @@ def test_example_robot_data_arms_import_and_simulate(name, example_robot_data, t
     monkeypatch.chdir(tmp_path)
     task = ArmTask(out, num_envs=2, seed=0)
     assert len(task.spec.joint_names) == task.model.nu == joints
+    # the start pose is inside the limits by the start's noise (a Kinova's zero is not)
+    spec = task.spec
+    low, high = spec.joint_range[spec.joint_limited].T
+    home = spec.init_qpos[spec.joint_limited]
+    assert np.all(home >= low + 0.1 - 1e-6) and np.all(home <= high - 0.1 + 1e-6)
+    task.reset()
     robot = read_urdf(urdf)
     limits = np.array([float(robot.find(f'joint[@name="{j}"]/limit').get('velocity'))
                        for j in task.spec.joint_names])
@@ -667,7 +677,7 @@ def test_example_robot_data_arms_import_and_simulate(name, example_robot_data, t
         assert np.all(np.isfinite(obs)) and np.all(np.isfinite(reward))
         for data in task.datas:
             fastest = np.maximum(fastest, np.abs(data.qvel[task.spec.dof_adr]))
-    assert np.all(fastest < 5 * limits), (fastest, limits)
+    assert np.all(fastest < 3 * limits), (fastest, limits)
 
 
 def shipped_command():

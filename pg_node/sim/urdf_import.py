@@ -46,7 +46,8 @@ for it and then edits the compiled :class:`mujoco.MjSpec` into pg_node's convent
   kept where they are at least ``target_min_height`` high (and within ``target_region``,
   a ball, when given), stored as the custom numeric ``pg_target_points`` (x y z per point,
   0.1 mm resolution); the task draws each goal among them. ``pg_init_qpos`` holds the
-  arm's start pose (``home``, else zero clipped into the limits).
+  arm's start pose (``home``, else zero clipped into the limits less the start's noise,
+  ``init_qpos_noise``).
 * **meshes**: ``package://NAME/REL`` is looked up as ROS does, in ``share/NAME`` of every
   prefix of ``AMENT_PREFIX_PATH``, then in each ``package_paths`` folder (``DIR/NAME/REL``,
   or ``DIR/REL`` when ``DIR`` is the package itself), then in the URDF's folder and each of
@@ -807,8 +808,10 @@ def _build(robot, urdf_path, opts, base, arm, coupled, joints, warnings, command
         home = np.array(opts.home, dtype=float)
         if np.any(home < ranges[:, 0]) or np.any(home > ranges[:, 1]):
             raise UrdfImportError(f'--home {_fmt(home)} is outside the joint limits')
-    else:
-        home = np.clip(0.0, ranges[:, 0], ranges[:, 1])
+    else:   # zero, clipped into the limits with room for the start's noise (a Kinova's
+        # zero is below three of its limits: on them, the noise started it beyond)
+        margin = np.minimum(opts.init_qpos_noise, (ranges[:, 1] - ranges[:, 0]) / 2)
+        home = np.clip(0.0, ranges[:, 0] + margin, ranges[:, 1] - margin)
     model = _compile(spec)
     points = _reachable_points(model, arm, ranges, opts, coupled)
     if len(points) == 0:

@@ -38,7 +38,8 @@ def parser() -> argparse.ArgumentParser:
     p = sub.add_parser('import', help='write an MJCF arm model from a URDF',
                        description='Write an MJCF arm model (fingertip site, mocap target, '
                                    'one actuator per arm joint, reachable targets) from a '
-                                   "URDF, through MuJoCo's URDF compiler.")
+                                   "URDF or xacro file, through MuJoCo's URDF compiler; "
+                                   'see docs/own_arm.md.')
     p.add_argument('urdf', help='the robot description: a .urdf, or a .xacro that is '
                                 'expanded first')
     p.add_argument('--xacro-arg', type=_xacro_arg, action='append', default=[],
@@ -82,7 +83,8 @@ def parser() -> argparse.ArgumentParser:
                         'full torque moves it at most at its velocity limit (default: on, '
                         'unless --damping is given)')
     p.add_argument('--home', type=float, nargs='+', metavar='Q',
-                   help='start pose, one angle per arm joint (default: 0 clipped to limits)')
+                   help='start pose, one angle per arm joint (default: 0, moved 0.1 rad '
+                        'inside the limits where it is not)')
     p.add_argument('--targets', type=positive_int, default=1000,
                    help='reachable target points to store (default: %(default)s)')
     p.add_argument('--target-min-height', type=_height, default=0.0, metavar='Z',
