@@ -247,6 +247,15 @@ def test_cli_error_has_no_traceback(tmp_path):
     assert done.returncode == 1
     assert done.stderr.startswith('arm import: unknown link') and 'Traceback' not in done.stderr
     assert done.stderr.count('\n') == 1
+    # xacro's own errors too (it prints and exits when run as its command)
+    bad = tmp_path / 'bad.urdf.xacro'
+    bad.write_text('<robot name="x" xmlns:xacro="http://www.ros.org/wiki/xacro"><link name="a"/>'
+                   '<xacro:foo/></robot>')
+    done = subprocess.run([sys.executable, '-m', 'pg_node', 'arm', 'import', str(bad),
+                           '--tip', 'a', '-o', str(tmp_path / 'x.xml')],
+                          capture_output=True, text=True, env=env, timeout=60)
+    assert done.returncode == 1 and done.stderr.count('\n') == 1, done.stderr
+    assert done.stderr.startswith(f'arm import: xacro cannot expand {bad}: unknown macro name')
 
 
 def test_package_uris_resolve_in_the_ament_index_package_paths_and_above_the_urdf(

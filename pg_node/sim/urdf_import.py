@@ -551,9 +551,9 @@ def _load_spec(robot: ET.Element, urdf_path: Path, warnings: List[str]):
     model = _compile(spec)
     for link in robot.findall('link'):
         moments = _principal_moments(link)
-        body = model.body(link.get('name')).id
+        body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, link.get('name'))
         now = np.sort(model.body_inertia[body])
-        if (moments is None or moments[0] <= 0 or np.allclose(now, moments, rtol=1e-6)
+        if (moments is None or body < 0 or moments[0] <= 0 or np.allclose(now, moments, rtol=1e-6)
                 or np.ptp(now) > 1e-9 * now.max()):
             continue
         warnings.append(f'link {link.get("name")!r}: MuJoCo rejects its inertia (principal '
@@ -585,8 +585,9 @@ def _mass_warnings(robot: ET.Element, model: mujoco.MjModel, joints: Dict[str, E
         link = links[name]
         inertial = link.find('inertial')
         geometry = bool(link.findall('collision') or link.findall('visual'))
+        body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, name)
         if inertial is None:
-            mass[name] = float(model.body_mass[model.body(name).id]) if link.findall(
+            mass[name] = float(model.body_mass[body]) if body >= 0 and link.findall(
                 'collision') else 0.0
             if mass[name] > BOUND_MASS:
                 from_geometry.append(f'{name} ({mass[name]:.3g} kg)')
