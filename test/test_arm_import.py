@@ -502,6 +502,13 @@ def test_mimic_on_the_chain_couples_and_below_the_tip_is_fixed(tmp_path, capsys)
         fresh.qpos[[a0, a1, model.joint('joint2').qposadr[0]]] = q0, 0.2 + 0.5 * q0, q2
         mujoco.mj_kinematics(model, fresh)
         np.testing.assert_allclose(fresh.site('fingertip').xpos, point, atol=1e-4)
+    # policy_node's observation (measured arm joints only) puts joint1 on its mimic too
+    from pg_node.sim.observation import ObservationBuilder
+    tips = ObservationBuilder(model).fingertips(angles)
+    for tip, (q0, q2) in zip(tips, angles):
+        fresh.qpos[[a0, a1, model.joint('joint2').qposadr[0]]] = q0, 0.2 + 0.5 * q0, q2
+        mujoco.mj_kinematics(model, fresh)
+        np.testing.assert_allclose(tip, fresh.site('fingertip').xpos, atol=1e-12)
 
 
 def test_a_gripper_below_the_tip_is_fixed_with_its_mass(tmp_path, capsys):
@@ -637,12 +644,9 @@ EXAMPLE_ARMS = {
 
 @pytest.fixture(scope='module')
 def example_robot_data():
-    """Return the share/ folder of PyPI's example-robot-data, or skip when not installed."""
-    from importlib.metadata import distribution, PackageNotFoundError
-    try:
-        dist = distribution('example-robot-data')
-    except PackageNotFoundError:
-        pytest.skip('example-robot-data is not installed (pip install example-robot-data)')
+    """Return the share/ folder of PyPI's example-robot-data (requirements.in pins it)."""
+    from importlib.metadata import distribution
+    dist = distribution('example-robot-data')
     share = Path(dist.locate_file('cmeel.prefix/share'))
     assert (share / 'example-robot-data' / 'robots').is_dir(), share
     return share

@@ -129,3 +129,16 @@ def test_train_help_lists_every_shipped_preset(capsys):
         parse_args(['--help'])
     text = ' '.join(capsys.readouterr().out.split())
     assert f"package's config/: {', '.join(preset_names())} (default:" in text
+
+
+def test_a_model_file_is_kept_by_its_absolute_path(tmp_path, monkeypatch):
+    """A run's model:=arm.xml plays and exports from any folder: train stores it absolute."""
+    import shutil
+    from pg_node.common.paths import resolve_model
+    from pg_node.tools.train import parse_args, resolve_config
+    shutil.copy(resolve_model('reacher2'), tmp_path / 'arm.xml')
+    monkeypatch.chdir(tmp_path)
+    cfg = resolve_config(parse_args(['--run-dir', 'r', 'model=arm.xml']))
+    assert cfg['/**']['model'] == str(tmp_path / 'arm.xml')
+    shipped = resolve_config(parse_args(['--run-dir', 'r']))
+    assert shipped['/**']['model'] == 'reacher2'          # a shipped name stays a name

@@ -40,6 +40,25 @@ class ObservationBuilder:
         self.obs_dim = 3 * self.n_joints + 2 * self.spec.target_dim
         self._qpos = self.data.qpos
         self._tip = self.data.site_xpos[self.spec.fingertip_site]
+        # joints moved by a joint equality (a URDF <mimic> on the chain, ``arm import``'s
+        # coupled joints): (its qpos address, the leader's, the polynomial, both references)
+        self._couplings = []
+        for e in range(model.neq):
+            if model.eq_type[e] == mujoco.mjtEq.mjEQ_JOINT and model.eq_active0[e] \
+                    and model.eq_obj2id[e] >= 0:
+                a, b = (int(model.jnt_qposadr[model.eq_obj1id[e]]),
+                        int(model.jnt_qposadr[model.eq_obj2id[e]]))
+                self._couplings.append((a, b, model.eq_data[e, :5].copy(),
+                                        float(model.qpos0[a]), float(model.qpos0[b])))
+
+    def _kinematics(self):
+        """Move the coupled joints as their equalities say, then run forward kinematics."""
+        for _ in range(len(self._couplings)):        # a mimic of a mimic: in enough passes
+            for a, b, poly, ref_a, ref_b in self._couplings:
+                x = self._qpos[b] - ref_b
+                self._qpos[a] = ref_a + poly[0] + x * (poly[1] + x * (poly[2] + x * (
+                    poly[3] + x * poly[4])))
+        mujoco.mj_kinematics(self.model, self.data)
 
     def fingertips(self, q: np.ndarray) -> np.ndarray:
         """Return the fingertip positions ``(N, 3)`` of arms at joint angles ``q (N, nj)``."""
@@ -47,7 +66,7 @@ class ObservationBuilder:
         adr = self.spec.qpos_adr
         for i, angles in enumerate(q):
             self._qpos[adr] = angles
-            mujoco.mj_kinematics(self.model, self.data)
+            self._kinematics()
             out[i] = self._tip
         return out
 
@@ -69,7 +88,7 @@ class ObservationBuilder:
         high = np.where(self.spec.joint_limited, self.spec.joint_range[:, 1], np.pi)
         q = rng.uniform(low, high, size=(samples, self.n_joints))
         self._qpos[self.spec.qpos_adr] = q[0]
-        mujoco.mj_kinematics(self.model, self.data)
+        self._kinematics()
         base = self.data.xanchor[self.spec.joint_ids[0]].copy()
         tips = self.fingertips(q)
         return base, float(np.max(np.linalg.norm(tips - base, axis=1)))

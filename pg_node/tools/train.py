@@ -120,9 +120,14 @@ def resolve_config(args) -> dict:
     from pg_node.common.paths import resolve_model
     from pg_node.sim.arm_task import check_arm, NotAnArm
     try:
-        check_arm(resolve_model(cfg[SHARED]['model']))
+        model = resolve_model(cfg[SHARED]['model'])
+        check_arm(model)
     except NotAnArm as exc:
         raise ConfigError(f"parameter 'model': {exc}") from None
+    if model.suffix == '.xml' and Path(os.path.expanduser(cfg[SHARED]['model'])).is_file():
+        # a file, not a shipped name: absolute, so that the run's checkpoints play, evaluate
+        # and export from any folder
+        cfg[SHARED]['model'] = str(model.resolve())
     return cfg
 
 
