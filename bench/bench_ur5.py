@@ -1,4 +1,4 @@
-"""
+r"""
 Benchmark: a vendor arm as it ships, learned in 3-D through the ROS graph (issue 31).
 
 Imports the UR5 of PyPI's ``example-robot-data`` (``ur5_joint_limited_robot.urdf``, tip
@@ -7,7 +7,7 @@ compensation), a start pose and a target region, then trains it through the grap
 ``arm7`` preset (PPO) and prints the evaluation: mean return, mean final fingertip distance
 and the share of episodes that end within 2 cm, with the steps per second::
 
-    AMENT_PREFIX_PATH=$PWD/.venv .venv/bin/python bench/bench_ur5.py --out /tmp/ur5 \\
+    AMENT_PREFIX_PATH=$PWD/.venv .venv/bin/python bench/bench_ur5.py --out /tmp/ur5 \
         [--steps 5000000] [--seed 0] [--full-workspace]
 
 ``--full-workspace`` keeps targets anywhere the arm reaches (no region): what the first
@@ -52,8 +52,8 @@ def main() -> int:
     print('| arm | targets | steps | steps/s | return | final distance (cm) | within 2 cm |')
     print('|---|---|---:|---:|---:|---:|---:|')
     print(f"| UR5 | {'workspace' if args.full_workspace else 'ball 0.3 m'} | "
-          f"{summary.get('env_steps', args.steps):,} | "
-          f"{summary.get('steps_per_second', float('nan')):,.0f} | "
+          f"{summary['total_steps']:,} | "
+          f"{summary['steps_per_second']:,.0f} | "
           f"{summary['eval_return']:.2f} | {100 * summary['eval_final_distance']:.2f} | "
           f"{100 * summary['eval_reached']:.0f}% |")
     return 0
