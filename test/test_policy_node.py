@@ -718,7 +718,8 @@ def test_lifecycle_configure_checks_activate_ramps_deactivate_holds(tmp_path, cl
     obs = ObservationBuilder(model)(q[None], qd[None], np.array([goal]))
     want = GEAR * np.clip(trained['policy'].mean(obs), -1, 1)[0]
     pol = start(tmp_path, 'pg_node.ros.policy_node', f'policy:={trained["onnx"]}',
-                'state_timeout:=5.0', f'control_rate:={rate}', f'ramp_time:={ramp}')
+                'state_timeout:=5.0', f'control_rate:={rate}', f'ramp_time:={ramp}',
+                f'record:={tmp_path / "rec"}')
     stop = threading.Event()
 
     def feed():
@@ -752,6 +753,7 @@ def test_lifecycle_configure_checks_activate_ramps_deactivate_holds(tmp_path, cl
             after = [c for t, c in client.commands if t > deactivated + 0.1]
         assert transition_to(client, 'cleanup')
         assert lifecycle_state(client) == 'unconfigured'
+        assert transition_to(client, 'configure')           # a new record, not the old one
     finally:
         stop.set()
         code, log = processes.stop_logged(pol)
@@ -767,6 +769,8 @@ def test_lifecycle_configure_checks_activate_ramps_deactivate_holds(tmp_path, cl
     assert abs(shares[-1] - 1.0) < 1e-6, shares
     assert 0.6 * ramp * rate <= np.sum(shares < 1 - 1e-6) <= 1.5 * ramp * rate, shares
     assert not cmds[-1].any() and not after                 # one hold, then silence
+    assert (tmp_path / 'rec' / 'metadata.yaml').is_file()
+    assert (tmp_path / 'rec_1' / 'metadata.yaml').is_file()
 
 
 def test_guards_act_on_sim_node_and_every_tick_is_recorded(tmp_path, client, trained):

@@ -201,6 +201,7 @@ class PolicyNode(LifecycleNode):
         self.raw_targets: Dict[str, np.ndarray] = {}    # frame_id -> point, as received
         self.targets: Dict[object, np.ndarray] = {}     # 'base' or arm index -> goal
         self.description = None             # robot_description, when published
+        self.records_opened = 0
         self.stale = False
         self.estop = False                  # latched until ~/reset_estop
         self.status = 'unconfigured: waiting for configure'
@@ -307,13 +308,18 @@ class PolicyNode(LifecycleNode):
         warm_ms = 1e3 * (time.perf_counter() - t0) / WARM_UP
         digest = file_digest(policy.source)
         if p['record']:
+            # a configure after a cleanup records into <record>_1, _2...: a bag is never reused
+            path = Path(p['record']).expanduser()
+            if self.records_opened:
+                path = path.with_name(f'{path.name}_{self.records_opened}')
             try:
-                self.recorder = BagWriter(Path(p['record']).expanduser(), custom_data={
+                self.recorder = BagWriter(path, custom_data={
                     'policy': policy.describe(), 'policy_sha256': digest,
                     'command_interface': interface})
                 self.recorder.add_topic(TICKS_TOPIC, Float64MultiArray)
             except (OSError, ValueError) as exc:
                 return f"parameter 'policy_node.record': {exc}"
+            self.records_opened += 1
         self.policy, self.builder, self.actuation = policy, builder, actuation
         self.guard = CommandGuard(model, joints, interface, self.settings)
         self.joints, self.digest = joints, digest
