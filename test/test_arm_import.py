@@ -498,17 +498,19 @@ def test_mimic_on_the_chain_couples_and_below_the_tip_is_fixed(tmp_path, capsys)
     points = task.spec.target_points
     angles = np.random.default_rng(0).uniform([-2.5, -2.5], [2.5, 2.5], size=(20, 2))
     fresh = mujoco.MjData(model)
-    for point, (q0, q2) in zip(points, angles):
+
+    def coupled_tip(q0, q2):
         fresh.qpos[[a0, a1, model.joint('joint2').qposadr[0]]] = q0, 0.2 + 0.5 * q0, q2
         mujoco.mj_kinematics(model, fresh)
-        np.testing.assert_allclose(fresh.site('fingertip').xpos, point, atol=1e-4)
+        return fresh.site('fingertip').xpos.copy()
+
+    for point, (q0, q2) in zip(points, angles):
+        np.testing.assert_allclose(coupled_tip(q0, q2), point, atol=1e-4)
     # policy_node's observation (measured arm joints only) puts joint1 on its mimic too
     from pg_node.sim.observation import ObservationBuilder
     tips = ObservationBuilder(model).fingertips(angles)
     for tip, (q0, q2) in zip(tips, angles):
-        fresh.qpos[[a0, a1, model.joint('joint2').qposadr[0]]] = q0, 0.2 + 0.5 * q0, q2
-        mujoco.mj_kinematics(model, fresh)
-        np.testing.assert_allclose(tip, fresh.site('fingertip').xpos, atol=1e-12)
+        np.testing.assert_allclose(tip, coupled_tip(q0, q2), atol=1e-12)
 
 
 def test_a_gripper_below_the_tip_is_fixed_with_its_mass(tmp_path, capsys):
