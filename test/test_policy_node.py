@@ -860,3 +860,54 @@ def test_trajectory_message_carries_efforts_for_a_trajectory_controller(
     np.testing.assert_array_equal(point.positions, q)
     np.testing.assert_array_equal(point.velocities, qd)
     assert (point.time_from_start.sec, point.time_from_start.nanosec) == (0, 40_000_000)
+
+
+#: a stand-in for tf2_ros (not on PyPI): the API policy_node uses, one transform known
+TF2_STUB = '''
+from types import SimpleNamespace as NS
+
+
+class Buffer:
+    def lookup_transform(self, target, source, time):
+        if (target, source) != ('base_link', 'camera'):
+            raise LookupError(f'no transform from {source} to {target}')
+        c = 2 ** -0.5                  # 90 degrees about z, then 5 cm along x
+        return NS(transform=NS(translation=NS(x=0.05, y=0.0, z=0.0),
+                               rotation=NS(w=c, x=0.0, y=0.0, z=c)))
+
+
+class TransformListener:
+    def __init__(self, buffer, node):
+        self.buffer, self.node = buffer, node
+'''
+
+
+def test_another_frame_goes_through_tf2_where_it_is_installed(tmp_path, client, trained):
+    """With tf2_ros importable, a target in 'camera' is transformed into the base frame."""
+    stub = tmp_path / 'stub' / 'tf2_ros'
+    stub.mkdir(parents=True)
+    (stub / '__init__.py').write_text(TF2_STUB)
+    env = processes.child_env(DOMAIN_ID)
+    env['PYTHONPATH'] += f':{stub.parent}'
+    q, qd = np.array([0.3, -1.2]), np.array([0.5, -0.25])
+    pol = processes.start_logged(
+        [sys.executable, '-m', 'pg_node.ros.policy_node', '--ros-args', '-p',
+         f'policy:={trained["onnx"]}', '-p', 'autostart:=true', '-p', 'state_timeout:=5.0'],
+        tmp_path / 'policy_node.log', env)
+    try:
+        client.wait(lambda: any(m.startswith('waiting') for m, _ in client.diagnostics),
+                    what='policy_node to load its policy')
+        client.send_target('nowhere', [0.1, 0.0, 0.01])
+        client.send_target('camera', [0.1, 0.0, 0.01])
+        client.send_state(PLAIN, q, qd)
+        client.wait(lambda: client.commands, what='a command')
+        cmd = client.commands[-1][1]
+    finally:
+        code, log = processes.stop_logged(pol)
+    assert code == 0, log[-2000:]
+    assert "ignored targets in frame 'nowhere': no transform to 'base_link'" in log
+    model = mujoco.MjModel.from_xml_string(trained['policy'].card['model_xml'])
+    goal = np.array([[0.05, 0.1, 0.01]])            # (0.1, 0, 0.01) turned, then moved
+    want = GEAR * np.clip(trained['policy'].mean(
+        ObservationBuilder(model)(q[None], qd[None], goal)), -1, 1)[0]
+    np.testing.assert_allclose(cmd, want, atol=1e-3)
