@@ -863,7 +863,7 @@ def test_trajectory_message_carries_efforts_for_a_trajectory_controller(
 
 
 #: a stand-in for tf2_ros (not on PyPI): the API policy_node uses, one transform known
-TF2_STUB = '''
+TF2_STUB = """
 from types import SimpleNamespace as NS
 
 
@@ -879,7 +879,7 @@ class Buffer:
 class TransformListener:
     def __init__(self, buffer, node):
         self.buffer, self.node = buffer, node
-'''
+"""
 
 
 def test_another_frame_goes_through_tf2_where_it_is_installed(tmp_path, client, trained):
