@@ -480,6 +480,16 @@ def test_targets_out_of_reach_are_clamped_and_other_frames_refused(
     np.testing.assert_allclose(cmd, want, atol=1e-6)
 
 
+def feed_until_commanded(client, q, qd, timeout=30.0):
+    """Send fresh joint states until the first command comes back (the target came too)."""
+    deadline = time.monotonic() + timeout
+    while not client.commands:
+        assert time.monotonic() < deadline, 'no command: policy_node has no target or state'
+        client.send_state(PLAIN, q, qd)
+        time.sleep(0.02)
+    return client.commands[0][1]
+
+
 def test_state_age_is_read_from_header_stamp(tmp_path, client, trained):
     """
     Read the state's age from header.stamp too, not only from its arrival.
@@ -504,6 +514,7 @@ def test_state_age_is_read_from_header_stamp(tmp_path, client, trained):
         client.wait(lambda: any(m.startswith('waiting') for m, _ in client.diagnostics),
                     what='policy_node to load its policy')
         client.send_target('', [0.1, 0.1, 0.01])
+        feed_until_commanded(client, q, qd)
         fresh, old, _, ahead, unstamped = run(0.0), run(-1.0), run(0.0), run(1.0), run(None)
     finally:
         code, log = processes.stop_logged(pol)
@@ -546,11 +557,7 @@ def test_position_interface_commands_angles_and_holds_where_the_arm_is(
         client.wait(lambda: any(m.startswith('waiting') for m, _ in client.diagnostics),
                     what='policy_node to load its policy')
         client.send_target('', goal)
-        for _ in range(10):
-            client.send_state(PLAIN, q, qd)
-            time.sleep(0.02)
-        client.wait(lambda: client.commands, what='a command')
-        commanded = client.commands[-1][1]
+        commanded = feed_until_commanded(client, q, qd)
         sent = time.monotonic()
         client.wait(lambda: client.commands[-1][0] > sent + 0.6, what='stale ticks')
         held = client.commands[-1][1]
@@ -706,6 +713,7 @@ def test_lifecycle_configure_checks_activate_ramps_deactivate_holds(tmp_path, cl
     deactivate sends one zero and stops; configure refuses a robot_description of another
     arm, in one line, and takes reacher2's own.
     """
+    import hashlib
     from std_msgs.msg import String
     rate, ramp = 50.0, 0.6
     description_qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
@@ -734,11 +742,14 @@ def test_lifecycle_configure_checks_activate_ramps_deactivate_holds(tmp_path, cl
         assert lifecycle_state(client) == 'unconfigured'
         client.send_target('', goal)
         feeder.start()
-        pub_description.publish(String(data=urdf.replace('xyz="0.1 0 0"', 'xyz="0.2 0 0"')))
-        time.sleep(0.5)
-        assert not transition_to(client, 'configure')
-        pub_description.publish(String(data=urdf))
-        time.sleep(0.5)
+        for text in (urdf.replace('xyz="0.1 0 0"', 'xyz="0.2 0 0"'), urdf):
+            pub_description.publish(String(data=text))
+            # the event itself: the node's diagnostics name the description it holds
+            digest = hashlib.sha256(text.encode()).hexdigest()[:12]
+            client.wait(lambda: client.diagnostics[-1][1].get('robot_description') == digest,
+                        what='policy_node to hold the robot_description')
+            if text != urdf:
+                assert not transition_to(client, 'configure')
         assert transition_to(client, 'configure')
         assert lifecycle_state(client) == 'inactive'
         time.sleep(0.5)
@@ -767,7 +778,8 @@ def test_lifecycle_configure_checks_activate_ramps_deactivate_holds(tmp_path, cl
                                atol=1e-3)       # N m: the ONNX policy here, torch's there
     assert shares[0] < 0.2 and np.all(np.diff(shares) >= -1e-6), shares
     assert abs(shares[-1] - 1.0) < 1e-6, shares
-    assert 0.6 * ramp * rate <= np.sum(shares < 1 - 1e-6) <= 1.5 * ramp * rate, shares
+    # about ramp x rate ramped ticks; a loaded machine may run late ticks together
+    assert 0.3 * ramp * rate <= np.sum(shares < 1 - 1e-6) <= 1.5 * ramp * rate, shares
     assert not cmds[-1].any() and not after                 # one hold, then silence
     assert (tmp_path / 'rec' / 'metadata.yaml').is_file()
     assert (tmp_path / 'rec_1' / 'metadata.yaml').is_file()

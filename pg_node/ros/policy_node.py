@@ -704,6 +704,8 @@ class PolicyNode(LifecycleNode):
             num_arms=self.num_arms if self._index is not None else 'n/a',
             policy=self.policy.describe() if self.policy is not None else 'not loaded',
             policy_sha256=self.digest if self.policy is not None else 'n/a',
+            robot_description=(hashlib.sha256(self.description.encode()).hexdigest()[:12]
+                               if self.description is not None else 'none'),
             **self.counters)
         # diagnostic_updater's habits: idle WARN, stale or stopped ERROR
         level = (DiagnosticStatus.OK if self.status == 'commanding'
