@@ -619,10 +619,18 @@ def test_joint_columns_examples_and_parameter_descriptors():
     for name, param in POLICY_PARAMS.items():
         d = descriptor(param)
         assert d.read_only == (not param.live), name
+        ranges = list(d.integer_range) + list(d.floating_point_range)
         if param.low is not None:
-            ranges = list(d.integer_range) + list(d.floating_point_range)
             assert ranges and ranges[0].from_value == param.low, name
+        if param.high is not None:
+            assert ranges and ranges[0].to_value == param.high, name
+        if param.choices is not None:
+            assert all(repr(c) in d.additional_constraints for c in param.choices), name
+        # every number has its range: a float or int parameter without one is an oversight
+        if type(param.default) in (int, float):
+            assert ranges, name
     assert POLICY_PARAMS['state_timeout'].live and not POLICY_PARAMS['policy'].live
+    assert not POLICY_PARAMS['command_interface'].live      # the robot's wiring: read only
 
 
 def test_play_prints_episodes_and_writes_a_gif(tmp_path, trained):
