@@ -142,13 +142,6 @@ def checkpoint_card(state: dict, file: Path) -> Dict:
                      frame_skip, source)
 
 
-def control_range(card: Dict) -> Tuple[np.ndarray, np.ndarray]:
-    """Return the card's control range as two arrays (``-inf``/``inf`` where unlimited)."""
-    low = np.array([-np.inf if v is None else v for v in card['action']['low']])
-    high = np.array([np.inf if v is None else v for v in card['action']['high']])
-    return low, high
-
-
 class TrainedPolicy:
     """A policy and its card; :meth:`mean_std` maps observations ``(N, D)`` to ``(N, A)``."""
 

@@ -93,7 +93,7 @@ import mujoco
 import numpy as np
 from pg_node.bag.writer import BagWriter
 from pg_node.common.params import ConfigError, POLICY_PARAMS
-from pg_node.rl.trained_policy import control_range, load_trained_policy, PolicySourceError
+from pg_node.rl.trained_policy import load_trained_policy, PolicySourceError
 from pg_node.ros import command
 from pg_node.ros import table_msg
 from pg_node.ros.node_utils import Diagnostics, RateCounter, run
@@ -324,7 +324,6 @@ class PolicyNode(LifecycleNode):
         self.guard = CommandGuard(model, joints, interface, self.settings)
         self.joints, self.digest = joints, digest
         self.policy_id = int(digest[:12], 16)
-        self.low, self.high = control_range(card)
         self.act_dim = policy.act_dim
         self.base, self.reach = builder.reach()
         self.rng = np.random.default_rng(p['seed'])
