@@ -835,6 +835,7 @@ def test_guards_act_on_sim_node_and_every_tick_is_recorded(tmp_path, client, tra
     assert change[~into_hold].max() <= max_change * 2 * GEAR + 1e-6, change[~into_hold].max()
     assert into_hold.any() and np.isclose(change[~into_hold].max(), max_change * 2 * GEAR)
     assert 'over-speed guard' in log and float(diag['commands_per_second']) > 0
+    assert float(diag['load_seconds']) > 0 and diag['lifecycle'] == 'active'
     assert not cmds[-1].any()                               # SIGINT: one zero at the end
     ticks = [tick_from_msg(m.ros_msg) for m in read_ros2_messages(
         str(next(record.glob('*.mcap'))))]

@@ -323,6 +323,7 @@ class PolicyNode(LifecycleNode):
         self.policy, self.builder, self.actuation = policy, builder, actuation
         self.guard = CommandGuard(model, joints, interface, self.settings)
         self.joints, self.digest = joints, digest
+        self.load_seconds, self.warm_up_ms = load_seconds, warm_ms
         self.policy_id = int(digest[:12], 16)
         self.act_dim = policy.act_dim
         self.base, self.reach = builder.reach()
@@ -703,6 +704,9 @@ class PolicyNode(LifecycleNode):
             num_arms=self.num_arms if self._index is not None else 'n/a',
             policy=self.policy.describe() if self.policy is not None else 'not loaded',
             policy_sha256=self.digest if self.policy is not None else 'n/a',
+            load_seconds=round(self.load_seconds, 3) if self.policy is not None else 'n/a',
+            warm_up_ms_per_call=(round(self.warm_up_ms, 3) if self.policy is not None
+                                 else 'n/a'),
             robot_description=(hashlib.sha256(self.description.encode()).hexdigest()[:12]
                                if self.description is not None else 'none'),
             **self.counters)
