@@ -130,5 +130,5 @@ def test_hold_is_zero_effort_or_the_measured_angles():
     (lambda t: t[:40], 'robot_description does not compile'),
 ])
 def test_kinematics_check_finds_another_arm(edit, words):
-    got = compare_kinematics(REACHER, JOINTS, edit(URDF.read_text()))
+    got = compare_kinematics(REACHER, edit(URDF.read_text()))
     assert (got is None) if words is None else (words in got), got

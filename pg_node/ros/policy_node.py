@@ -201,6 +201,7 @@ class PolicyNode(LifecycleNode):
         self.raw_targets: Dict[str, np.ndarray] = {}    # frame_id -> point, as received
         self.targets: Dict[object, np.ndarray] = {}     # 'base' or arm index -> goal
         self.description = None             # robot_description, when published
+        self.description_digest = 'none'    # its sha256's first 12 digits, for diagnostics
         self.records_opened = 0
         self.stale = False
         self.estop = False                  # latched until ~/reset_estop
@@ -298,7 +299,7 @@ class PolicyNode(LifecycleNode):
             except ConfigError as exc:
                 return str(exc)
         if self.description is not None:
-            reason = compare_kinematics(model, joints, self.description)
+            reason = compare_kinematics(model, self.description)
             if reason is not None:
                 return f"robot_description is not the policy's arm: {reason}"
         load_seconds = time.perf_counter() - t0
@@ -306,7 +307,8 @@ class PolicyNode(LifecycleNode):
         for _ in range(WARM_UP):                # the first calls allocate; not on the robot
             policy.mean_std(np.zeros((max(self.num_arms, 1), policy.obs_dim)))
         warm_ms = 1e3 * (time.perf_counter() - t0) / WARM_UP
-        digest = file_digest(policy.source)
+        with open(policy.source, 'rb') as f:
+            digest = hashlib.file_digest(f, 'sha256').hexdigest()
         if p['record']:
             # a configure after a cleanup records into <record>_1, _2...: a bag is never reused
             path = Path(p['record']).expanduser()
@@ -325,7 +327,6 @@ class PolicyNode(LifecycleNode):
         self.joints, self.digest = joints, digest
         self.load_seconds, self.warm_up_ms = load_seconds, warm_ms
         self.policy_id = int(digest[:12], 16)
-        self.act_dim = policy.act_dim
         self.base, self.reach = builder.reach()
         self.rng = np.random.default_rng(p['seed'])
         self.lifecycle = 'inactive'
@@ -451,6 +452,7 @@ class PolicyNode(LifecycleNode):
     def on_description(self, msg: String):
         """Keep ``robot_description`` (URDF) for the kinematics check on configure."""
         self.description = msg.data
+        self.description_digest = hashlib.sha256(msg.data.encode()).hexdigest()[:12]
 
     def on_estop(self, msg: Bool):
         """Latch the e-stop on ``true`` (``false`` leaves it as it is)."""
@@ -626,8 +628,7 @@ class PolicyNode(LifecycleNode):
                 self.counters[f'guard_{kind}'] += 1
                 if kind in WARNED:
                     self.get_logger().warning(WARNED[kind], throttle_duration_sec=1.0)
-        self.publish(cmd)
-        self.record(obs, mean, act, cmd, age)
+        self.record(cmd, self.publish(cmd), age, obs, mean, act)
         self.ages.append(time.monotonic() - self.state_time)
         self.status = 'commanding'
 
@@ -635,13 +636,10 @@ class PolicyNode(LifecycleNode):
         """Publish the hold command: zero effort, or the newest measured angles held."""
         hold = self.guard.hold(self.q, self.num_arms)
         self.guard.sent(hold)
-        self.publish(hold, hold=True)
-        obs = np.full((self.num_arms, self.policy.obs_dim), np.nan)
-        act = np.full((self.num_arms, self.act_dim), np.nan)
-        self.record(obs, act, act, hold, np.nan)
+        self.record(hold, self.publish(hold, hold=True), np.nan)
 
-    def publish(self, ctrl: np.ndarray, hold: bool = False):
-        """Publish controls ``ctrl`` (arms x actuators) as a command in SI units."""
+    def publish(self, ctrl: np.ndarray, hold: bool = False) -> np.ndarray:
+        """Publish controls ``ctrl`` (arms x actuators) in SI units; return those."""
         si = self.actuation.to_si(ctrl, self.guard.interface)
         if self.params['command_message'] == 'trajectory':
             self.pub.publish(self.trajectory(si))
@@ -650,6 +648,7 @@ class PolicyNode(LifecycleNode):
         self.counters['commands'] += 1
         self.counters['hold_commands'] += int(hold)
         self.rate.add()
+        return si
 
     def trajectory(self, si: np.ndarray) -> JointTrajectory:
         """
@@ -676,13 +675,21 @@ class PolicyNode(LifecycleNode):
                                                     for n in names]
         return msg
 
-    def record(self, obs, mean, action, cmd, age):
-        """Write one tick into the record: per arm what came in, what the guards made of it."""
+    def record(self, cmd, si, age, obs=None, mean=None, action=None):
+        """
+        Write one tick into the record: per arm what came in, what the guards made of it.
+
+        ``cmd`` and ``si``: the command sent, in controls and in SI units; a hold has no
+        observation, mean or action (NaN in the record).
+        """
         if self.recorder is None:
             return
         arms = len(cmd)
+        if obs is None:
+            obs = np.full((arms, self.policy.obs_dim), np.nan)
+            mean = action = np.full((arms, self.policy.act_dim), np.nan)
         fields = dict(zip(TICK_FIELDS, (np.arange(arms), np.full(arms, age), obs, mean, action,
-                                        cmd, self.actuation.to_si(cmd, self.guard.interface))))
+                                        cmd, si)))
         stamp = self.get_clock().now().nanoseconds
         msg = table_msg.to_msg(*table_msg.pack([stamp * 1e-9, self.policy_id], fields))
         self.recorder.write(TICKS_TOPIC, msg, time.time_ns())
@@ -707,8 +714,7 @@ class PolicyNode(LifecycleNode):
             load_seconds=round(self.load_seconds, 3) if self.policy is not None else 'n/a',
             warm_up_ms_per_call=(round(self.warm_up_ms, 3) if self.policy is not None
                                  else 'n/a'),
-            robot_description=(hashlib.sha256(self.description.encode()).hexdigest()[:12]
-                               if self.description is not None else 'none'),
+            robot_description=self.description_digest,
             **self.counters)
         # diagnostic_updater's habits: idle WARN, stale or stopped ERROR
         level = (DiagnosticStatus.OK if self.status == 'commanding'
@@ -721,15 +727,6 @@ def tick_from_msg(msg: Float64MultiArray):
     """Return ``(header, {field: (arms, width)})`` of a recorded tick (header: stamp, id)."""
     return table_msg.unpack(*table_msg.from_msg(msg), header_size=2,
                             widths=dict.fromkeys(TICK_FIELDS))
-
-
-def file_digest(path: Path) -> str:
-    """Return the sha256 of the file ``path`` in hex."""
-    h = hashlib.sha256()
-    with open(path, 'rb') as f:
-        for block in iter(lambda: f.read(1 << 20), b''):
-            h.update(block)
-    return h.hexdigest()
 
 
 def quat_rotate(wxyz, v: np.ndarray) -> np.ndarray:

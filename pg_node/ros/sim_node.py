@@ -166,9 +166,9 @@ class SimNode(Node):
         self.params = p
         self.interface = p['command_interface']
         self.actuation = Actuation(self.task.model)
-        if self.interface != 'control' and self.actuation.check(self.interface):
-            raise ConfigError(f"parameter 'sim_node.command_interface': "
-                              f'{self.actuation.check(self.interface)}')
+        refused = self.interface != 'control' and self.actuation.check(self.interface)
+        if refused:
+            raise ConfigError(f"parameter 'sim_node.command_interface': {refused}")
         self.run = RunGuard(self, p['run_id'])
         self.end_with_learner = EndWithLearner(self, self.run)   # ros2 run: end with it
         n, spec = self.task.num_envs, self.task.spec

@@ -38,10 +38,7 @@ class Actuation:
         self.b0, self.b1, self.b2 = (model.actuator_biasprm[:, k].copy() for k in range(3))
         self.gear = model.actuator_gear[:, 0].copy()
         self.joint = model.actuator_trnid[:, 0].copy()
-        self.ctrl_low = model.actuator_ctrlrange[:, 0].copy()
-        self.ctrl_high = model.actuator_ctrlrange[:, 1].copy()
-        limited = model.actuator_ctrllimited.astype(bool)
-        self.ctrl_low[~limited], self.ctrl_high[~limited] = -np.inf, np.inf
+        self.ctrl_low, self.ctrl_high = ctrl_range(model)
         affine = ((model.actuator_dyntype == mujoco.mjtDyn.mjDYN_NONE)
                   & (model.actuator_gaintype == mujoco.mjtGain.mjGAIN_FIXED)
                   & (model.actuator_trntype == mujoco.mjtTrn.mjTRN_JOINT)
@@ -93,6 +90,13 @@ class Actuation:
                 out[interface] = {'unit': unit, 'low': [_finite(v) for v in low],
                                   'high': [_finite(v) for v in high]}
         return out
+
+
+def ctrl_range(model: mujoco.MjModel):
+    """Return each actuator's control range ``(low, high)``, infinite where unlimited."""
+    limited = model.actuator_ctrllimited.astype(bool)
+    return (np.where(limited, model.actuator_ctrlrange[:, 0], -np.inf),
+            np.where(limited, model.actuator_ctrlrange[:, 1], np.inf))
 
 
 def _finite(value: float):

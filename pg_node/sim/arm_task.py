@@ -66,6 +66,7 @@ from typing import List, Mapping, Optional
 import mujoco
 import numpy as np
 from pg_node.common.perturbations import parse_terms
+from pg_node.sim.actuation import ctrl_range
 from pg_node.sim.randomization import Randomizer
 
 FINGERTIP_SITE = 'fingertip'
@@ -129,6 +130,11 @@ class ArmSpec:
     init_qpos: Optional[np.ndarray] = None
     target_points: Optional[np.ndarray] = None
 
+    def angle_bounds(self):
+        """Return ``(low, high)`` of the arm joints: their limits, a full turn where none."""
+        return (np.where(self.joint_limited, self.joint_range[:, 0], -np.pi),
+                np.where(self.joint_limited, self.joint_range[:, 1], np.pi))
+
     @classmethod
     def from_model(cls, model: mujoco.MjModel) -> 'ArmSpec':
         """Read the conventions documented in the module docstring; raise NotAnArm if unmet."""
@@ -191,6 +197,7 @@ class ArmSpec:
         # bodies that carry an arm joint, and the fingertip's, to draw the links
         chain = sorted({int(model.jnt_bodyid[j]) for j in joint_ids}
                        | {int(model.site_bodyid[site])})
+        ctrl_low, ctrl_high = ctrl_range(model)
         return cls(
             joint_names=names,
             joint_ids=joint_ids,
@@ -199,10 +206,8 @@ class ArmSpec:
             joint_range=model.jnt_range[joint_ids].copy(),
             joint_limited=model.jnt_limited[joint_ids].astype(bool),
             actuator_names=tuple(act_names),
-            ctrl_low=np.where(model.actuator_ctrllimited.astype(bool),
-                              model.actuator_ctrlrange[:, 0], -np.inf),
-            ctrl_high=np.where(model.actuator_ctrllimited.astype(bool),
-                               model.actuator_ctrlrange[:, 1], np.inf),
+            ctrl_low=ctrl_low,
+            ctrl_high=ctrl_high,
             fingertip_site=site,
             target_body=body,
             target_mocap=mocap,

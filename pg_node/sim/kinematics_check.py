@@ -14,6 +14,7 @@ import xml.etree.ElementTree as ET
 
 import mujoco
 import numpy as np
+from pg_node.sim.arm_task import ArmSpec
 
 #: metres and unit-vector components: anchors and axes that differ less are the same
 TOLERANCE = 1e-3
@@ -44,9 +45,10 @@ def _pose(model: mujoco.MjModel, joints: Sequence[str], q: np.ndarray):
     return anchors, data.xaxis[ids]
 
 
-def compare_kinematics(model: mujoco.MjModel, joints: Sequence[str], urdf: str,
-                       seed: int = 0) -> Optional[str]:
-    """Return how ``urdf`` differs from ``model`` on ``joints`` (one line), or None."""
+def compare_kinematics(model: mujoco.MjModel, urdf: str, seed: int = 0) -> Optional[str]:
+    """Return how ``urdf`` differs from the arm ``model`` on its arm joints (one line), or None."""
+    spec = ArmSpec.from_model(model)
+    joints = list(spec.joint_names)
     try:
         other = _urdf_model(urdf)
     except (ET.ParseError, ValueError) as exc:
@@ -60,9 +62,7 @@ def compare_kinematics(model: mujoco.MjModel, joints: Sequence[str], urdf: str,
         if model.jnt_type[model.joint(j).id] != other.jnt_type[other.joint(j).id]:
             return f'joint {j} is of another type in robot_description'
     rng = np.random.default_rng(seed)
-    ids = [model.joint(j).id for j in joints]
-    low = np.where(model.jnt_limited[ids], model.jnt_range[ids, 0], -np.pi)
-    high = np.where(model.jnt_limited[ids], model.jnt_range[ids, 1], np.pi)
+    low, high = spec.angle_bounds()
     for _ in range(CONFIGURATIONS):
         q = rng.uniform(low, high)
         a, b = _pose(model, joints, q), _pose(other, joints, q)

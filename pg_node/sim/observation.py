@@ -84,8 +84,7 @@ class ObservationBuilder:
         0.21
         """
         rng = np.random.default_rng(seed)
-        low = np.where(self.spec.joint_limited, self.spec.joint_range[:, 0], -np.pi)
-        high = np.where(self.spec.joint_limited, self.spec.joint_range[:, 1], np.pi)
+        low, high = self.spec.angle_bounds()
         q = rng.uniform(low, high, size=(samples, self.n_joints))
         self._qpos[self.spec.qpos_adr] = q[0]
         self._kinematics()

@@ -124,7 +124,7 @@ def resolve_config(args) -> dict:
         check_arm(model)
     except NotAnArm as exc:
         raise ConfigError(f"parameter 'model': {exc}") from None
-    if model.suffix == '.xml' and Path(os.path.expanduser(cfg[SHARED]['model'])).is_file():
+    if model == Path(os.path.expanduser(cfg[SHARED]['model'])):
         # a file, not a shipped name: absolute, so that the run's checkpoints play, evaluate
         # and export from any folder
         cfg[SHARED]['model'] = str(model.resolve())
