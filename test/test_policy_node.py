@@ -833,7 +833,9 @@ def test_guards_act_on_sim_node_and_every_tick_is_recorded(tmp_path, client, tra
     change = np.abs(np.diff(per_arm, axis=0)).max(axis=2)
     into_hold = ~per_arm[1:].any(axis=2)
     assert change[~into_hold].max() <= max_change * 2 * GEAR + 1e-6, change[~into_hold].max()
-    assert into_hold.any() and np.isclose(change[~into_hold].max(), max_change * 2 * GEAR)
+    # it acted (counted); the limited change itself may be cut further by the joint-limit
+    # guard or replaced by an over-speed hold in the same tick, so no change need equal it
+    assert into_hold.any() and int(diag['guard_rate_limited']) > 0
     assert 'over-speed guard' in log and float(diag['commands_per_second']) > 0
     assert float(diag['load_seconds']) > 0 and diag['lifecycle'] == 'active'
     assert not cmds[-1].any()                               # SIGINT: one zero at the end
