@@ -457,9 +457,7 @@ def test_targets_out_of_reach_are_clamped_and_other_frames_refused(
         client.wait(lambda: client.diagnostics[-1][1]['targets_out_of_reach'] == '3'
                     and client.diagnostics[-1][1]['targets_ignored'] == '6',
                     what='the targets counted in /diagnostics')
-        client.send_state(PLAIN, q, qd)
-        client.wait(lambda: client.commands, what='a command')
-        cmd = client.commands[-1][1]
+        cmd = feed_until_commanded(client, q, qd)
     finally:
         code, log = processes.stop_logged(pol)
     assert code == 0, log[-2000:]
@@ -922,9 +920,7 @@ def test_another_frame_goes_through_tf2_where_it_is_installed(tmp_path, client, 
                     what='policy_node to load its policy')
         client.send_target('nowhere', [0.1, 0.0, 0.01])
         client.send_target('camera', [0.1, 0.0, 0.01])
-        client.send_state(PLAIN, q, qd)
-        client.wait(lambda: client.commands, what='a command')
-        cmd = client.commands[-1][1]
+        cmd = feed_until_commanded(client, q, qd)
     finally:
         code, log = processes.stop_logged(pol)
     assert code == 0, log[-2000:]
