@@ -15,6 +15,9 @@ export PYTHONUNBUFFERED := 1
 
 ARGS ?=
 PYTEST_ARGS ?=
+# make test runs the tests in TEST_JOBS processes (pytest-xdist), a file per process at a time,
+# each in DDS domains of its own (test/conftest.py); TEST_JOBS=0 runs them in this process.
+TEST_JOBS ?= 2
 
 .PHONY: all venv train test test-fast lint bench bench-quick bench-sim profile variance lock clean
 
@@ -47,10 +50,10 @@ train: $(STAMP)
 	$(PY) -m pg_node train $(ARGS)
 
 test: $(STAMP)
-	$(PY) -m pytest $(PYTEST_ARGS)
+	$(PY) -m pytest -n $(TEST_JOBS) --dist loadfile $(PYTEST_ARGS)
 
 test-fast: $(STAMP)
-	$(PY) -m pytest -m "not slow" $(PYTEST_ARGS)
+	$(PY) -m pytest -n $(TEST_JOBS) --dist loadfile -m "not slow" $(PYTEST_ARGS)
 
 lint: $(STAMP)
 	$(PY) -m pytest test/test_flake8.py test/test_pep257.py
