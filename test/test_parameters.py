@@ -46,8 +46,16 @@ class Client:
     def params(self, node):
         client = AsyncParameterClient(self.node, node)
         assert client.wait_for_services(timeout_sec=30.0), f'{node} has no parameter services'
-        time.sleep(0.5)                     # discovery settles before the first request
-        return client
+        # The services are discovered, but the node's answer may still find no reader of
+        # ours (discovery runs each way on its own): ask a harmless question until one
+        # comes back, so that the test's own requests all have a way back.
+        end = time.monotonic() + 30.0
+        while True:
+            probe = client.list_parameters([], 1)
+            self.executor.spin_until_future_complete(probe, timeout_sec=1.0)
+            if probe.done():
+                return client
+            assert time.monotonic() < end, f'{node} answers no parameter request'
 
     def spin(self, seconds):
         end = time.monotonic() + seconds

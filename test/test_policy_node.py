@@ -820,7 +820,9 @@ def test_guards_act_on_sim_node_and_every_tick_is_recorded(tmp_path, client, tra
         diag = client.diagnostics[-1][1]
         code, log = processes.stop_logged(pol)
         pol = None
-        time.sleep(0.3)
+        # the event, not a pause: the hold command the node sent on SIGINT has arrived
+        client.wait(lambda: client.commands and not client.commands[-1][1].any(),
+                    timeout=10.0, what='the hold command sent on SIGINT')
         with client.lock:
             cmds = np.array([c for _, c in client.commands])
     finally:
