@@ -1,4 +1,4 @@
-"""
+r"""
 Where an in-process training spends its time: per control step and per rollout, medians.
 
 Feeds PROFILE.md, "Where the graph's time goes that in-process does not spend" (the
@@ -17,7 +17,7 @@ whole rollout (one callback to the next) and what the pieces leave of it (the bu
 clipping, bookkeeping). The first ``--skip`` rollouts (start-up) and the evaluation at the
 end are left out::
 
-    AMENT_PREFIX_PATH=$PWD/.venv PYTHONPATH=$PWD .venv/bin/python bench/inprocess_parts.py \\
+    AMENT_PREFIX_PATH=$PWD/.venv PYTHONPATH=$PWD .venv/bin/python bench/inprocess_parts.py \
         200000 [key=value ...] [--config arm7] [--skip 50]
 
 Prints one markdown row per piece: calls counted, median and p90 in ms. Not a test:

@@ -1,4 +1,4 @@
-"""
+r"""
 What the learner spends per batch besides learning, and what rewriting metadata.yaml costs.
 
 Feeds PROFILE.md, "What the learner spends per batch besides learning" (2026-12-01 session:
@@ -31,7 +31,7 @@ Then ``metadata.yaml``: a bag of the recorder's topics split into ``--files`` fi
 ``metadata.yaml`` rewritten ``--meta-repeats`` times (``BagWriter.flush``; the writer does
 it at most once a second and at each split). The file list grows with every split::
 
-    AMENT_PREFIX_PATH=$PWD/.venv PYTHONPATH=$PWD .venv/bin/python bench/learner_batch_cost.py \\
+    AMENT_PREFIX_PATH=$PWD/.venv PYTHONPATH=$PWD .venv/bin/python bench/learner_batch_cost.py \
         [--batches 300] [--files 1,200] [--add-scalar] [--publish] [key=value ...]
 
 Prints two markdown tables of medians. Not a test: nothing is asserted. Run nothing else
@@ -215,7 +215,7 @@ def metadata_cost(model, files: int, repeats: int, tmp: Path):
     from pg_node.ros.learner_node import METRICS
     recorder = EpisodeRecorder(tmp / f'bag_{files}', model, split_max_episodes=0,
                                split_max_bytes=0)
-    metrics = {name: 1.0 for name in METRICS}
+    metrics = dict.fromkeys(METRICS, 1.0)
     try:
         for k in range(files):
             if k:
@@ -258,7 +258,7 @@ def main(argv=None) -> int:
     shared = cfg['/**']
     print(f"learner's work per batch: {args.batches} batches of {shared['num_envs']} arms x "
           f"{cfg['actor_node']['n_steps']} steps after {args.skip} (made in {made:.0f} s), "
-          f"{episodes} episode summaries written, "
+          f'{episodes} episode summaries written, '
           f"record_arms={cfg['learner_node']['record_arms']}; medians")
     print()
     print('| piece, per batch | CPU ms | wall ms |')
@@ -272,7 +272,8 @@ def main(argv=None) -> int:
     print('|---|---|---|')
     for files, seen in meta.items():
         cpu, wall = zip(*seen)
-        print(f"| {files} bag file{'s' if files > 1 else ''} | "
+        plural = 's' if files > 1 else ''
+        print(f'| {files} bag file{plural} | '
               f'{1e3 * statistics.median(cpu):.3f} | {1e3 * statistics.median(wall):.3f} |')
     return 0
 

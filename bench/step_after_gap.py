@@ -1,4 +1,4 @@
-"""
+r"""
 How much slower ``ArmTask.step`` gets after an idle gap, in one process, with no ROS at all.
 
 Feeds PROFILE.md, "Session of 2026-12-02 12:25 UTC", the table "idle gap before each step"
@@ -9,7 +9,7 @@ this shows the same slow-down without any messages: before each step the caller 
 ``gap`` ms, either spinning on ``time.perf_counter`` (its core stays busy) or in
 ``time.sleep`` (the core may idle, the stepping thread too), and only the step is timed::
 
-    AMENT_PREFIX_PATH=$PWD/.venv PYTHONPATH=$PWD .venv/bin/python bench/step_after_gap.py \\
+    AMENT_PREFIX_PATH=$PWD/.venv PYTHONPATH=$PWD .venv/bin/python bench/step_after_gap.py \
         [--arms 64] [--steps 600] [--repeats 4] [--gaps 0,0.9,3] [--modes spin1,sleep2]
 
 A mode is ``spin`` or ``sleep`` followed by the number of stepping threads (``spin1``,
@@ -100,7 +100,7 @@ def main(argv=None) -> int:
         for task in tasks.values():
             task.close()
     print(f'ArmTask.step of {args.arms} arms, median ms of {args.steps} steps, '
-          f'{args.repeats} repeats: the repeats\' range (their median)')
+          f"{args.repeats} repeats: the repeats' range (their median)")
     print()
     print('| idle gap before each step | ' + ' | '.join(f'{g:g} ms' for g in gaps) + ' |')
     print('|---|' + '---|' * len(gaps))
