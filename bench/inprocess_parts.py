@@ -102,7 +102,7 @@ def main(argv=None) -> int:
     parser.add_argument('--skip', type=int, default=50,
                         help='rollouts left out at the start (at least 1: the first holds '
                              'the initial weights load)')
-    args = parser.parse_args(argv)
+    args = parser.parse_intermixed_args(argv)
     from pg_node.common.params import load_config
     from pg_node.common.paths import config_file
     from pg_node.rl.train_inprocess import train_inprocess

@@ -242,7 +242,7 @@ def main(argv=None) -> int:
                         help='also time TensorBoard the old way, add_scalar per metric')
     parser.add_argument('--publish', action='store_true',
                         help='also time publishing the metric messages (rclpy)')
-    args = parser.parse_args(argv)
+    args = parser.parse_intermixed_args(argv)
     from pg_node.common.params import load_config
     import torch
     torch.set_num_threads(1)                        # as the nodes and train_inprocess
