@@ -399,12 +399,12 @@ def test_last_progress_reads_the_newest_finished_row_from_the_tail(tmp_path):
                                         'episode_return': -400.25}
 
 
-def test_readme_parameter_table_is_the_parameter_table():
-    """The README's table is generated from the table the nodes declare (no drift)."""
+def test_docs_parameter_table_is_the_parameter_table():
+    """docs/ros_graph.md's table is generated from the table the nodes declare (no drift)."""
     from pathlib import Path
     from pg_node.common.params import markdown_table
-    readme = (Path(__file__).resolve().parent.parent / 'README.md').read_text()
-    start = readme.index('<!-- parameter table:')
-    end = readme.index('<!-- end of parameter table -->')
-    shown = readme[start:end].split('\n', 1)[1].strip()
+    page = (Path(__file__).resolve().parent.parent / 'docs' / 'ros_graph.md').read_text()
+    start = page.index('<!-- parameter table:')
+    end = page.index('<!-- end of parameter table -->')
+    shown = page[start:end].split('\n', 1)[1].strip()
     assert shown == markdown_table()
