@@ -1,8 +1,11 @@
 """
-The documentation's links stay in the repository.
+The documentation's links stay in the repository, and each page says what it answers.
 
 Every relative link of README.md, BENCHMARKS.md and docs/ names a file of this repository:
-a newcomer's clone has nothing outside it.
+a newcomer's clone has nothing outside it. A link to a heading (``page.md#heading``, or
+``#heading`` in the page itself) names a heading that page has, as GitHub makes anchors of
+them: a section that moved to another page leaves no dead link behind. Each page of docs/
+starts, after its title, with the line that says what it answers.
 """
 from pathlib import Path
 import re
@@ -28,6 +31,57 @@ def outside(page: Path, target: str) -> str:
     if not path.is_relative_to(REPO):
         return f'{page.name} links outside the repository: {target}'
     return '' if path.exists() else f'{page.name} links to a missing file: {target}'
+
+
+#: a markdown link's target with a heading: ``(page.md#anchor)`` or ``(#anchor)``
+ANCHORED = re.compile(r'\]\(([^)\s#]*)#([^)\s]+)\)')
+
+
+def anchors(text: str) -> set:
+    """Return the anchors GitHub gives the headings of ``text`` (fenced blocks left out)."""
+    found, fenced = set(), False
+    for line in text.split('\n'):
+        if line.lstrip().startswith('```'):
+            fenced = not fenced
+        elif not fenced and re.match(r'#{1,6} ', line):
+            words = re.sub(r'[^\w\- ]', '', line.lstrip('#').strip().lower())
+            found.add(words.replace(' ', '-'))
+    return found
+
+
+def dead_anchors(page: Path) -> list:
+    """Return the links of ``page`` to a heading that their page does not have."""
+    dead = []
+    for target, anchor in ANCHORED.findall(page.read_text()):
+        if re.match(r'^[a-z]+:', target):
+            continue
+        path = (page.parent / target).resolve() if target else page
+        if path.suffix == '.md' and path.is_file() and anchor not in anchors(path.read_text()):
+            dead.append(f'{page.name} links to a missing heading: {target}#{anchor}')
+    return dead
+
+
+@pytest.mark.parametrize('page', PAGES, ids=lambda p: p.name)
+def test_links_to_a_heading_find_it(page):
+    assert dead_anchors(page) == []
+
+
+def test_the_check_sees_a_heading_that_moved(tmp_path):
+    (tmp_path / 'a.md').write_text('# A\n\n## The tools (no `ros2` CLI needed)\n\n```bash\n'
+                                   '# not a heading\n```\n')
+    assert anchors((tmp_path / 'a.md').read_text()) == {'a', 'the-tools-no-ros2-cli-needed'}
+    (tmp_path / 'b.md').write_text('# B\n\n[tools](a.md#the-tools-no-ros2-cli-needed), '
+                                   '[gone](a.md#results), [here](#b), [lost](#not-a-heading)\n')
+    assert dead_anchors(tmp_path / 'b.md') == [
+        'b.md links to a missing heading: a.md#results',
+        'b.md links to a missing heading: #not-a-heading']
+
+
+@pytest.mark.parametrize('page', sorted((REPO / 'docs').glob('*.md')), ids=lambda p: p.name)
+def test_each_docs_page_starts_with_what_it_answers(page):
+    title, blank, first = page.read_text().split('\n')[:3]
+    assert title.startswith('# ') and blank == '', page.name
+    assert first.startswith('This page answers: '), f'{page.name}: {first}'
 
 
 @pytest.mark.parametrize('page', PAGES, ids=lambda p: p.name)
