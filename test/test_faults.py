@@ -609,9 +609,11 @@ def test_sigkill_of_each_node_mid_run(tmp_path):
     assert len(done) > 5 * n_envs
 
 
-# --- SIGTERM, SIGINT and SIGKILL of each node in one run ------------------------------------
+# --- SIGTERM and SIGINT of each node in one run ---------------------------------------------
 
-SIGNALS = (signal.SIGTERM, signal.SIGINT, signal.SIGKILL)
+# SIGKILL of each node is test_sigkill_of_each_node_mid_run's (with more checked after it);
+# this run took it as a third round until issue 34, 4 of its 12 stops, about 30 s.
+SIGNALS = (signal.SIGTERM, signal.SIGINT)
 STOPS = [(node, sig) for sig in SIGNALS
          for node in ('sim_node', 'actor_node', 'critic_node', 'learner_node')]
 STOP_EVERY = 25_000
@@ -640,9 +642,9 @@ def bag_dirs(run_dir):
 
 @pytest.mark.e2e
 @pytest.mark.slow
-def test_sigterm_sigint_and_sigkill_of_each_node_mid_run(tmp_path):
+def test_sigterm_and_sigint_of_each_node_mid_run(tmp_path):
     """
-    Stop each node mid-run with SIGTERM, then each with SIGINT, then each with SIGKILL.
+    Stop each node mid-run with SIGTERM, then each with SIGINT.
 
     SIGTERM is what ``ros2 launch`` escalates to, and what docker and systemd send; it must
     do what Ctrl-C does: the node closes its bag whole, writes its checkpoint, exits with 0
@@ -658,7 +660,6 @@ def test_sigterm_sigint_and_sigkill_of_each_node_mid_run(tmp_path):
            '--max-restarts', str(len(SIGNALS)), '--restart-delay', '0.1']
     proc = subprocess.Popen(cmd, env=env(GRAPH), cwd=REPO, stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True, start_new_session=True)
-    killed_bag = None
     try:
         deadline = time.monotonic() + 900
         for k, (node, sig) in enumerate(STOPS):
@@ -668,8 +669,6 @@ def test_sigterm_sigint_and_sigkill_of_each_node_mid_run(tmp_path):
                 assert time.monotonic() < deadline and proc.poll() is None, (node, pids)
                 time.sleep(0.2)
                 pids = node_pids(run_dir, node)
-            if node == 'learner_node' and sig == signal.SIGKILL:
-                killed_bag = bag_dirs(run_dir)[-1]
             os.kill(pids[0], sig)
         text = proc.communicate(timeout=900)[0]
     finally:
@@ -680,26 +679,24 @@ def test_sigterm_sigint_and_sigkill_of_each_node_mid_run(tmp_path):
     for node in ('sim_node', 'actor_node', 'critic_node', 'learner_node'):
         assert summary['restarts'][node] == len(SIGNALS), (node, summary['restarts'])
         assert text.count(f'{node} exited with code 0; restarting') == 2, text[-3000:]
-        assert f'{node} exited with code -9; restarting' in text
         log = (run_dir / 'logs' / f'{node}.log').read_text()
         assert 'Traceback' not in log, log[-3000:]
     bags = bag_dirs(run_dir)
-    assert killed_bag in bags and len(bags) == 4, bags
+    assert len(bags) == 3, bags                  # the first learner's, then one per restart
     for bag in bags:
-        if bag != killed_bag:
-            files = sorted(bag.glob('*.mcap'))
-            assert files, bag
-            for f in files:
-                full_mcap_check(f)
-            Reader(bag).open()
+        files = sorted(bag.glob('*.mcap'))
+        assert files, bag
+        for f in files:
+            full_mcap_check(f)
+        Reader(bag).open()
     # each restarted simulator drew new episodes: a seed of its own, logged
     sim_log = (run_dir / 'logs' / 'sim_node.log').read_text()
     seeds = re.findall(r'dt [0-9.]+ s, seed (\d+)', sim_log)
-    assert len(seeds) == 4 and len(set(seeds)) == 4 and seeds[0] == '0', seeds
+    assert len(seeds) == 3 and len(set(seeds)) == 3 and seeds[0] == '0', seeds
     # the learner saved a checkpoint at each of its two clean stops and resumed from it
     resumed = re.findall(r'resumed policy version (\d+)',
                          (run_dir / 'logs' / 'learner_node.log').read_text())
-    assert len(resumed) == 3, resumed
+    assert len(resumed) == 2, resumed
 
 
 @pytest.mark.e2e
