@@ -14,8 +14,8 @@ must exit with 0, or with N after ``<!-- run: exit=N -->``, and print each outpu
 block shows. Identical command lines run once. One run is trained, before anything else:
 ``SHARED_RUN``, the README tour's; every other ``runs/<name>`` the commands name is a link
 to it. A fenced block without a language that holds a command fails the check: it would
-escape this test. A failure that shows a bug of ``KNOWN_BUGS`` is an expected failure while
-the bug lasts; any other failure fails.
+escape this test. The blocks not run are not test items (nothing is skipped): the check of
+every block asks each for its reason.
 """
 from dataclasses import dataclass
 import os
@@ -54,15 +54,6 @@ SMALL = {
 LINKED = ('bags', 'config')
 TIMEOUT = {'train': 300}
 DEFAULT_TIMEOUT = 120
-#: a bug that a command of the docs meets, by the words of its failure (in its output or in a
-#: log folder it names with 'see DIR'), and where it is to be fixed: the block is an expected
-#: failure while the bug lasts, and any other failure fails it
-KNOWN_BUGS = {
-    "parameter 'policy_node.policy': no such file or directory: runs/":
-        'play gives its nodes, which it starts in the repository folder, the policy path as '
-        'written: a relative path works only from the repository folder '
-        '(pg_node/tools/play.py, policy:={source}; to be fixed: source.resolve())',
-}
 
 
 @dataclass
@@ -215,14 +206,6 @@ class Scratch:
         return self.done[line]
 
 
-def known_bug(done: subprocess.CompletedProcess) -> Optional[str]:
-    """Return the KNOWN_BUGS reason that ``done``'s failure shows, if one does."""
-    text = done.stdout + done.stderr
-    for folder in re.findall(r'see (/\S+)', text):
-        text += ''.join(log.read_text(errors='replace') for log in Path(folder).glob('*.log'))
-    return next((why for words, why in KNOWN_BUGS.items() if words in text), None)
-
-
 def failure(block: Block, done: subprocess.CompletedProcess, why: str) -> str:
     tail = '\n'.join((done.stdout + done.stderr).strip().splitlines()[-25:])
     return f'{block.where}: {why}\n$ {done.args}\n(exit code {done.returncode})\n{tail}'
@@ -263,16 +246,6 @@ def test_small_sizes_are_appended_to_the_commands_they_shrink():
     assert sized('ros2 bag info /tmp/bag  # a note') == 'ros2 bag info /tmp/bag  # a note'
 
 
-def test_a_known_bug_is_told_by_its_words_in_the_output_or_a_log_it_names(tmp_path):
-    (tmp_path / 'policy_node.log').write_text(
-        "configuration error: parameter 'policy_node.policy': no such file or directory: "
-        'runs/reach\n')
-    said = f'play: policy_node exited with code 2; see {tmp_path}\n'
-    done = subprocess.CompletedProcess('play', 1, '', said)
-    assert 'pg_node/tools/play.py' in known_bug(done)
-    assert known_bug(subprocess.CompletedProcess('play', 1, '', 'play: interrupted')) is None
-
-
 def test_every_block_of_the_docs_is_run_or_says_why_not():
     found = [p for page in PAGES for p in collect(page.read_text(),
                                                   str(page.relative_to(REPO)))[1]]
@@ -311,16 +284,8 @@ BLOCKS = all_blocks()
 def test_the_commands_of_a_block_run(block, scratch):
     for command, shown in steps(block):
         done = scratch.run(command)
-        if done.returncode != expected_exit(block) and known_bug(done):
-            pytest.xfail(known_bug(done))
         assert done.returncode == expected_exit(block), failure(
             block, done, f'exit code {done.returncode}, not {expected_exit(block)}')
         printed = [line.rstrip() for line in (done.stdout + done.stderr).splitlines()]
         missing = [line for line in shown if line not in printed]
         assert missing == [], failure(block, done, f'it did not print {missing[0]!r}')
-
-
-@pytest.mark.parametrize('block', [b for b in BLOCKS if b.language in LANGUAGES and not b.runs],
-                         ids=lambda b: b.where)
-def test_a_block_not_run_says_why(block):
-    pytest.skip(f'{block.where} not run: {block.marker[1]}')

@@ -168,7 +168,8 @@ def main(argv=None) -> int:
     except PolicySourceError as exc:
         print(f'play: {exc}', file=sys.stderr)
         return 1
-    log_dir = Path(args.log_dir or tempfile.mkdtemp(prefix='pg_node_play_'))
+    # the nodes run in the repository folder: every path they are given is absolute
+    log_dir = Path(args.log_dir or tempfile.mkdtemp(prefix='pg_node_play_')).resolve()
     log_dir.mkdir(parents=True, exist_ok=True)
     model = _model_param(card, log_dir)
     if perturbation:
@@ -217,8 +218,8 @@ def main(argv=None) -> int:
         with processes.terminate_as_interrupt():
             procs['policy_node'] = processes.start_logged(
                 [sys.executable, '-m', 'pg_node.ros.policy_node', '--ros-args', '-r',
-                 f'__ns:={namespace}', '-p', f'policy:={source}', '-p', 'autostart:=true',
-                 '-p', 'use_sim_time:=true'],
+                 f'__ns:={namespace}', '-p', f'policy:={source.resolve()}',
+                 '-p', 'autostart:=true', '-p', 'use_sim_time:=true'],
                 log_dir / 'policy_node.log', env)
             # the simulator starts once the policy is loaded (torch's import alone can take
             # seconds), so that the first episodes are not spent without commands
