@@ -1,5 +1,5 @@
 """
-The package's layers, as the README's architecture section draws them.
+The package's layers, as docs/architecture.md draws them.
 
 Each subpackage of ``pg_node`` is a layer with a rank; a module may import its own layer and
 the layers of lower rank, never a layer of the same rank or above (every import counts, also

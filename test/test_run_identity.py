@@ -97,7 +97,7 @@ def test_train_puts_every_node_in_the_runs_namespace(tmp_path):
 
 
 def test_train_takes_overrides_before_and_after_options():
-    """As the README writes it: train --part workers --actors 2,3 --run-id NAME num_actors=N."""
+    """docs/many_runs.md: train --part workers --actors 2,3 --run-id NAME num_actors=N."""
     from pg_node.tools.train import parse_args
     args = parse_args(['gamma=0.5', '--part', 'workers', '--actors', '2,3', '--run-id', 'x',
                        'num_actors=4'])

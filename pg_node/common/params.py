@@ -4,7 +4,7 @@ Every training parameter: default, meaning, and what values are allowed.
 One table serves three readers: the nodes declare their ROS parameters from it (with the
 description as ``ParameterDescriptor``, so ``ros2 param describe`` explains each), the
 ``python -m pg_node train`` bring-up validates the YAML file and ``key=value`` overrides
-against it before starting anything, and the README's parameter table is taken from it.
+against it before starting anything, and the parameter table of docs/ros_graph.md is taken from it.
 Validation refuses an unknown key, a value of the wrong type and a value out of range, with
 a message that names the key, the value and what is allowed.
 
@@ -487,7 +487,7 @@ def node_key(name: str) -> str:
 
 def markdown_table() -> str:
     """
-    Return every node's parameters as a Markdown table (the README's, kept equal by a test).
+    Return every node's parameters as a Markdown table (docs/ros_graph.md's, kept equal by a test).
 
     Columns: node (``/**`` for the shared ones), name, default, allowed values, and whether
     ``ros2 param set`` can change it while the node runs (live) or is refused (read-only).
