@@ -70,22 +70,15 @@ class Costs:
 
 def batch_messages(cfg, count: int):
     """Return ``count`` batch messages as critic_node sends them, and the task's dims."""
-    from pg_node.common.paths import resolve_model
-    from pg_node.common.perturbations import from_params
     from pg_node.rl.critic import Critic
     from pg_node.rl.learner import Learner
     from pg_node.rl.rollout_buffer import RolloutBuffer
     from pg_node.rl.sampler import make_rng, NumpySampler
+    from pg_node.rl.train_inprocess import task_of
     from pg_node.ros import messages, table_msg
-    from pg_node.sim.arm_task import ArmTask
-    shared, sim = cfg['/**'], cfg['sim_node']
+    shared = cfg['/**']
     a_cfg, c_cfg, l_cfg = cfg['actor_node'], cfg['critic_node'], cfg['learner_node']
-    task = ArmTask(resolve_model(shared['model']), num_envs=shared['num_envs'],
-                   seed=shared['seed'], frame_skip=sim['frame_skip'],
-                   max_episode_steps=sim['max_episode_steps'],
-                   reward_dist_weight=sim['reward_dist_weight'],
-                   reward_control_weight=sim['reward_control_weight'],
-                   randomization=from_params(sim))
+    task = task_of(cfg)
     learner = Learner(task.obs_dim, task.act_dim, {**l_cfg, **a_cfg})
     critic = Critic(task.obs_dim, c_cfg)
     sampler = NumpySampler.from_config(task.obs_dim, task.act_dim, {**l_cfg, **a_cfg})

@@ -21,6 +21,17 @@ from pg_node.sim.arm_task import arm_groups, ArmTask
 import torch
 
 
+def task_of(cfg: Dict[str, Dict]) -> ArmTask:
+    """Return the simulator node's task: its arms, episode length, rewards, randomization."""
+    shared, sim = cfg['/**'], cfg['sim_node']
+    return ArmTask(resolve_model(shared['model']), num_envs=shared['num_envs'],
+                   seed=shared['seed'], frame_skip=sim['frame_skip'],
+                   max_episode_steps=sim['max_episode_steps'],
+                   reward_dist_weight=sim['reward_dist_weight'],
+                   reward_control_weight=sim['reward_control_weight'],
+                   randomization=from_params(sim))
+
+
 def train_inprocess(cfg: Dict[str, Dict], total_steps: int,
                     callback: Optional[Callable[[Dict], None]] = None,
                     eval_episodes: int = 100) -> Dict:
@@ -33,14 +44,7 @@ def train_inprocess(cfg: Dict[str, Dict], total_steps: int,
     torch.set_num_threads(1)
     shared = cfg['/**']
     a_cfg, c_cfg, l_cfg = cfg['actor_node'], cfg['critic_node'], cfg['learner_node']
-    sim = cfg['sim_node']
-    # the simulator node's task: its episode length, reward weights and randomization
-    task = ArmTask(resolve_model(shared['model']), num_envs=shared['num_envs'],
-                   seed=shared['seed'], frame_skip=sim['frame_skip'],
-                   max_episode_steps=sim['max_episode_steps'],
-                   reward_dist_weight=sim['reward_dist_weight'],
-                   reward_control_weight=sim['reward_control_weight'],
-                   randomization=from_params(sim))
+    task = task_of(cfg)
     learner = Learner(task.obs_dim, task.act_dim, {**l_cfg, **a_cfg})
     critic = Critic(task.obs_dim, c_cfg)
     buf = RolloutBuffer(a_cfg['n_steps'], task.num_envs, task.obs_dim, task.act_dim)
