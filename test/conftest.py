@@ -35,6 +35,9 @@ OWNER_ENV = 'PG_NODE_TEST_RUN'
 OWNER = str(os.getpid())
 os.environ[OWNER_ENV] = OWNER
 XDIST_WORKER = os.environ.get('PYTEST_XDIST_WORKER', '')
+#: whose escaped processes the guard reaps: its own; alone, also those that carry no name
+#: (started with an environment of their own); beside another worker, never those
+REAPED_OWNERS = (OWNER,) if XDIST_WORKER else (OWNER, None)
 DOMAINS_PER_WORKER = 5      # the most a test file takes (test_faults.py: one per node + one)
 
 
@@ -110,7 +113,7 @@ def stray_processes():
     return {pid: ' '.join(argv) for pid, (_, start, argv) in procs.items()
             if pid != me and start >= started and argv and argv[0] == sys.executable
             and any(a.startswith('pg_node') for a in argv[1:]) and not ours(pid)
-            and _owner(pid) in (OWNER, None if not XDIST_WORKER else OWNER)}
+            and _owner(pid) in REAPED_OWNERS}
 
 
 @pytest.fixture(autouse=True)

@@ -28,6 +28,7 @@ import sys
 from typing import Dict, List, Optional, Tuple
 
 from domains import ros_domain
+from pg_node.tools import processes
 import pytest
 
 REPO = Path(__file__).resolve().parent.parent
@@ -195,12 +196,9 @@ class Scratch:
             try:
                 out, err = proc.communicate(timeout=timeout)
             except subprocess.TimeoutExpired:
-                os.killpg(proc.pid, signal.SIGINT)      # train and play stop their nodes
-                try:
-                    out, err = proc.communicate(timeout=30)
-                except subprocess.TimeoutExpired:
-                    os.killpg(proc.pid, signal.SIGKILL)
-                    out, err = proc.communicate()
+                # to its whole session: train and play stop their nodes on SIGINT
+                processes.stop(proc, ((signal.SIGINT, 30.0), (signal.SIGKILL, 5.0)))
+                out, err = proc.communicate()
                 err += f'\n(timed out after {timeout} s)'
             self.done[line] = subprocess.CompletedProcess(line, proc.returncode, out, err)
         return self.done[line]
