@@ -7,6 +7,9 @@ VENV := .venv
 PY := $(VENV)/bin/python
 LOCK_HASH := $(shell cat requirements.lock setup.py | sha1sum | cut -c1-12)
 STAMP := $(VENV)/.installed-$(LOCK_HASH)
+# uv installs the lock: the same packages as pip, in 41 s against 119 s here (parallel
+# downloads and unpacking; measured in two fresh venvs, pip freeze equal).
+UV_VERSION := 0.13.9
 
 # ament_index look-ups (message packages, pg_node's share dir) search the venv prefix.
 export AMENT_PREFIX_PATH := $(abspath $(VENV))
@@ -38,11 +41,13 @@ $(STAMP):
 	  $$SUDO apt-get update -qq && $$SUDO apt-get install -y -qq --no-install-recommends $$missing >/dev/null; \
 	fi
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
-	@$(PY) -m pip install --quiet --disable-pip-version-check --upgrade pip==26.3
-	@echo "Installing pinned dependencies into $(VENV) (first run: a few minutes, about 6 GB)"
-	@$(PY) -m pip install --quiet --disable-pip-version-check -r requirements.lock
+	@$(PY) -m pip install --quiet --disable-pip-version-check --upgrade pip==26.3 uv==$(UV_VERSION)
+	@echo "Installing pinned dependencies into $(VENV) (first run: about a minute, 6 GB)"
+	@$(PY) -m uv pip install --quiet --python $(PY) -r requirements.lock
 	@echo "Installing pg_node itself into $(VENV) (editable: $(VENV)/bin/sim_node runs this checkout)"
-	@$(PY) -m pip install --quiet --disable-pip-version-check --no-deps --no-build-isolation -e . >/dev/null
+	@# PYTHONWARNINGS: without it setuptools prints a 10-line banner about editable installs
+	@PYTHONWARNINGS=ignore $(PY) -m pip install --quiet --disable-pip-version-check --no-deps \
+	  --no-build-isolation -e . >/dev/null
 	@rm -f $(VENV)/.installed-*
 	@touch $@
 
