@@ -241,7 +241,7 @@ def test_quick_bench_writes_every_table(tmp_path):
     assert set(tax['pairs'][0]) == {'inprocess', 'graph', 'separate'}
     assert set(tax['nodes']) == {'sim_node', 'actor_node', 'critic_node', 'learner_node',
                                  'sim_and_actor', 'critic_and_learner'}
-    assert [(r['arms'], r['pairs']) for r in tax['scaling']] == [(16, 1), (16, 2)]
+    assert [(r['arms'], r['pairs']) for r in tax['scaling']] == [(16, 2)]
     assert all(r['graph'] > 0 and r['inprocess'] > 0 for r in tax['scaling']), tax['scaling']
     for key in ('idle', 'training'):
         assert tax['latency'][key]['round_trips'] >= 100, tax['latency']

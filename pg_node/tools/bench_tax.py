@@ -25,6 +25,7 @@ from pathlib import Path
 import statistics
 import tempfile
 import threading
+import time
 import traceback
 from typing import Callable, Dict, List, Sequence, Tuple
 
@@ -33,10 +34,11 @@ from pg_node.tools.train import PAIR_PROCESSES, TRAINING_PROCESSES
 
 #: budgets: full run, and --quick
 BUDGETS = {'tax_steps': (200_000, 4_096), 'tax_repeats': (5, 1),
-           'tax_scaling_steps': (150_000, 4_096), 'tax_scaling_rows': (6, 2),
-           'tax_latency_steps': (5_000, 300)}
-#: scaling rows: (arms per simulator, simulator/actor pairs)
-SCALING = ((16, 1), (16, 2), (64, 1), (64, 2), (256, 1), (256, 2))
+           'tax_scaling_steps': (150_000, 4_096), 'tax_latency_steps': (5_000, 300),
+           # scaling rows: (arms per simulator, simulator/actor pairs); --quick runs the one
+           # row that starts two pairs
+           'tax_scaling': (((16, 1), (16, 2), (64, 1), (64, 2), (256, 1), (256, 2)),
+                           ((16, 2),))}
 #: the graphs' processes as train names them: every node apart, then the default's
 NODES = tuple(name for compose in (False, True)
               for table in (PAIR_PROCESSES, TRAINING_PROCESSES)
@@ -44,6 +46,8 @@ NODES = tuple(name for compose in (False, True)
 #: the processes that hold torch (the learning side)
 TORCH_NODES = tuple(name for compose in (False, True)
                     for name, _ in TRAINING_PROCESSES[compose])
+#: seconds the training round trip waits for the background graph's first update
+LEARNING_DEADLINE = 180.0
 LATENCY_LABELS = {'idle': 'no training running', 'training': 'a training graph runs'}
 TRAINING_LABELS = {'rollout': 'within a rollout',
                    'boundary': "at a rollout's end (hand-over)",
@@ -144,7 +148,7 @@ def run_tax(b: Dict, log: Callable[[str], None]) -> Dict:
                     'cpu_per_100k': usage['cpu_seconds_training'] / trained * 1e5})
     for key, parts in trips.items():
         out['latency'][key] = trip_stats(np.concatenate(parts))
-    for arms, pairs in SCALING[:b['tax_scaling_rows']]:
+    for arms, pairs in b['tax_scaling']:
         log(f'tax: scaling, {pairs} x {arms} arms')
         row = {'arms': arms, 'pairs': pairs}
         try:
@@ -160,40 +164,57 @@ def run_tax(b: Dict, log: Callable[[str], None]) -> Dict:
     log(f'tax: lock-step round trip, 64 arms, {n:,} steps, no training running')
     out['latency']['idle'] = _latency(br, n)
     log('tax: lock-step round trip, 64 arms, while a training graph runs')
-    done = threading.Event()
-    background = threading.Thread(target=_train_until, args=(done,), daemon=True)
+    done, learning = threading.Event(), threading.Event()
+    background = threading.Thread(target=_train_until, args=(done, learning), daemon=True)
     background.start()
     try:
-        out['latency']['training'] = _latency(br, n, wait=15.0)
+        # measure from the background graph's first update on (it used to be a fixed 15 s
+        # for its bring-up: in --quick mode half of this section's time)
+        deadline = time.monotonic() + LEARNING_DEADLINE
+        while not learning.wait(0.5):
+            if not background.is_alive() or time.monotonic() > deadline:
+                raise RuntimeError('the background training graph ended or did not start '
+                                   f'learning within {LEARNING_DEADLINE:.0f} s')
+        out['latency']['training'] = _latency(br, n)
     finally:
         done.set()
         background.join()
     return out
 
 
-def _latency(br, steps: int, wait: float = 0.0) -> Dict:
-    import time
-    time.sleep(wait)             # let the background graph come up and start learning
+def _latency(br, steps: int) -> Dict:
     res = br.lock_step_latency(64, steps)
     res.pop('samples_ms')
     return res
 
 
-def _train_until(done: threading.Event):
-    """Run training graphs one after another in their own domain until ``done`` is set."""
+def _train_until(done: threading.Event, learning: threading.Event):
+    """
+    Run a training graph in its own domain until ``done`` is set.
+
+    ``learning`` is set once the graph has written its first progress row (its first
+    update); if the graph ends before ``done``, so does this thread.
+    """
     import subprocess
     import sys
     from pg_node.tools import bench_runs as br
     from pg_node.tools.processes import child_env, REPO, stop
+    from pg_node.tools.train import last_progress
     with tempfile.TemporaryDirectory() as tmp:
+        run_dir = Path(tmp) / 'run'
         proc = subprocess.Popen(
-            [sys.executable, '-m', 'pg_node', 'train', '--run-dir', str(Path(tmp) / 'run'),
+            [sys.executable, '-m', 'pg_node', 'train', '--run-dir', str(run_dir),
              '--total-steps', '100000000', '--no-progress', '--eval-episodes', '1'],
             cwd=REPO, env=child_env(br.domain_id(background=True)),
             stdout=subprocess.DEVNULL,
             stderr=subprocess.DEVNULL, stdin=subprocess.DEVNULL, start_new_session=True)
-        done.wait()
-        stop(proc)
+        try:
+            while not done.is_set() and proc.poll() is None:
+                if not learning.is_set() and last_progress(run_dir / 'progress.csv'):
+                    learning.set()
+                done.wait(0.2)
+        finally:
+            stop(proc)
 
 
 def tax_ratio(pairs: Sequence[Dict], key: str = 'graph') -> float:
