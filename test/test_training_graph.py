@@ -256,7 +256,7 @@ def test_bag_is_read_by_rosbags_with_expected_counts(run):
 @pytest.mark.parametrize('mode', ['sync', 'async'])
 def test_two_simulator_actor_pairs_feed_one_learner(tmp_path, mode):
     """Two pairs in namespaces /arm0 and /arm1: batched A2C (sync) or A3C-style (async)."""
-    steps, n = 60_000, 16
+    steps, n = 20_000, 16
     res = train(tmp_path / 'run', '--total-steps', str(steps), 'num_actors=2',
                 f'num_envs={n}', f'sync_mode={mode}')
     assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
@@ -360,7 +360,7 @@ def test_resume_and_survive_a_learner_sigkill(run):
     """Training resumes from the checkpoint; a killed learner is restarted, its bag readable."""
     run_dir, summary = run
     first = summary['policy_version']
-    more = STEPS + 200_000
+    more = STEPS + 100_000
     cmd = [sys.executable, '-m', 'pg_node', 'train', '--run-dir', str(run_dir), '--no-progress',
            '--total-steps', str(more)]
     proc = subprocess.Popen(cmd, env=env(), cwd=REPO, stdout=subprocess.PIPE,
