@@ -75,7 +75,8 @@ inactive or waiting WARN; stale states or a latched e-stop ERROR.
 ``record`` (a bag directory) keeps every tick on ``/policy_node/ticks`` (a table per tick,
 :mod:`pg_node.ros.table_msg`: header stamp and policy id, the first 48 bits of the policy's
 sha256; per arm the state's age, observation, mean, action, guarded command and the command
-in SI units; NaN for hold ticks); the bag's metadata holds the policy's full sha256.
+in SI units; a hold tick has NaN for the observation, mean and action, and for the state
+age unless stale states made it a hold); the bag's metadata holds the policy's full sha256.
 
 Parameters: :data:`pg_node.common.params.POLICY_PARAMS`.
 """
@@ -602,7 +603,7 @@ class PolicyNode(LifecycleNode):
                     f'joint states are {age:.3f} s old {how} (state_timeout {timeout:g} s): '
                     f'hold command at every tick until fresh joint states come{hint}')
             # every tick, not once: a forward command controller holds its last command
-            self.publish_hold()
+            self.publish_hold(age)
             self.status = (f'stale: joint states {age:.2f} s old {how}, hold command, '
                            'waiting for fresh ones')
             return
@@ -632,11 +633,16 @@ class PolicyNode(LifecycleNode):
         self.ages.append(time.monotonic() - self.state_time)
         self.status = 'commanding'
 
-    def publish_hold(self):
-        """Publish the hold command: zero effort, or the newest measured angles held."""
+    def publish_hold(self, age: float = np.nan):
+        """
+        Publish the hold command: zero effort, or the newest measured angles held.
+
+        ``age``: the joint state's age that made it a hold (stale), recorded with it; NaN for
+        an e-stop or a stop.
+        """
         hold = self.guard.hold(self.q, self.num_arms)
         self.guard.sent(hold)
-        self.record(hold, self.publish(hold, hold=True), np.nan)
+        self.record(hold, self.publish(hold, hold=True), age)
 
     def publish(self, ctrl: np.ndarray, hold: bool = False) -> np.ndarray:
         """Publish controls ``ctrl`` (arms x actuators) in SI units; return those."""
