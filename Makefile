@@ -20,9 +20,8 @@ ARGS ?=
 PYTEST_ARGS ?=
 # make test runs the tests in TEST_JOBS processes (pytest-xdist), a file per process at a time,
 # each in DDS domains of its own (test/conftest.py); TEST_JOBS=0 runs them in this process.
-# Three on two cores: the end-to-end tests wait on DDS, on real time and on each other's
-# processes, and a third worker fills those waits (720 s against 805 s with two: docs/testing.md).
-TEST_JOBS ?= 3
+# Two on two cores: three were as fast at best and used 22% more CPU (docs/testing.md).
+TEST_JOBS ?= 2
 
 .PHONY: all venv train test test-fast lint bench bench-quick bench-sim profile variance lock clean
 

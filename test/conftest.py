@@ -9,7 +9,7 @@ descendant of pytest (its supervisor died without stopping it) gets some seconds
 its own, as a node does whose supervisor died (``stop_with_supervisor``); then it is killed,
 and the test errors, naming it.
 
-Several pytest processes may run at once on one machine: the workers of ``pytest -n 3``
+Several pytest processes may run at once on one machine: the workers of ``pytest -n 2``
 (pytest-xdist, as ``make test`` runs), or a developer's run beside a clean clone's. Each
 names itself in the environment its children inherit (``PG_NODE_TEST_RUN``), and only its
 own escaped processes are its business. Each xdist worker also takes a block of DDS domains
