@@ -86,6 +86,14 @@ def start_policy(tmp_path, *params, remap=()):
                  *params, remap=remap)
 
 
+def recorded_ticks(record: Path):
+    """Return the ticks of policy_node's ``record:=`` bag: ``[(header, fields), ...]``."""
+    from mcap_ros2.reader import read_ros2_messages
+    from pg_node.ros.policy_node import tick_from_msg
+    return [tick_from_msg(m.ros_msg) for m in read_ros2_messages(
+        str(next(record.glob('*.mcap'))))]
+
+
 class Client:
     """The test's side: transitions, commands, diagnostics; joint states and targets out."""
 
@@ -287,7 +295,6 @@ def test_stale_joint_states_give_zero_effort_then_resume(tmp_path, client, train
     so a single zero would leave the next real command, or a dropped zero the last torque,
     in force. Diagnostics say ERROR while stale, WARN while waiting, OK commanding.
     """
-    from pg_node.ros.policy_node import tick_from_msg
     timeout, rate, record = 0.2, 50.0, tmp_path / 'ticks'
     pol = start_policy(tmp_path, f'policy:={trained["onnx"]}',
                        f'state_timeout:={timeout}', f'control_rate:={rate}',
@@ -328,9 +335,7 @@ def test_stale_joint_states_give_zero_effort_then_resume(tmp_path, client, train
     # state_timeout, none holds for staleness from a younger one, and each spell of holds
     # begins with a stale one (the stop's hold has no age): the hold comes at the first
     # tick past the timeout. Exact, whatever the load.
-    from mcap_ros2.reader import read_ros2_messages
-    ticks = [tick_from_msg(m.ros_msg)[1] for m in read_ros2_messages(
-        str(next(record.glob('*.mcap'))))]
+    ticks = [fields for _, fields in recorded_ticks(record)]
     ages = np.array([t['state_age'].ravel()[0] for t in ticks])
     held = np.array([not t['command'].any() for t in ticks])
     assert np.all(ages[~held] <= timeout) and np.all(ages[held & np.isfinite(ages)] > timeout)
@@ -818,8 +823,6 @@ def test_guards_act_on_sim_node_and_every_tick_is_recorded(tmp_path, client, tra
     """
     import hashlib
     from pg_node.bag.reader import read_metadata_yaml
-    from mcap_ros2.reader import read_ros2_messages
-    from pg_node.ros.policy_node import tick_from_msg
     max_change, record = 0.05, tmp_path / 'ticks'
     pol = start_policy(tmp_path, f'policy:={trained["onnx"]}', 'use_sim_time:=true',
                        f'max_change:={max_change}', 'max_velocity:=2.0', 'smoothing:=0.3',
@@ -856,8 +859,7 @@ def test_guards_act_on_sim_node_and_every_tick_is_recorded(tmp_path, client, tra
     assert 'over-speed guard' in log and float(diag['commands_per_second']) > 0
     assert float(diag['load_seconds']) > 0 and diag['lifecycle'] == 'active'
     assert not cmds[-1].any()                               # SIGINT: one zero at the end
-    ticks = [tick_from_msg(m.ros_msg) for m in read_ros2_messages(
-        str(next(record.glob('*.mcap'))))]
+    ticks = recorded_ticks(record)
     sha = hashlib.sha256(trained['onnx'].read_bytes()).hexdigest()
     assert read_metadata_yaml(record)['custom_data']['policy_sha256'] == sha
     # every command sent is a tick (the subscriber here may lose some at most)
