@@ -46,7 +46,7 @@ def worker_domain(given: str, worker: str, run_uid: str) -> str:
     Return the first DDS domain of an xdist worker (``gw0``, ``gw1``, ...): a block of its own.
 
     ``ROS_DOMAIN_ID`` given: worker k starts ``k * DOMAINS_PER_WORKER`` after it (so
-    ``ROS_DOMAIN_ID=42 make test`` takes 42..56 with three workers). Not given: a block drawn
+    ``ROS_DOMAIN_ID=42 make test`` takes 42..51 with its two workers). Not given: a block drawn
     from the run's id (shared by its workers), so that two test runs on one machine rarely
     meet.
 
