@@ -475,13 +475,15 @@ def test_bad_input_was_reported_at_most_once_a_second(nodes):
 
 # --- SIGKILL of each node in one training run ----------------------------------------------
 
-# the critic and the learner are killed past 51,200 steps (100 batches or versions of 512),
-# their first checkpoints; the run ends 50k steps later, well past the version the learner
-# was killed at (until issue 34: kills at 40k, 90k, 140k, 190k of 300k, which proved nothing
-# more for 30 s longer)
-KILLS = ((15_000, 'sim_node'), (30_000, 'actor_node'), (60_000, 'critic_node'),
-         (80_000, 'learner_node'))
-KILL_STEPS = 130_000
+# the critic and the learner checkpoint every CHECKPOINT_EVERY batches or versions of 512
+# steps (100 by default) and are killed past their first checkpoints; the run ends 20k steps
+# later, well past the version the learner was killed at (until issue 34: the default
+# checkpoints and kills at 40k, 90k, 140k, 190k of 300k, then 15k, 30k, 60k, 80k of 130k,
+# which proved nothing more for 40 s longer)
+CHECKPOINT_EVERY = 10
+KILLS = ((6_000, 'sim_node'), (12_000, 'actor_node'), (20_000, 'critic_node'),
+         (30_000, 'learner_node'))
+KILL_STEPS = 50_000
 
 
 def log_tails(run_dir, lines=15):
@@ -542,7 +544,8 @@ def test_sigkill_of_each_node_mid_run(tmp_path):
     # --separate: each node a process of its own, so that each can be killed alone
     cmd = [sys.executable, '-m', 'pg_node', 'train', '--run-dir', str(run_dir), '--separate',
            '--no-progress', '--total-steps', str(KILL_STEPS), '--eval-episodes', '10',
-           '--restart-delay', '0.1']
+           '--restart-delay', '0.1', f'critic_node.checkpoint_every={CHECKPOINT_EVERY}',
+           f'learner_node.checkpoint_every={CHECKPOINT_EVERY}']
     proc = subprocess.Popen(cmd, env=env(GRAPH), cwd=REPO, stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True, start_new_session=True)
     killed_at = {}
@@ -566,13 +569,13 @@ def test_sigkill_of_each_node_mid_run(tmp_path):
     logs = {n: (run_dir / 'logs' / f'{n}.log').read_text() for _, n in KILLS}
     assert 'the simulator of actor 0 restarted' in logs['learner_node']
     assert 'resumed V from' in logs['critic_node']
-    # the restarted learner continues from its newest checkpoint (one every 100 versions):
-    # at least the last one before the version read just before the kill
+    # the restarted learner continues from its newest checkpoint (one every CHECKPOINT_EVERY
+    # versions): at least the last one before the version read just before the kill
     resumed = [int(v) for v in re.findall(r'resumed policy version (\d+)',
                                           logs['learner_node'])]
     assert len(resumed) == 1, resumed
-    resumed = resumed[0]
-    assert resumed % 100 == 0 and resumed >= killed_at['learner_node'] // 100 * 100 > 0
+    resumed, every = resumed[0], CHECKPOINT_EVERY
+    assert resumed % every == 0 and resumed >= killed_at['learner_node'] // every * every > 0
     # the policy version rises by one per update. The killed learner may have flushed rows
     # past that checkpoint (progress.csv is flushed every second and at each checkpoint):
     # then the restarted learner's first row, resumed + 1, is one drop. When the kill came
@@ -620,8 +623,11 @@ def test_sigkill_of_each_node_mid_run(tmp_path):
 SIGNALS = (signal.SIGTERM, signal.SIGINT)
 STOPS = [(node, sig) for sig in SIGNALS
          for node in ('sim_node', 'actor_node', 'critic_node', 'learner_node')]
-# 20 updates of 512 steps between stops (25,000 until issue 34)
-STOP_EVERY = 10_240
+# 10 updates of 512 steps between stops (25,000, then 10,240 until issue 34), and 40 after
+# the last: a learner that reaches total_steps as its stop comes exits as done, not stopped
+# (with 10 after it, 3.5 s here, that happened in one run of three)
+STOP_EVERY = 5_120
+STOP_TAIL = 20_480
 
 
 def full_mcap_check(path):
@@ -659,7 +665,7 @@ def test_sigterm_and_sigint_of_each_node_mid_run(tmp_path):
     SIGINT passes the mcap reader's full validation without reindex.
     """
     run_dir = tmp_path / 'run'
-    total = STOP_EVERY * (len(STOPS) + 2)
+    total = STOP_EVERY * len(STOPS) + STOP_TAIL
     cmd = [sys.executable, '-m', 'pg_node', 'train', '--run-dir', str(run_dir), '--separate',
            '--no-progress', '--total-steps', str(total), '--eval-episodes', '10',
            '--max-restarts', str(len(SIGNALS)), '--restart-delay', '0.1']
