@@ -23,8 +23,9 @@ ARGS ?=
 PYTEST_ARGS ?=
 # make test runs the tests in TEST_JOBS processes (pytest-xdist), a file per process at a time,
 # each in DDS domains of its own (test/conftest.py); TEST_JOBS=0 runs them in this process.
-# Two on two cores: three were as fast at best and used 22% more CPU (docs/testing.md).
-TEST_JOBS ?= 2
+# Three on two cores: the end-to-end tests wait on DDS and on real time, and a third process
+# fills those waits (681 s against 790 s with two, the same CPU; docs/testing.md).
+TEST_JOBS ?= 3
 
 .PHONY: all venv train test test-fast lint bench bench-quick bench-sim profile variance lock clean
 

@@ -9,11 +9,11 @@ descendant of pytest (its supervisor died without stopping it) gets some seconds
 its own, as a node does whose supervisor died (``stop_with_supervisor``); then it is killed,
 and the test errors, naming it.
 
-Several pytest processes may run at once on one machine: the workers of ``pytest -n 2``
+Several pytest processes may run at once on one machine: the workers of ``pytest -n 3``
 (pytest-xdist, as ``make test`` runs), or a developer's run beside a clean clone's. Each
 names itself in the environment its children inherit (``PG_NODE_TEST_RUN``), and only its
 own escaped processes are its business. Each xdist worker also takes a block of DDS domains
-of its own (:func:`worker_domain`), so the two workers' graphs never hear each other.
+of its own (:func:`worker_domain`), so the workers' graphs never hear each other.
 """
 import os
 import signal
@@ -46,7 +46,7 @@ def worker_domain(given: str, worker: str, run_uid: str) -> str:
     Return the first DDS domain of an xdist worker (``gw0``, ``gw1``, ...): a block of its own.
 
     ``ROS_DOMAIN_ID`` given: worker k starts ``k * DOMAINS_PER_WORKER`` after it (so
-    ``ROS_DOMAIN_ID=42 make test`` takes 42..51 with its two workers). Not given: a block drawn
+    ``ROS_DOMAIN_ID=42 make test`` takes 42..56 with its three workers). Not given: a block drawn
     from the run's id (shared by its workers), so that two test runs on one machine rarely
     meet.
 
