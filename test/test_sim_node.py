@@ -334,13 +334,13 @@ def test_lock_step_steps_only_on_the_answer_to_its_transition(tmp_path, client):
     assert 'ignored a command for transition None' in log
 
 
-@pytest.mark.e2e
 def latest_target(received, arm):
     """Return the x, y of the newest ``/target`` message of ``arm`` received (NaN: none)."""
     mine = [t.point for t in received if t.header.frame_id == f'arm{arm}']
     return [mine[-1].x, mine[-1].y] if mine else [math.nan, math.nan]
 
 
+@pytest.mark.e2e
 def test_a_target_subscriber_that_joins_late_gets_every_current_target(tmp_path, client):
     """Targets are published while someone listens; one who joins gets them all at once."""
     for sub in [s for s in client.node.subscriptions if s.topic_name == '/target']:
