@@ -19,6 +19,7 @@ from pg_node.ros.replay_node import main, merge_qos, parse_remaps
 from pg_node.tools import processes
 import pytest
 import rclpy
+from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosbags.rosbag2 import StoragePlugin, Writer
@@ -56,6 +57,7 @@ class Listener:
         self.executor.add_node(self.node)
         self.got = defaultdict(list)
         self.times = defaultdict(list)
+        self.matched = dict.fromkeys(topics, 0)
         for name, (msg_type, qos) in topics.items():
             profile = QoSProfile(
                 history=HistoryPolicy.KEEP_ALL, depth=1,
@@ -63,8 +65,21 @@ class Listener:
                              'best_effort' else ReliabilityPolicy.RELIABLE),
                 durability=(DurabilityPolicy.TRANSIENT_LOCAL if qos['durability'] ==
                             'transient_local' else DurabilityPolicy.VOLATILE))
-            self.node.create_subscription(ros_types.message_class(msg_type), name,
-                                          self._callback(name), profile, raw=True)
+            self.node.create_subscription(
+                ros_types.message_class(msg_type), name, self._callback(name), profile,
+                raw=True, event_callbacks=SubscriptionEventCallbacks(
+                    matched=lambda info, name=name: self.matched.update(
+                        {name: info.current_count})))
+
+    def wait_matched(self, timeout=30.0):
+        """
+        Spin until every subscription has matched a publisher (its own matched event).
+
+        The replay's publishers can match us before we match them: what they send in
+        between reaches nobody (a suite run got 0 of 40), so a test that must receive
+        everything starts the replay paused and resumes it after this.
+        """
+        assert self.spin_until(lambda: all(self.matched.values()), timeout), self.matched
 
     def _callback(self, name):
         def on_message(data):
@@ -248,8 +263,11 @@ def test_rosbags_written_bag_plays_and_unknown_type_is_skipped(tmp_path):
     listener = Listener({'/chatter': ('std_msgs/msg/String', ros_types.qos_to_dict(None)),
                          '/clock': ('rosgraph_msgs/msg/Clock', ros_types.qos_to_dict(None))})
     proc = start_replay(tmp_path, bag, '--rate', '4', '--wait-for-subscribers', '1',
-                        '--delay', '0.5', '--clock-rate', '1000')
+                        '--wait-timeout', '30', '--clock-rate', '1000', '--start-paused')
     try:
+        listener.wait_matched()
+        resp = listener.call(SetBool, '/replay_node/set_pause', SetBool.Request(data=False))
+        assert resp.success, resp.message
         listener.spin_until(lambda: len(listener.got['/chatter']) >= 40
                             and proc.poll() is not None, 30)
     finally:
