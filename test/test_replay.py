@@ -71,15 +71,27 @@ class Listener:
                     matched=lambda info, name=name: self.matched.update(
                         {name: info.current_count})))
 
-    def wait_matched(self, timeout=30.0):
+    def wait_matched(self, topics=None, timeout=30.0):
         """
-        Spin until every subscription has matched a publisher (its own matched event).
+        Spin until each subscription on ``topics`` (default: all) has matched a publisher.
 
-        The replay's publishers can match us before we match them: what they send in
-        between reaches nobody (a suite run got 0 of 40), so a test that must receive
-        everything starts the replay paused and resumes it after this.
+        Each side of a DDS match is its own event: the replay's publishers can match us
+        before we match them, and what they send in between reaches nobody (a suite run
+        got 0 of 40 after a fixed 0.5 s delay). So only our own matched event counts.
         """
-        assert self.spin_until(lambda: all(self.matched.values()), timeout), self.matched
+        names = list(self.matched) if topics is None else list(topics)
+        assert self.spin_until(lambda: all(self.matched[n] for n in names), timeout), \
+            self.matched
+
+    def play_when_matched(self, topics=None, timeout=30.0):
+        """
+        Resume a replay started with ``--start-paused`` once ``topics`` have matched it.
+
+        A test that must receive every message waits on the match itself, not on a delay.
+        """
+        self.wait_matched(topics, timeout)
+        resp = self.call(SetBool, '/replay_node/set_pause', SetBool.Request(data=False))
+        assert resp.success, resp.message
 
     def _callback(self, name):
         def on_message(data):
@@ -135,6 +147,12 @@ def same_cdr(got, recorded):
     return got[:len(recorded)] == recorded and len(extra) < 4 and not any(extra)
 
 
+def log_stamp(log, text):
+    """Return the stamp (s) of the first ``[LEVEL] [stamp] [node]: ...`` line with ``text``."""
+    return next(float(line.split('] [')[1]) for line in log.splitlines()
+                if line.startswith('[') and text in line)
+
+
 def topic_table(path):
     return {n: (t.msg_type, merge_qos(t.offered_qos_profiles))
             for n, t in BagReader(path, warn=False).topics.items()}
@@ -187,8 +205,9 @@ def test_round_trip_as_fast_as_possible_equals_the_bag(tmp_path):
     total = sum(len(v) for v in expected.values())
     listener = Listener(topic_table(SAMPLE))
     proc = start_replay(tmp_path, SAMPLE, '--rate', '0', '--keep-all', '--commands',
-                        '--wait-for-subscribers', '1', '--delay', '0.5')
+                        '--start-paused', '--wait-timeout', '30')
     try:
+        listener.play_when_matched()
         listener.spin_until(lambda: sum(len(v) for v in listener.got.values()) >= total
                             and proc.poll() is not None, 40)
         time.sleep(0.2)
@@ -215,8 +234,11 @@ def test_command_topics_are_left_out_unless_asked(tmp_path):
     listener = Listener({name: topics[name] for name in (commands, reward)})
     expected = len(bag_messages(SAMPLE, [reward])[0][reward])
     try:
-        proc = start_replay(tmp_path, SAMPLE, '--rate', '0', '--keep-all', '--delay', '0.5')
+        proc = start_replay(tmp_path, SAMPLE, '--rate', '0', '--keep-all', '--start-paused',
+                            '--wait-timeout', '30')
         try:
+            # commands are not played: only the reward subscription can match
+            listener.play_when_matched([reward])
             assert listener.spin_until(lambda: len(listener.got[reward]) >= expected, 40)
             proc.wait(30)
             listener.spin_until(lambda: False, 0.5)
@@ -227,8 +249,9 @@ def test_command_topics_are_left_out_unless_asked(tmp_path):
         assert listener.got[commands] == []
         # asked for by name: played
         proc = start_replay(tmp_path, SAMPLE, '--rate', '0', '--keep-all', '--topics',
-                            commands)
+                            commands, '--start-paused', '--wait-timeout', '30')
         try:
+            listener.play_when_matched([commands])
             assert listener.spin_until(lambda: len(listener.got[commands]) >= 150, 40)
         finally:
             code, log = stop(proc)
@@ -265,9 +288,7 @@ def test_rosbags_written_bag_plays_and_unknown_type_is_skipped(tmp_path):
     proc = start_replay(tmp_path, bag, '--rate', '4', '--wait-for-subscribers', '1',
                         '--wait-timeout', '30', '--clock-rate', '1000', '--start-paused')
     try:
-        listener.wait_matched()
-        resp = listener.call(SetBool, '/replay_node/set_pause', SetBool.Request(data=False))
-        assert resp.success, resp.message
+        listener.play_when_matched()
         listener.spin_until(lambda: len(listener.got['/chatter']) >= 40
                             and proc.poll() is not None, 30)
     finally:
@@ -302,9 +323,9 @@ def test_truncated_bag_plays_up_to_the_damage_and_says_where(tmp_path):
     listener = Listener(topics)
     start = time.monotonic()
     proc = start_replay(tmp_path, bag, '--rate', '0', '--keep-all', '--topics',
-                        '/pg_node/metrics/entropy', '--wait-for-subscribers', '1',
-                        '--delay', '0.3')
+                        '/pg_node/metrics/entropy', '--start-paused', '--wait-timeout', '30')
     try:
+        listener.play_when_matched()
         proc.wait(60)
         listener.spin_until(lambda: len(listener.got['/pg_node/metrics/entropy'])
                             >= len(expected['/pg_node/metrics/entropy']), 10)
@@ -371,8 +392,10 @@ def test_topic_filter_remap_and_start_offset(tmp_path):
     proc = start_replay(tmp_path, SAMPLE, '--rate', '0', '--keep-all', '--start-offset',
                         offset_s, '--topics', '/pg_node/metrics/policy_loss', '--remap',
                         '/pg_node/metrics/policy_loss:=/replayed/policy_loss',
-                        '--wait-for-subscribers', '1', '--delay', '0.3')
+                        '--start-paused', '--wait-timeout', '30')
     try:
+        # only the remapped name is played: the other two must stay silent
+        listener.play_when_matched(['/replayed/policy_loss'])
         listener.spin_until(lambda: len(listener.got['/replayed/policy_loss'])
                             >= len(expected) and proc.poll() is not None, 30)
         listener.spin_until(lambda: False, 0.3)
@@ -455,14 +478,18 @@ def test_a_running_subscriber_gets_every_message_without_being_waited_for(tmp_pa
 
 @pytest.mark.e2e
 def test_without_subscribers_the_report_says_nothing_was_delivered(tmp_path):
+    """Also ``--delay``: the play starts that long after the wait for subscribers ends."""
     write_slow_bag(tmp_path / 'slow', n=5, step_ns=1_000_000)
-    proc = start_replay(tmp_path, tmp_path / 'slow', '--rate', '0', '--wait-timeout', '0.5')
+    proc = start_replay(tmp_path, tmp_path / 'slow', '--rate', '0', '--wait-timeout', '0.5',
+                        '--delay', '1.0')
     try:
         proc.wait(30)
     finally:
         code, log = stop(proc)
     assert code == 0, log
     assert 'no topic has 1 matched subscriber(s) after 0.5 s' in log
+    # the log's own stamps: from the wait's end to the report after the 5 messages
+    assert log_stamp(log, 'published 5 messages') - log_stamp(log, 'after 0.5 s') >= 1.0, log
     assert '/chatter: 5 published, 0 subscriber(s), no subscriber' in log
     assert 'published 5 messages on 1 topics; 0 had subscribers, 1 none' in log
     assert 'messages reached nobody' in log

@@ -27,7 +27,10 @@ Subscribers: before the first message the node waits up to ``wait_timeout`` s (d
 until every played topic has ``wait_for_subscribers`` matched subscribers (default 1; 0
 does not wait). A subscriber that is already running is not matched at once: DDS discovery
 takes a moment, and a fast replay that started without waiting could be over before it,
-delivering nothing. Topics still without a subscriber are named in a warning.
+delivering nothing. Topics still without a subscriber are named in a warning. The wait
+sees only the replay's side of each match (the subscriber may match the replay a moment
+later and miss what came before): a subscriber that needs every message resumes a
+``start_paused`` replay with ``~/set_pause`` once it has matched.
 
 At the end the node waits up to ``wait_acked_timeout`` s until reliable subscribers have
 acknowledged every message (a fast replay is otherwise over before they have read it), and
