@@ -128,7 +128,7 @@ class Client:
         return future.result()
 
     def counters(self):
-        """Return the latest diagnostics key/values as a dict."""
+        """Return the latest diagnostics key/values as a dict (guard: ``self.diagnostics``)."""
         return {kv.key: kv.value for kv in self.diagnostics[-1].status[0].values}
 
     def close(self):
@@ -257,8 +257,13 @@ def test_lock_step_round_trips_in_the_diagnostics_and_the_log(tmp_path, client):
     proc = start_node(tmp_path, f'round_trip_log:={log}', 'diagnostics_rate:=5.0',
                       'lock_step_timeout:=5.0')
     got, sent = [], []
+
+    def windows():
+        return [{kv.key: kv.value for kv in d.status[0].values} for d in client.diagnostics]
+
     try:
-        client.wait_ready()
+        # a first window received: the diagnostics are matched both ways before any trip
+        client.wait_ready(client.diagnostics)
         got.append(time.perf_counter_ns())
         for k in range(12):
             if k % 2:
@@ -268,7 +273,9 @@ def test_lock_step_round_trips_in_the_diagnostics_and_the_log(tmp_path, client):
             sent.append(time.perf_counter_ns())
             client.step([0.1, -0.1])
             got.append(time.perf_counter_ns())
-        client.spin_for(0.5)                              # the last window's diagnostics
+        # until the windows hold 12 trips (a loaded machine can delay the last window)
+        client.spin_until(lambda: sum(int(w['round_trips']) for w in windows()) >= 12)
+        client.spin_for(0.3)                              # a window too many would show
     finally:
         rc, text = stop_node(proc)
     assert rc == 0, text
@@ -278,9 +285,8 @@ def test_lock_step_round_trips_in_the_diagnostics_and_the_log(tmp_path, client):
     for k in range(1, 12):
         assert sent[k] - got[k] <= trips[k] <= got[k + 1] - sent[k - 1], k
         assert trips[k] >= 40e6 if k % 2 else True
-    windows = [{kv.key: kv.value for kv in d.status[0].values} for d in client.diagnostics]
-    assert sum(int(w['round_trips']) for w in windows) == 12
-    for w in windows:
+    assert sum(int(w['round_trips']) for w in windows()) == 12
+    for w in windows():
         if int(w['round_trips']):
             assert 0 < float(w['round_trip_ms_median']) <= float(w['round_trip_ms_p99'])
         else:
@@ -491,7 +497,8 @@ def test_lock_step_groups_step_on_their_own_commands_and_equal_one_step_of_all(
         client.send([0.0] * 2, answers=current[0] - 2)  # an answer to its previous one
         client.spin_for(0.5)
         assert client.transitions[-1].seq == current[0]
-        client.spin_until(lambda: client.counters()['commands_dropped_size'] == '1'
+        client.spin_until(lambda: client.diagnostics
+                          and client.counters()['commands_dropped_size'] == '1'
                           and client.counters()['commands_ignored'] == '1')
         assert client.counters()['steps'] == '3'        # control steps: rounds of both
     finally:
