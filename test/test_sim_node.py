@@ -127,9 +127,18 @@ class Client:
         self.spin_until(future.done, timeout)
         return future.result()
 
+    @staticmethod
+    def values(msg):
+        """Return one ``/diagnostics`` message's key/values as a dict."""
+        return {kv.key: kv.value for kv in msg.status[0].values}
+
+    def windows(self):
+        """Return the key/values of every diagnostics window received, oldest first."""
+        return [self.values(msg) for msg in self.diagnostics]
+
     def counters(self):
         """Return the latest diagnostics key/values as a dict (guard: ``self.diagnostics``)."""
-        return {kv.key: kv.value for kv in self.diagnostics[-1].status[0].values}
+        return self.values(self.diagnostics[-1])
 
     def close(self):
         """Leave the domain."""
@@ -257,10 +266,6 @@ def test_lock_step_round_trips_in_the_diagnostics_and_the_log(tmp_path, client):
     proc = start_node(tmp_path, f'round_trip_log:={log}', 'diagnostics_rate:=5.0',
                       'lock_step_timeout:=5.0')
     got, sent = [], []
-
-    def windows():
-        return [{kv.key: kv.value for kv in d.status[0].values} for d in client.diagnostics]
-
     try:
         # a first window received: the diagnostics are matched both ways before any trip
         client.wait_ready(client.diagnostics)
@@ -274,7 +279,7 @@ def test_lock_step_round_trips_in_the_diagnostics_and_the_log(tmp_path, client):
             client.step([0.1, -0.1])
             got.append(time.perf_counter_ns())
         # until the windows hold 12 trips (a loaded machine can delay the last window)
-        client.spin_until(lambda: sum(int(w['round_trips']) for w in windows()) >= 12)
+        client.spin_until(lambda: sum(int(w['round_trips']) for w in client.windows()) >= 12)
         client.spin_for(0.3)                              # a window too many would show
     finally:
         rc, text = stop_node(proc)
@@ -285,8 +290,9 @@ def test_lock_step_round_trips_in_the_diagnostics_and_the_log(tmp_path, client):
     for k in range(1, 12):
         assert sent[k] - got[k] <= trips[k] <= got[k + 1] - sent[k - 1], k
         assert trips[k] >= 40e6 if k % 2 else True
-    assert sum(int(w['round_trips']) for w in windows()) == 12
-    for w in windows():
+    windows = client.windows()
+    assert sum(int(w['round_trips']) for w in windows) == 12
+    for w in windows:
         if int(w['round_trips']):
             assert 0 < float(w['round_trip_ms_median']) <= float(w['round_trip_ms_p99'])
         else:
