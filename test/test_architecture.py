@@ -4,7 +4,9 @@ The package's layers, as docs/architecture.md draws them.
 Each subpackage of ``pg_node`` is a layer with a rank; a module may import its own layer and
 the layers of lower rank, never a layer of the same rank or above (every import counts, also
 one inside a function). No module imports itself back through others. The math (``rl``), the
-labs, the simulator and the base layer import with ``rclpy`` made unimportable.
+labs, the simulator, the robot-facing layer (``control``) and the base layer import with
+``rclpy`` made unimportable; the robot-facing layer and the base layer also without MuJoCo,
+torch, onnxruntime or PyBullet.
 """
 import ast
 from pathlib import Path
@@ -16,11 +18,12 @@ import pytest
 PACKAGE = Path(__file__).resolve().parent.parent / 'pg_node'
 
 #: layer -> rank; a module may import layers of lower rank and its own
-LAYERS = {'common': 0, 'sim': 1, 'rl': 2, 'bag': 2, 'lab': 3, 'ros': 3, 'tools': 4}
+LAYERS = {'common': 0, 'control': 1, 'sim': 2, 'rl': 3, 'bag': 3, 'lab': 4, 'ros': 4,
+          'tools': 5}
 #: modules at the package's top, above every layer
 TOP = {'pg_node', 'pg_node.__main__'}
 #: layers that must work without ROS 2 installed
-ROS_FREE = ('common', 'sim', 'rl', 'lab')
+ROS_FREE = ('common', 'control', 'sim', 'rl', 'lab')
 
 
 def module_name(path: Path) -> str:
@@ -108,17 +111,24 @@ def test_the_checks_can_fail(tmp_path):
     assert imports_of(tmp_path / 'm.py') == {'pg_node.rl.gae', 'pg_node.ros.sim_node'}
 
 
-ROS_BLOCKER = """
+#: packages the ROS-free layers must not need
+ROS_PACKAGES = ('rclpy', 'rosbags', 'rosidl_runtime_py')
+#: packages the robot-facing layer must not need either: it runs beside any engine or none
+ENGINE_PACKAGES = ROS_PACKAGES + ('mujoco', 'torch', 'onnxruntime', 'pybullet')
+
+BLOCKER = """
 import importlib, importlib.abc, pkgutil, sys
 
-class NoRos(importlib.abc.MetaPathFinder):
+BLOCKED = tuple(sys.argv[1].split(','))
+
+class Blocker(importlib.abc.MetaPathFinder):
     def find_spec(self, name, path=None, target=None):
-        if name.split('.')[0] in ('rclpy', 'rosbags', 'rosidl_runtime_py'):
+        if name.split('.')[0] in BLOCKED:
             raise ImportError(f'{name} is not importable in this test')
 
-sys.meta_path.insert(0, NoRos())
+sys.meta_path.insert(0, Blocker())
 import pg_node
-for layer in sys.argv[1:]:
+for layer in sys.argv[2:]:
     pkg = importlib.import_module('pg_node.' + layer)
     for info in pkgutil.walk_packages(pkg.__path__, pkg.__name__ + '.'):
         importlib.import_module(info.name)
@@ -126,10 +136,16 @@ for layer in sys.argv[1:]:
 """
 
 
-@pytest.mark.parametrize('layers', [ROS_FREE])
-def test_math_and_simulator_import_without_ros(layers):
-    res = subprocess.run([sys.executable, '-c', ROS_BLOCKER, *layers], capture_output=True,
-                         text=True, timeout=300)
+def blocked_import(blocked, layers):
+    """Import every module of ``layers`` with the ``blocked`` packages made unimportable."""
+    return subprocess.run([sys.executable, '-c', BLOCKER, ','.join(blocked), *layers],
+                          capture_output=True, text=True, timeout=300)
+
+
+@pytest.mark.parametrize('blocked, layers', [(ROS_PACKAGES, ROS_FREE),
+                                             (ENGINE_PACKAGES, ('common', 'control'))])
+def test_layers_import_without_what_they_must_not_need(blocked, layers):
+    res = blocked_import(blocked, layers)
     assert res.returncode == 0, res.stderr[-3000:]
     imported = set(res.stdout.split())
     expected = {m for m in MODULES if layer(m) in layers and m.count('.') == 2}
@@ -138,6 +154,5 @@ def test_math_and_simulator_import_without_ros(layers):
 
 def test_the_ros_blocker_blocks():
     """A module that needs rclpy fails under the same blocker, so the test above can fail."""
-    res = subprocess.run([sys.executable, '-c', ROS_BLOCKER, 'ros'], capture_output=True,
-                         text=True, timeout=300)
+    res = blocked_import(ROS_PACKAGES, ['ros'])
     assert res.returncode != 0 and 'not importable in this test' in res.stderr
