@@ -18,7 +18,7 @@ import time
 from domains import ros_domain
 from pg_node.ros import messages
 from pg_node.ros import table_msg
-from pg_node.ros.node_utils import LATCHED, RELIABLE
+from pg_node.ros.qos import LATCHED, RELIABLE
 from pg_node.tools import processes
 import pytest
 import rclpy
@@ -63,7 +63,7 @@ def test_critic_and_learner_learn_in_one_process_and_both_stop_cleanly(tmp_path,
             ex.spin_once(timeout_sec=0.05)
         # signalled at once: the learner's bookkeeping and V's step follow the weights, so
         # the signal may land inside a callback (or in the critic's timer); it must still
-        # be a clean stop (node_utils.stop_on_signals)
+        # be a clean stop (runtime.stop_on_signals)
         ex.shutdown()
         node.destroy_node()
     finally:
@@ -89,7 +89,8 @@ ORDER_SCRIPT = textwrap.dedent("""
     import rclpy
     from pg_node.rl.critic import Critic
     from pg_node.ros.critic_node import CriticNode
-    from pg_node.ros.node_utils import make_executor, RELIABLE
+    from pg_node.ros.qos import RELIABLE
+    from pg_node.ros.runtime import make_executor
     from std_msgs.msg import Float64MultiArray
     from sample_messages import make_rollout
 

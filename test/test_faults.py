@@ -718,7 +718,7 @@ def test_sigterm_stops_each_node_cleanly_with_sigint_ignored(tmp_path):
 
     The graph trains; SIGTERM to each node (what docker, systemd and ``ros2 launch`` send)
     ends it with exit code 0 and no traceback, whatever callback was running: the loop
-    stops after that callback (``node_utils.stop_on_signals``). The learner
+    stops after that callback (``runtime.stop_on_signals``). The learner
     closes its bag whole: every file passes the mcap reader's full validation.
     """
     run_dir = tmp_path / 'run'

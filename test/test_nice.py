@@ -38,7 +38,7 @@ def test_take_nice_renices_every_thread_and_never_lowers():
     """Threads started before and after take the niceness; a lower one later changes nothing."""
     code = (
         'import threading, json, os\n'
-        'from pg_node.ros.node_utils import take_nice\n'
+        'from pg_node.ros.runtime import take_nice\n'
         'from test_nice import thread_nices\n'
         'stop = threading.Event()\n'
         'before = threading.Thread(target=stop.wait); before.start()\n'
@@ -71,7 +71,7 @@ def test_take_idle_puts_every_thread_under_sched_idle():
     """Threads started before and after take SCHED_IDLE, the niceness stays as it was."""
     code = (
         'import threading, json, os\n'
-        'from pg_node.ros.node_utils import take_idle, take_nice\n'
+        'from pg_node.ros.runtime import take_idle, take_nice\n'
         'from test_nice import thread_nices, thread_policies\n'
         'stop = threading.Event()\n'
         'before = threading.Thread(target=stop.wait); before.start()\n'

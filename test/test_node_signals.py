@@ -1,5 +1,5 @@
 """
-How every pg_node node stops: SIGINT and SIGTERM end ``node_utils.run``'s loop between callbacks.
+How every pg_node node stops: SIGINT and SIGTERM end ``runtime.run``'s loop between callbacks.
 
 A node is checked while it is always busy in a callback (a 1 ms timer whose callback computes
 for 20 ms), which is where a signal lands in a training node: rclpy's default handlers raised
@@ -26,7 +26,7 @@ BUSY_NODE = textwrap.dedent("""
     import sys, time
     import rclpy
     from rclpy.node import Node
-    from pg_node.ros import node_utils
+    from pg_node.ros import runtime
 
     HANG = sys.argv[1] == 'hang'
 
@@ -52,7 +52,7 @@ BUSY_NODE = textwrap.dedent("""
             time.sleep(1.0)
         print('cleaned up', flush=True)
 
-    sys.exit(node_utils.run(Busy, cleanup=cleanup))
+    sys.exit(runtime.run(Busy, cleanup=cleanup))
 """)
 
 

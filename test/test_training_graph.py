@@ -287,7 +287,7 @@ def test_two_simulator_actor_pairs_feed_one_learner(tmp_path, mode):
 def test_learner_refuses_a_batch_of_the_wrong_version(tmp_path):
     """Synchronous A2C is on-policy: a batch not sampled by the current version is refused."""
     from diagnostic_msgs.msg import DiagnosticArray
-    from pg_node.ros.node_utils import LATCHED, RELIABLE
+    from pg_node.ros.qos import LATCHED, RELIABLE
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
     from std_msgs.msg import Float64MultiArray

@@ -9,7 +9,7 @@ _PACKAGE_DIR = Path(__file__).resolve().parent.parent
 SOURCE_ROOT = _PACKAGE_DIR.parent
 #: The environment variable in which a supervisor (``train``, ``soak``, ``play``, the
 #: benchmarks) names itself to the nodes it starts: they stop when it dies
-#: (``pg_node.ros.node_utils.stop_with_supervisor``, ``pg_node.tools.processes.child_env``).
+#: (``pg_node.ros.runtime.stop_with_supervisor``, ``pg_node.tools.processes.child_env``).
 SUPERVISOR_ENV = 'PG_NODE_SUPERVISOR_PID'
 
 

@@ -42,9 +42,11 @@ from pg_node.ros import command
 from pg_node.ros import messages
 from pg_node.ros import table_msg
 from pg_node.ros import transition
-from pg_node.ros.node_utils import (Diagnostics, EndWithLearner, LATCHED, RateCounter,
-                                    RELIABLE, run, RunGuard)
+from pg_node.ros.diagnostics import Diagnostics, RateCounter
 from pg_node.ros.parameters import declare_params
+from pg_node.ros.qos import LATCHED, RELIABLE
+from pg_node.ros.run_protocol import EndWithLearner, RunGuard
+from pg_node.ros.runtime import run
 from pg_node.sim.arm_task import arm_groups, ArmSpec
 from rclpy.node import Node
 from rclpy.qos import QoSProfile

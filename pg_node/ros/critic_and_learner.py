@@ -16,7 +16,7 @@ checkpoints first.
 """
 from pg_node.ros.critic_node import CriticNode
 from pg_node.ros.learner_node import LearnerNode
-from pg_node.ros.node_utils import make_together, run
+from pg_node.ros.runtime import make_together, run
 
 
 def make_nodes():

@@ -35,9 +35,11 @@ from pg_node.rl.rollout_buffer import RolloutArrays
 from pg_node.rl.weights import load_flat_state
 from pg_node.ros import messages
 from pg_node.ros import table_msg
-from pg_node.ros.node_utils import (Diagnostics, EndWithLearner, LATCHED, RateCounter,
-                                    RELIABLE, run, RunGuard)
+from pg_node.ros.diagnostics import Diagnostics, RateCounter
 from pg_node.ros.parameters import declare_params
+from pg_node.ros.qos import LATCHED, RELIABLE
+from pg_node.ros.run_protocol import EndWithLearner, RunGuard
+from pg_node.ros.runtime import run
 from rclpy.node import Node
 from std_msgs.msg import Float64MultiArray
 import torch

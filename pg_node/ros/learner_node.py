@@ -11,7 +11,7 @@ actor gets the newest), one ``std_msgs/Float64`` topic per training metric under
 ``/<run>/pg_node/episode`` as the bag gets it (the bag's own topics are ``/pg_node/...``),
 its state on ``/<run>/pg_node/learner_state`` (latched ``DiagnosticStatus``: ``training``,
 then ``done``; nodes started one by one end at ``done``,
-:class:`pg_node.ros.node_utils.EndWithLearner`), and ``/diagnostics``. ``<run>``: the
+:class:`pg_node.ros.run_protocol.EndWithLearner`), and ``/diagnostics``. ``<run>``: the
 ``run_id`` parameter (:mod:`pg_node.common.run`); the
 empty one drops the prefix.
 
@@ -47,10 +47,12 @@ from pg_node.rl.learner import EpisodeStats, Learner
 from pg_node.rl.logger import TensorBoardLog
 from pg_node.ros import messages
 from pg_node.ros import table_msg
-from pg_node.ros.node_utils import (Diagnostics, DONE, LATCHED, LEARNER_STATE, learner_state_msg,
-                                    RANDOMIZATION, RateCounter, RELIABLE, run, RunGuard,
-                                    TRAINING)
+from pg_node.ros.diagnostics import Diagnostics, RateCounter
 from pg_node.ros.parameters import declare_params
+from pg_node.ros.qos import LATCHED, RELIABLE
+from pg_node.ros.run_protocol import (DONE, LEARNER_STATE, learner_state_msg, RANDOMIZATION,
+                                      RunGuard, TRAINING)
+from pg_node.ros.runtime import run
 from rclpy.node import Node
 from std_msgs.msg import Float64, Float64MultiArray
 import torch
@@ -101,7 +103,7 @@ class LearnerNode(Node):
         self.t0 = time.monotonic() - (state or {}).get('wall_seconds', 0.0)
         self.last_metrics = {}
         self.done = False
-        self.exit_code = None              # set when done: node_utils.run then stops
+        self.exit_code = None              # set when done: runtime.run then stops
         bag_dir = self.run_dir / 'bag'
         if bag_dir.exists():
             # a restarted learner continues in a new bag beside the old one
@@ -274,7 +276,7 @@ class LearnerNode(Node):
                 self.linger_until = time.monotonic() + DONE_LINGER
                 self.create_timer(0.1, self.linger)
             else:
-                self.exit_code = 0         # node_utils.run stops the process after this callback
+                self.exit_code = 0         # runtime.run stops the process after this callback
 
     def linger(self):
         """End the process once the nodes that follow the learner's state are gone."""

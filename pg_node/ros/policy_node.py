@@ -97,8 +97,9 @@ from pg_node.common.params import ConfigError, POLICY_PARAMS
 from pg_node.rl.trained_policy import load_trained_policy, PolicySourceError
 from pg_node.ros import command
 from pg_node.ros import table_msg
-from pg_node.ros.node_utils import Diagnostics, RateCounter, run
+from pg_node.ros.diagnostics import Diagnostics, RateCounter
 from pg_node.ros.parameters import declare_params
+from pg_node.ros.runtime import run
 from pg_node.sim.actuation import Actuation, UNITS
 from pg_node.sim.kinematics_check import compare_kinematics
 from pg_node.sim.observation import ObservationBuilder

@@ -70,7 +70,7 @@ import time
 
 from pg_node.bag import ros_types
 from pg_node.bag.reader import BagReader
-from pg_node.ros import node_utils
+from pg_node.ros import runtime
 from rcl_interfaces.msg import ParameterDescriptor, ParameterType
 import rclpy
 from rclpy.exceptions import InvalidParameterTypeException, ParameterUninitializedException
@@ -616,14 +616,14 @@ def main(args=None) -> int:
               'wait_timeout': opts.wait_timeout, 'delay': opts.delay,
               'wait_acked_timeout': opts.wait_acked_timeout}
     overrides = [Parameter(k, value=v) for k, v in values.items() if v is not None]
-    reason = node_utils.init_quietly(['replay_node'] + ros)
+    reason = runtime.init_quietly(['replay_node'] + ros)
     if reason is not None:
         print(f'replay_node: {reason}', file=sys.stderr)
         return EXIT_NOTHING
     node = None
     status = EXIT_OK
-    with node_utils.stop_on_signals() as stop:
-        node_utils.stop_with_supervisor(stop)
+    with runtime.stop_on_signals() as stop:
+        runtime.stop_with_supervisor(stop)
         try:
             try:
                 node = ReplayNode(parameter_overrides=overrides)
@@ -634,7 +634,7 @@ def main(args=None) -> int:
             executor.add_node(node)
             node.start()
             while rclpy.ok() and not node.done.is_set() and not stop:
-                executor.spin_once(timeout_sec=node_utils.SPIN_TIMEOUT)
+                executor.spin_once(timeout_sec=runtime.SPIN_TIMEOUT)
             node.report()
             if node.damage:
                 status = EXIT_DAMAGED

@@ -20,7 +20,7 @@ nodes: ``seed`` moves the actor's sampling as well as the simulator's episodes. 
 SIGTERM stops both.
 """
 from pg_node.ros.actor_node import ActorNode
-from pg_node.ros.node_utils import make_together, run
+from pg_node.ros.runtime import make_together, run
 from pg_node.ros.sim_node import SimNode
 
 

@@ -103,8 +103,9 @@ from pg_node.common.run import COMMANDS
 from pg_node.ros import command
 from pg_node.ros import table_msg
 from pg_node.ros import transition
-from pg_node.ros.node_utils import EndWithLearner, RANDOMIZATION, run, RunGuard
 from pg_node.ros.parameters import declare_params
+from pg_node.ros.run_protocol import EndWithLearner, RANDOMIZATION, RunGuard
+from pg_node.ros.runtime import run
 from pg_node.sim.actuation import Actuation
 from pg_node.sim.arm_task import arm_groups, ArmTask
 from rclpy.event_handler import PublisherEventCallbacks

@@ -65,6 +65,7 @@ from typing import List, Mapping, Optional
 
 import mujoco
 import numpy as np
+from pg_node.common.params import ConfigError
 from pg_node.common.perturbations import parse_terms
 from pg_node.sim.actuation import ctrl_range
 from pg_node.sim.randomization import Randomizer
@@ -74,8 +75,19 @@ TARGET_BODY = 'target'
 THREADS_FROM_ENVS = 32
 
 
-class NotAnArm(ValueError):
-    """The model compiles but breaks a convention of this module's docstring (docs/mjcf.md)."""
+class NotAnArm(ConfigError):
+    """
+    The model compiles but breaks a convention of this module's docstring (docs/mjcf.md).
+
+    A configuration error (the ``model`` parameter's), so a node started on such a model ends
+    in one line like any other bad parameter. ``reason`` is what the model lacks; ``path``
+    names the file when known.
+    """
+
+    def __init__(self, reason: str, path=None):
+        self.reason = reason
+        where = f'{path} is not a pg_node arm' if path else 'the model is not a pg_node arm'
+        super().__init__(f'{where}: {reason} (docs/mjcf.md says what an arm needs)')
 
 
 def check_arm(path) -> 'ArmSpec':
@@ -89,8 +101,7 @@ def check_arm(path) -> 'ArmSpec':
     try:
         return ArmSpec.from_model(mujoco.MjModel.from_xml_path(str(path)))
     except NotAnArm as exc:
-        raise NotAnArm(f'{path} is not a pg_node arm: {exc} (docs/mjcf.md says what an arm '
-                       'needs)') from None
+        raise NotAnArm(exc.reason, path) from None
 
 
 def _custom_numeric(model: mujoco.MjModel, name: str, default):

@@ -177,7 +177,7 @@ def lock_step_latency(n: int, steps: int, warmup: int = 200, timeout: float = 60
     """
     from pg_node.common.run import COMMANDS
     from pg_node.ros import command
-    from pg_node.ros.node_utils import make_executor
+    from pg_node.ros.runtime import make_executor
     import rclpy
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
     from std_msgs.msg import Float64MultiArray

@@ -26,7 +26,7 @@ def child_env(domain_id: Optional[int] = None) -> Dict[str, str]:
     With ``domain_id`` the child joins that ``ROS_DOMAIN_ID`` (tests use one per process so
     that parallel runs do not hear each other). Called from the main thread, it names this
     process as the node's supervisor: the node then stops when this process dies, even by
-    SIGKILL (:func:`pg_node.ros.node_utils.stop_with_supervisor`). Not from another thread:
+    SIGKILL (:func:`pg_node.ros.runtime.stop_with_supervisor`). Not from another thread:
     the kernel ties that to the thread that started the child, which may end first.
     """
     env = dict(os.environ, PYTHONUNBUFFERED='1')

@@ -150,7 +150,7 @@ class Injector:
 
     def __init__(self, cfg: dict):
         from diagnostic_msgs.msg import DiagnosticArray
-        from pg_node.ros.node_utils import LATCHED, RELIABLE
+        from pg_node.ros.qos import LATCHED, RELIABLE
         import rclpy
         from rclpy.executors import SingleThreadedExecutor
         from std_msgs.msg import Float64MultiArray

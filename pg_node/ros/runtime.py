@@ -1,170 +1,26 @@
 """
-What pg_node's nodes share: QoS profiles, the ``main`` loop, diagnostics, rate counters.
+How a pg_node node process runs, from ``rclpy.init`` to its exit code.
 
-Kept apart from the math: only nodes import this module.
+rclpy's init and executor, stop signals, the supervisor's death, CPU niceness, and the
+``main`` loop (:func:`run`) with its exit codes.
+
+A bad configuration (:class:`pg_node.common.params.ConfigError`, raised by any layer) ends the
+process in one line with exit code 2; SIGINT and SIGTERM end the loop between callbacks.
 """
 import contextlib
 import os
 import signal
 import sys
 import threading
-import time
-from typing import Callable, Dict, Iterator, List, Optional, Union
+from typing import Callable, Iterator, List, Optional, Union
 
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from pg_node.common.params import ConfigError
 from pg_node.common.paths import SUPERVISOR_ENV
-from pg_node.common.run import run_token, run_topic
-from pg_node.sim.arm_task import NotAnArm
 import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
-
-#: Reliable, keep-last-1, transient-local: a late or restarted subscriber gets the latest.
-LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                     durability=DurabilityPolicy.TRANSIENT_LOCAL,
-                     history=HistoryPolicy.KEEP_LAST)
-#: Reliable, volatile, a few deep: the rollouts and batches between training nodes.
-RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
-                      durability=DurabilityPolicy.VOLATILE, history=HistoryPolicy.KEEP_LAST)
-
-#: run topic where each simulator publishes its arms' drawn randomization terms, for the bag
-RANDOMIZATION = 'randomization'
-
-
-class Diagnostics:
-    """Publishes one ``DiagnosticStatus`` of a node on ``/diagnostics`` from its counters."""
-
-    def __init__(self, node: Node, name: str, hardware_id: str = ''):
-        self.node = node
-        self.name = name
-        self.hardware_id = hardware_id
-        self.pub = node.create_publisher(DiagnosticArray, '/diagnostics', 10)
-
-    def publish(self, values: Dict, level: int = DiagnosticStatus.OK, message: str = 'ok'):
-        """Publish ``values`` (stringified) with a level and a one-line message."""
-        status = DiagnosticStatus(name=self.name, hardware_id=self.hardware_id,
-                                  level=level, message=message)
-        status.values = [KeyValue(key=str(k), value=str(v)) for k, v in values.items()]
-        msg = DiagnosticArray()
-        msg.header.stamp = self.node.get_clock().now().to_msg()
-        msg.status = [status]
-        self.pub.publish(msg)
-
-
-class RunGuard:
-    """
-    The run a node belongs to (:mod:`pg_node.common.run`): its shared topics, and a check.
-
-    :meth:`foreign` drops a message that carries another run's token: it is counted
-    (``dropped``, the node's ``foreign_messages`` in ``/diagnostics``) and logged once per
-    topic and token, naming both runs, so a stray publisher shows in the log without
-    flooding it.
-    """
-
-    def __init__(self, node: Node, run_id: str):
-        self.node = node
-        self.run_id = run_id
-        self.token = run_token(run_id)
-        self.dropped = 0
-        self._told = set()
-
-    def topic(self, name: str) -> str:
-        """Return the absolute name of the run's shared topic ``name``."""
-        return run_topic(self.run_id, name)
-
-    def foreign(self, token: int, topic: str) -> bool:
-        """Return whether a message of ``token`` on ``topic`` is another run's (and count it)."""
-        if token == self.token:
-            return False
-        self.dropped += 1
-        if (topic, token) not in self._told:
-            self._told.add((topic, token))
-            self.node.get_logger().warning(
-                f'dropped a message on {topic} of another run (run token {token}; this run, '
-                f'{self.run_id!r}, has {self.token}): not learned from or acted on; counted '
-                'in /diagnostics as foreign_messages, not logged again for this sender')
-        return True
-
-
-#: the learner's state, ``/<run>/pg_node/learner_state`` (latched): training, then done
-LEARNER_STATE = 'learner_state'
-TRAINING, DONE = 'training', 'done'
-
-
-def learner_state_msg(run: 'RunGuard', state: str, version: int,
-                      env_steps: int) -> DiagnosticStatus:
-    """Return the learner's state as a ``DiagnosticStatus`` carrying the run's token."""
-    status = DiagnosticStatus(name='learner_node', hardware_id=run.run_id, message=state)
-    status.values = [KeyValue(key=k, value=str(v)) for k, v in (
-        ('state', state), ('run_token', run.token), ('policy_version', version),
-        ('env_steps', env_steps))]
-    return status
-
-
-def supervised() -> bool:
-    """Return whether ``python -m pg_node train`` started this process (and ends it)."""
-    return os.environ.get(SUPERVISOR_ENV, '').strip() == str(os.getppid())
-
-
-class EndWithLearner:
-    """
-    Ends a node of a run when the run's learner says it has finished.
-
-    Under ``train`` or ``ros2 launch`` the whole graph is stopped when the learner exits;
-    nodes started one by one (``ros2 run``) have no one to stop them, and an actor would
-    re-send its last rollout every few seconds for ever. So a node not started by ``train``
-    follows ``/<run>/pg_node/learner_state`` (latched, so a node that starts after the
-    learner still hears it) and, at ``done``, says so and sets its ``exit_code`` to 0, which
-    ends its process (:func:`run`) the way the learner's own exit does. A state of another
-    run is dropped and counted (:class:`RunGuard`).
-    """
-
-    def __init__(self, node: Node, run: 'RunGuard'):
-        self.node = node
-        self.run = run
-        self.topic = run.topic(LEARNER_STATE)
-        node.exit_code = None
-        if not supervised():
-            node.create_subscription(DiagnosticStatus, self.topic, self.on_state, LATCHED)
-
-    def on_state(self, msg: DiagnosticStatus):
-        """At the run's learner's ``done``: say so and end the node."""
-        values = {kv.key: kv.value for kv in msg.values}
-        try:
-            token = int(values.get('run_token', ''))
-        except ValueError:
-            return
-        if self.run.foreign(token, self.topic) or values.get('state') != DONE:
-            return
-        if self.node.exit_code is None:
-            self.node.get_logger().info(
-                f"the learner has finished ({values.get('env_steps')} steps, policy version "
-                f"{values.get('policy_version')}): stopping")
-            self.node.exit_code = 0
-
-
-class RateCounter:
-    """Counts events and reports their rate since the last report."""
-
-    def __init__(self):
-        self.count = 0
-        self._last_count = 0
-        self._last_time = time.monotonic()
-
-    def add(self, n: int = 1):
-        """Count ``n`` events."""
-        self.count += n
-
-    def rate(self) -> float:
-        """Return events per second since the previous call."""
-        now = time.monotonic()
-        r = (self.count - self._last_count) / max(now - self._last_time, 1e-9)
-        self._last_count, self._last_time = self.count, now
-        return r
 
 
 #: the executors a node can spin in (environment variable ``PG_NODE_EXECUTOR``)
@@ -471,12 +327,8 @@ def run(make_node: Callable[[], Union[Node, List[Node]]], args=None,
                     break
         except (KeyboardInterrupt, ExternalShutdownException):
             pass                              # a second signal, or a shutdown from elsewhere
-        except ConfigError as exc:
+        except ConfigError as exc:           # also a model that is no arm (NotAnArm)
             print(f'configuration error: {exc}', file=sys.stderr)
-            code = 2
-        except NotAnArm as exc:             # the model compiles, but is no pg_node arm
-            print(f'configuration error: the model is not a pg_node arm: {exc} (docs/mjcf.md '
-                  'says what an arm needs)', file=sys.stderr)
             code = 2
         except SystemExit as exc:
             code = int(exc.code or 0)
