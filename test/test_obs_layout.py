@@ -45,7 +45,7 @@ def test_slices_tile_the_observation_in_order(joints, k):
     layout = ObsLayout(joints, k)
     nj = len(joints)
     sizes = {'cos_q': nj, 'sin_q': nj, 'target': k, 'qdot': nj, 'fingertip_minus_target': k}
-    assert list(layout.slices) == list(FIELDS)
+    assert list(layout.slices) == list(FIELDS) == list(sizes)
     start = 0
     for name in FIELDS:
         sl = layout.slices[name]
