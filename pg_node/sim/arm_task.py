@@ -51,13 +51,10 @@ the seeding of Gymnasium's vector envs, so env ``i`` of ``ArmTask(..., seed=s)``
 
 Stepping: ``mj_step(model, data_i, nstep=frame_skip)`` over one ``MjData`` per env, in a
 plain loop, or split over a thread pool (``mj_step`` releases the GIL) from
-``THREADS_FROM_ENVS`` envs on (``num_threads``). Measured on 2 cores with
-``bench/bench_sim.py`` against ``mujoco.rollout`` (one call for all envs, 1 or 2 threads):
-for 1 arm the loop is fastest (about 40k steps/s; rollout 25k); with the cores idle,
-2 threads gain 20% at 16 arms and 60% at 64 (65k against the loop's 41k arm steps/s,
-2-thread rollout the same), with the cores busy all ways tie and threads can lose at 16,
-hence the threshold of 32. Only stepping the ``MjData`` leaves the
-post-step ``xpos`` that Reacher-v5's reward reads, so rollout is not used.
+``THREADS_FROM_ENVS`` envs on (``num_threads``): below it, on a busy 2-core machine, the
+threads' hand-offs cost what they gain (``bench/bench_sim.py`` measures the ways). Only
+stepping the ``MjData`` leaves the post-step ``xpos`` that Reacher-v5's reward reads, so
+``mujoco.rollout`` is not used.
 """
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -281,7 +278,7 @@ class ArmTask:
         self.datas = [mujoco.MjData(self.model) for _ in range(self.num_envs)]
         # Each ``d.qpos``-style attribute access builds a new numpy view; the views stay
         # valid for the life of their MjData, so take them once and gather with one
-        # ``np.array`` per field (64 arms: observe + joint state 490 -> 75 us a step).
+        # ``np.array`` per field.
         self._views = {name: [getattr(d, name) for d in self.datas]
                        for name in ('qpos', 'qvel', 'qfrc_actuator', 'xpos', 'site_xpos',
                                     'mocap_pos', 'ctrl')}
