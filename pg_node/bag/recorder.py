@@ -167,7 +167,6 @@ class EpisodeRecorder:
         self.model_path = str(resolve_model(str(model_path)))
         model = mujoco.MjModel.from_xml_path(self.model_path)
         self.spec = ArmSpec.from_model(model)
-        self.n_joints = len(self.spec.joint_ids)
         self.target_dim = self.spec.target_dim
         self.act_dim = model.nu
         self.obs_layout = self.spec.obs_layout
