@@ -167,10 +167,10 @@ class EpisodeRecorder:
         self.model_path = str(resolve_model(str(model_path)))
         model = mujoco.MjModel.from_xml_path(self.model_path)
         self.spec = ArmSpec.from_model(model)
-        self.n_joints = len(self.spec.joint_ids)
         self.target_dim = self.spec.target_dim
         self.act_dim = model.nu
-        self.obs_dim = 3 * self.n_joints + 2 * self.target_dim
+        self.obs_layout = self.spec.obs_layout
+        self.obs_dim = self.obs_layout.size
         self.gear = model.actuator_gear[:, 0].copy()
         self.dt = float(dt) if dt is not None else float(model.opt.timestep * frame_skip)
         self.record_arms = int(record_arms)
@@ -283,7 +283,7 @@ class EpisodeRecorder:
         return out
 
     def _write_step(self, t_log, obs, act, rew, ep_id, ep_step, arms, seq):
-        n, k = self.n_joints, self.target_dim
+        k, at = self.target_dim, self.obs_layout.slices
         stamp = sim_stamp(seq * self.dt)
         w, m = self.writer, self._msgs
         # the writer serialises a message as it takes it, so one object of each type is
@@ -298,9 +298,10 @@ class EpisodeRecorder:
         js = m.joints
         js.header.stamp = stamp
         js.name = names
-        angles = self._unwrapped(np.arctan2(obs[:, n:2 * n], obs[:, :n]), arms, ep_step)
+        angles = self._unwrapped(np.arctan2(obs[:, at['sin_q']], obs[:, at['cos_q']]), arms,
+                                 ep_step)
         js.position = float64_field(angles)
-        js.velocity = float64_field(obs[:, 2 * n + k:3 * n + k])
+        js.velocity = float64_field(obs[:, at['qdot']])
         js.effort = float64_field(act_c * self.gear)
         w.write('/joint_states', js, t_log)
         for r, arm in enumerate(arms.tolist()):
@@ -311,7 +312,7 @@ class EpisodeRecorder:
                 point = PointStamped()
                 point.header.stamp = stamp
                 point.header.frame_id = f'arm{arm}'
-                goal = obs[r, 2 * n:2 * n + k]
+                goal = obs[r, at['target']]
                 point.point.x = float(goal[0])
                 point.point.y = float(goal[1]) if k > 1 else 0.0
                 point.point.z = float(goal[2]) if k > 2 else 0.0

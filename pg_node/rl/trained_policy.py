@@ -93,7 +93,6 @@ def make_card(model_name: str, obs_dim: int, act_dim: int, frame_skip: int,
     from pg_node.common.paths import resolve_model
     from pg_node.sim.actuation import Actuation
     from pg_node.sim.arm_task import ArmSpec
-    from pg_node.sim.observation import observation_layout
     try:
         model_path = resolve_model(model_name)
         model = mujoco.MjModel.from_xml_path(str(model_path))
@@ -101,11 +100,11 @@ def make_card(model_name: str, obs_dim: int, act_dim: int, frame_skip: int,
     except (OSError, ValueError) as exc:
         raise PolicySourceError(f'arm model {model_name!r} of the policy: '
                                 f'{" ".join(str(exc).split())}') from None
-    layout = observation_layout(spec)
-    if sum(f['size'] for f in layout) != obs_dim or model.nu != act_dim:
+    layout = spec.obs_layout
+    if layout.size != obs_dim or model.nu != act_dim:
         raise PolicySourceError(
             f'the policy has {obs_dim} observations and {act_dim} actions, its model '
-            f'{model_name!r} {sum(f["size"] for f in layout)} and {model.nu}')
+            f'{model_name!r} {layout.size} and {model.nu}')
 
     def bound(values):
         return [float(v) if np.isfinite(v) else None for v in values]
@@ -116,7 +115,7 @@ def make_card(model_name: str, obs_dim: int, act_dim: int, frame_skip: int,
         'model_xml': Path(model_path).read_text(),
         'joint_names': list(spec.joint_names),
         'actuator_names': list(spec.actuator_names),
-        'observation': {'size': int(obs_dim), 'layout': layout,
+        'observation': {'size': int(obs_dim), 'layout': layout.card(),
                         'normalization': 'inside the policy'},
         'action': {'size': int(act_dim), 'low': bound(spec.ctrl_low),
                    'high': bound(spec.ctrl_high),

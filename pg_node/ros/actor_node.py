@@ -81,7 +81,7 @@ class ActorNode(Node):
         import mujoco
         self.spec = ArmSpec.from_model(mujoco.MjModel.from_xml_path(str(model)))
         self.act_dim = len(self.spec.ctrl_low)
-        self.obs_dim = 3 * len(self.spec.joint_names) + 2 * self.spec.target_dim
+        self.obs_dim = self.spec.obs_layout.size
         self.policy = NumpySampler.from_config(self.obs_dim, self.act_dim, self.cfg)
         self.version = -1                      # no weights yet: do not act
         self.rng = make_rng(self.cfg['seed'] + 7919 * self.cfg['actor_id'])

@@ -80,7 +80,7 @@ class LearnerNode(Node):
         from pg_node.sim.arm_task import ArmSpec
         model_path = resolve_model(self.cfg['model'])
         spec = ArmSpec.from_model(mujoco.MjModel.from_xml_path(str(model_path)))
-        obs_dim = 3 * len(spec.joint_names) + 2 * spec.target_dim
+        obs_dim = spec.obs_layout.size
         self.run_dir = Path(self.cfg['run_dir'])
         self.run_dir.mkdir(parents=True, exist_ok=True)
         self.learner = Learner(obs_dim, len(spec.ctrl_low), self.cfg)

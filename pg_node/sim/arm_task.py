@@ -30,7 +30,8 @@ One control step applies ``act`` as ``ctrl`` (MuJoCo clamps it to ``ctrlrange``)
 ``frame_skip`` physics steps, then reads
 
 * observation ``[cos q, sin q, target, qdot, (fingertip - target)[:k]]`` with ``q``, ``qdot``
-  the arm joints' positions and velocities and ``k`` the goal's dimension;
+  the arm joints' positions and velocities and ``k`` the goal's dimension (the order and
+  slices are :class:`pg_node.control.obs_layout.ObsLayout`'s);
 * reward ``r = -reward_dist_weight * |fingertip - target| - reward_control_weight * sum(act^2)``,
   with the positions read after the physics steps from ``data.site_xpos`` exactly as
   Reacher-v5 reads ``data.xpos`` (under RK4 that is the last Runge-Kutta stage's kinematics,
@@ -50,13 +51,10 @@ the seeding of Gymnasium's vector envs, so env ``i`` of ``ArmTask(..., seed=s)``
 
 Stepping: ``mj_step(model, data_i, nstep=frame_skip)`` over one ``MjData`` per env, in a
 plain loop, or split over a thread pool (``mj_step`` releases the GIL) from
-``THREADS_FROM_ENVS`` envs on (``num_threads``). Measured on 2 cores with
-``bench/bench_sim.py`` against ``mujoco.rollout`` (one call for all envs, 1 or 2 threads):
-for 1 arm the loop is fastest (about 40k steps/s; rollout 25k); with the cores idle,
-2 threads gain 20% at 16 arms and 60% at 64 (65k against the loop's 41k arm steps/s,
-2-thread rollout the same), with the cores busy all ways tie and threads can lose at 16,
-hence the threshold of 32. Only stepping the ``MjData`` leaves the
-post-step ``xpos`` that Reacher-v5's reward reads, so rollout is not used.
+``THREADS_FROM_ENVS`` envs on (``num_threads``): below it, on a busy 2-core machine, the
+threads' hand-offs cost what they gain (``bench/bench_sim.py`` measures the ways). Only
+stepping the ``MjData`` leaves the post-step ``xpos`` that Reacher-v5's reward reads, so
+``mujoco.rollout`` is not used.
 """
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -67,6 +65,7 @@ import mujoco
 import numpy as np
 from pg_node.common.params import ConfigError
 from pg_node.common.perturbations import parse_terms
+from pg_node.control.obs_layout import ObsLayout
 from pg_node.sim.actuation import ctrl_range
 from pg_node.sim.randomization import Randomizer
 
@@ -140,6 +139,11 @@ class ArmSpec:
     link_parents: np.ndarray
     init_qpos: Optional[np.ndarray] = None
     target_points: Optional[np.ndarray] = None
+
+    @property
+    def obs_layout(self) -> ObsLayout:
+        """Return the layout of this arm's observation."""
+        return ObsLayout.of(self)
 
     def angle_bounds(self):
         """Return ``(low, high)`` of the arm joints: their limits, a full turn where none."""
@@ -285,14 +289,15 @@ class ArmTask:
         self.datas = [mujoco.MjData(self.model) for _ in range(self.num_envs)]
         # Each ``d.qpos``-style attribute access builds a new numpy view; the views stay
         # valid for the life of their MjData, so take them once and gather with one
-        # ``np.array`` per field (64 arms: observe + joint state 490 -> 75 us a step).
+        # ``np.array`` per field.
         self._views = {name: [getattr(d, name) for d in self.datas]
                        for name in ('qpos', 'qvel', 'qfrc_actuator', 'xpos', 'site_xpos',
                                     'mocap_pos', 'ctrl')}
         self.dt = self.model.opt.timestep * self.frame_skip
         self.n_joints = len(self.spec.joint_ids)
         self.act_dim = self.model.nu
-        self.obs_dim = 3 * self.n_joints + 2 * self.spec.target_dim
+        self.obs_layout = self.spec.obs_layout
+        self.obs_dim = self.obs_layout.size
         self.episode_id = np.zeros(self.num_envs, dtype=np.int64)
         self.episode_step = np.zeros(self.num_envs, dtype=np.int64)
         self.episode_return = np.zeros(self.num_envs)
@@ -437,14 +442,14 @@ class ArmTask:
 
     def _observe(self, arms: slice = slice(None)):
         """Return the observations and the fingertip-minus-target vectors ``(n, 3)``."""
-        s = self.spec
-        k, nj = s.target_dim, self.n_joints
+        s, at = self.spec, self.obs_layout.slices
+        k = s.target_dim
         qpos = self._gather('qpos', arms)
         obs = np.empty((len(qpos), self.obs_dim))
         q = qpos[:, s.qpos_adr]
-        obs[:, 2 * nj + k:3 * nj + k] = self._gather('qvel', arms)[:, s.dof_adr]
-        obs[:, 2 * nj:2 * nj + k] = (self._gather('mocap_pos', arms)[:, s.target_mocap]
-                                     if s.target_mocap >= 0 else qpos[:, s.target_qpos_adr])
+        obs[:, at['qdot']] = self._gather('qvel', arms)[:, s.dof_adr]
+        obs[:, at['target']] = (self._gather('mocap_pos', arms)[:, s.target_mocap]
+                                if s.target_mocap >= 0 else qpos[:, s.target_qpos_adr])
         target = self._gather('xpos', arms)[:, s.target_body]
         vec = self._gather('site_xpos', arms)[:, s.fingertip_site] - target
         r = self.randomizer
@@ -454,13 +459,13 @@ class ArmTask:
             if 'obs_noise' in r.terms:
                 q = q + r.noise_q[arms]
                 seen = r.fingertips(q) - target
-            obs[:, 2 * nj + k:3 * nj + k] += r.noise_v[arms]
-            obs[:, 2 * nj:2 * nj + k] += r.noise_t[arms]
-            obs[:, 3 * nj + k:] = seen[:, :k] - r.noise_t[arms]
+            obs[:, at['qdot']] += r.noise_v[arms]
+            obs[:, at['target']] += r.noise_t[arms]
+            obs[:, at['fingertip_minus_target']] = seen[:, :k] - r.noise_t[arms]
         else:
-            obs[:, 3 * nj + k:] = vec[:, :k]
-        obs[:, :nj] = np.cos(q)
-        obs[:, nj:2 * nj] = np.sin(q)
+            obs[:, at['fingertip_minus_target']] = vec[:, :k]
+        obs[:, at['cos_q']] = np.cos(q)
+        obs[:, at['sin_q']] = np.sin(q)
         return obs, vec
 
     def _chunks_of(self, lo: int, hi: int):

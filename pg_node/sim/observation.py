@@ -3,29 +3,13 @@ The task's observation rebuilt from measured joint states, as a robot would give
 
 Training reads the observation out of the simulator (:meth:`pg_node.sim.arm_task.ArmTask.
 observe`); a policy running on a robot has only joint positions, velocities and the goal.
-:class:`ObservationBuilder` makes the same vector from those:
-``[cos q, sin q, target[:k], qdot, (fingertip - target)[:k]]``, the fingertip by forward
-kinematics (``mj_kinematics``) of the arm model at the measured angles ``q``.
+:class:`ObservationBuilder` makes the same vector from those, laid out by
+:class:`pg_node.control.obs_layout.ObsLayout`, the fingertip by forward kinematics
+(``mj_kinematics``) of the arm model at the measured angles ``q``.
 """
-from typing import List
-
 import mujoco
 import numpy as np
 from pg_node.sim.arm_task import ArmSpec
-
-
-def observation_layout(spec: ArmSpec) -> List[dict]:
-    """Return the observation's fields in order: ``name``, ``size`` and what it holds."""
-    nj, k = len(spec.joint_names), spec.target_dim
-    joints = list(spec.joint_names)
-    axes = list('xyz'[:k])
-    return [
-        {'name': 'cos_q', 'size': nj, 'of': joints},
-        {'name': 'sin_q', 'size': nj, 'of': joints},
-        {'name': 'target', 'size': k, 'of': axes},
-        {'name': 'qdot', 'size': nj, 'of': joints},
-        {'name': 'fingertip_minus_target', 'size': k, 'of': axes},
-    ]
 
 
 class ObservationBuilder:
@@ -37,7 +21,8 @@ class ObservationBuilder:
         self.spec = ArmSpec.from_model(model)
         self.data = mujoco.MjData(model)
         self.n_joints = len(self.spec.joint_names)
-        self.obs_dim = 3 * self.n_joints + 2 * self.spec.target_dim
+        self.obs_layout = self.spec.obs_layout
+        self.obs_dim = self.obs_layout.size
         self._qpos = self.data.qpos
         self._tip = self.data.site_xpos[self.spec.fingertip_site]
         # joints moved by a joint equality (a URDF <mimic> on the chain, ``arm import``'s
@@ -102,11 +87,11 @@ class ObservationBuilder:
         q = np.asarray(q, dtype=np.float64)
         qdot = np.asarray(qdot, dtype=np.float64)
         target = np.asarray(target, dtype=np.float64)
-        nj, k = self.n_joints, self.spec.target_dim
+        k, at = self.spec.target_dim, self.obs_layout.slices
         obs = np.empty((len(q), self.obs_dim))
-        obs[:, :nj] = np.cos(q)
-        obs[:, nj:2 * nj] = np.sin(q)
-        obs[:, 2 * nj:2 * nj + k] = target[:, :k]
-        obs[:, 2 * nj + k:3 * nj + k] = qdot
-        obs[:, 3 * nj + k:] = (self.fingertips(q) - target)[:, :k]
+        obs[:, at['cos_q']] = np.cos(q)
+        obs[:, at['sin_q']] = np.sin(q)
+        obs[:, at['target']] = target[:, :k]
+        obs[:, at['qdot']] = qdot
+        obs[:, at['fingertip_minus_target']] = (self.fingertips(q) - target)[:, :k]
         return obs

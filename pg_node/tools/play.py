@@ -31,6 +31,7 @@ import tempfile
 import time
 
 import numpy as np
+from pg_node.control.obs_layout import ObsLayout
 from pg_node.tools.args import positive_float, positive_int
 
 
@@ -65,13 +66,10 @@ class Episodes:
     """Episode returns and final distances summed from a stream of transitions."""
 
     def __init__(self, obs_layout):
-        """Take the observation's field layout (from the policy's card)."""
-        sizes = [f['size'] for f in obs_layout]
-        offsets = np.cumsum([0] + sizes)
-        fields = {f['name']: slice(offsets[k], offsets[k + 1])
-                  for k, f in enumerate(obs_layout)}
-        self.cos, self.sin = fields['cos_q'], fields['sin_q']
-        self.target, self.vec = fields['target'], fields['fingertip_minus_target']
+        """Take the observation's :class:`~pg_node.control.obs_layout.ObsLayout`."""
+        at = obs_layout.slices
+        self.cos, self.sin = at['cos_q'], at['sin_q']
+        self.target, self.vec = at['target'], at['fingertip_minus_target']
         self.counted_from = None        # transitions after this seq count
         self.prev = None
         self.running = {}               # episode id -> [return, arm, start seq, frames]
@@ -195,7 +193,7 @@ def main(argv=None) -> int:
     os.environ.update(discovery_env(network=False)[0])
     env = processes.child_env()
     namespace = f'/play_{os.getpid()}'
-    episodes = Episodes(card['observation']['layout'])
+    episodes = Episodes(ObsLayout.from_card(card['observation']['layout']))
     rclpy.init()
     node = rclpy.create_node('pg_node_play', namespace=namespace)
     commands, ready = [], []
