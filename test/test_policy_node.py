@@ -632,10 +632,12 @@ def test_joint_columns_examples_and_parameter_descriptors():
     """The module's worked examples hold; every parameter is live or read-only with a range."""
     import doctest
     from pg_node.common.params import POLICY_PARAMS
+    from pg_node.control import joint_map
     from pg_node.ros import policy_node
     from pg_node.ros.parameters import descriptor
-    failures, tried = doctest.testmod(policy_node)
-    assert tried > 0 and failures == 0
+    for module in (policy_node, joint_map):
+        failures, tried = doctest.testmod(module)
+        assert tried > 0 and failures == 0
     for name, param in POLICY_PARAMS.items():
         d = descriptor(param)
         assert d.read_only == (not param.live), name

@@ -91,7 +91,8 @@ def make_card(model_name: str, obs_dim: int, act_dim: int, frame_skip: int,
     """
     import mujoco
     from pg_node.common.paths import resolve_model
-    from pg_node.sim.actuation import Actuation
+    from pg_node.control.interfaces import card as command_card
+    from pg_node.sim.actuation import actuators
     from pg_node.sim.arm_task import ArmSpec
     try:
         model_path = resolve_model(model_name)
@@ -121,7 +122,7 @@ def make_card(model_name: str, obs_dim: int, act_dim: int, frame_skip: int,
                    'high': bound(spec.ctrl_high),
                    'meaning': 'actuator control (MuJoCo ctrl: torque / gear), joint order'},
         # what a robot's controller takes: per interface the model has, its unit and range
-        'command_interfaces': Actuation(model).card(),
+        'command_interfaces': command_card(actuators(model)),
         'control_step': float(model.opt.timestep * frame_skip),
         'timestep': float(model.opt.timestep),
         'frame_skip': int(frame_skip),

@@ -25,7 +25,8 @@ Subscribed:
 * ``joint_states`` (``sensor_msgs/JointState``, best effort, so any publisher matches):
   matched by name to the model's arm joints, in any order, other joints ignored; one arm
   with the plain names (``joint0``) or several with ``arm<i>/`` prefixes, as ``sim_node``
-  publishes them (``num_arms`` 0 takes as many arms as the first message holds). Position
+  publishes them (``num_arms`` 0 takes as many arms as the first message holds;
+  :mod:`pg_node.control.joint_map`). Position
   and velocity are needed; a message with a non-finite one is dropped and counted. A model
   joint missing from the message is an error that stops the node (exit code 2, one line);
 * ``target`` (``geometry_msgs/PointStamped``, reliable + transient-local as ``sim_node``
@@ -34,9 +35,9 @@ Subscribed:
   robots by namespace (``-r __ns:=/left``), not by frame. Another frame goes through tf2
   where ``tf2_ros`` can be imported (a full ROS install; it is not on PyPI); otherwise it
   is refused, with one warning naming it. A target beyond the arm's reach
-  (:meth:`pg_node.sim.observation.ObservationBuilder.reach`) is clamped onto it, with a
-  warning once; a non-finite one is ignored, with a warning once (both counted in
-  ``/diagnostics``);
+  (:meth:`pg_node.sim.observation.ObservationBuilder.reach`) is clamped onto it
+  (:mod:`pg_node.control.targets`), with a warning once; a non-finite one is ignored, with
+  a warning once (both counted in ``/diagnostics``);
 * ``estop`` (``std_msgs/Bool``, reliable): ``true`` latches an emergency stop; ``false``
   does not clear it. Service ``~/reset_estop`` (``std_srvs/Trigger``) clears it.
 
@@ -47,16 +48,16 @@ Published:
   ``control_rate`` Hz of steady time (0: one per control step of the policy), in SI units
   (REP-103), ``command_interface`` ``effort`` (N m, from the model's gear: motor
   actuators) or ``position`` (rad, from the joint range: position actuators),
-  :mod:`pg_node.sim.actuation`. Each command is the policy's mean action
+  :mod:`pg_node.control.interfaces`. Each command is the policy's mean action
   (``deterministic``; else a sample) for the observation built as training builds it
   (:class:`pg_node.sim.observation.ObservationBuilder`), through the guards of
-  :class:`pg_node.sim.safety.CommandGuard`: control range, ramp, low-pass ``smoothing``,
+  :class:`pg_node.control.guards.CommandGuard`: control range, ramp, low-pass ``smoothing``,
   ``max_change`` per tick, ``joint_limit_margin``, ``max_velocity``. No command is ever
   non-finite or out of range. ``command_message:=trajectory`` sends each command instead as
   a one-point ``trajectory_msgs/JointTrajectory`` on ``arm_controller/joint_trajectory``
   (reached one control period ahead; with the effort interface as the point's efforts, its
-  positions and velocities the measured ones), for a joint trajectory controller whose
-  ``cmd_timeout`` then holds the arm if this node falls silent;
+  positions and velocities the measured ones: :mod:`pg_node.control.composers`), for a
+  joint trajectory controller whose ``cmd_timeout`` then holds the arm if this node falls silent;
 * ``/diagnostics``: lifecycle and state (commanding, or why not), achieved command rate,
   the age of the joint state each command was computed from (median and p99), stale
   events, e-stops, each guard's acting, dropped states, CPU share, the policy's source and
@@ -65,12 +66,13 @@ Published:
 Safety: the **hold** command is zero effort, or with the position interface the newest
 measured angles. When the newest joint state is older than ``state_timeout`` s, since it
 arrived or by its ``header.stamp`` (the node's clock: give ``use_sim_time:=true`` with a
-simulator), the hold command is published at every control tick (never one message only:
+simulator; :mod:`pg_node.control.watchdog`), the hold command is published at every control
+tick (never one message only:
 a forward command controller holds the last command it got) and a warning logged once per
 stale spell; commanding resumes with the next fresh joint state. A latched e-stop holds at
 every tick too. Before the first joint state and target nothing is published.
-Diagnostics levels follow diagnostic_updater's habits: commanding OK; unconfigured,
-inactive or waiting WARN; stale states or a latched e-stop ERROR.
+Diagnostics levels follow diagnostic_updater's habits (:mod:`pg_node.control.status`):
+commanding OK; unconfigured, inactive or waiting WARN; stale states or a latched e-stop ERROR.
 
 ``record`` (a bag directory) keeps every tick on ``/policy_node/ticks`` (a table per tick,
 :mod:`pg_node.ros.table_msg`: header stamp and policy id, the first 48 bits of the policy's
@@ -83,10 +85,9 @@ Parameters: :data:`pg_node.common.params.POLICY_PARAMS`.
 from collections import deque
 import hashlib
 from pathlib import Path
-import re
 import sys
 import time
-from typing import Dict, List, Optional, Sequence
+from typing import Dict, List, Optional
 
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PointStamped
@@ -94,16 +95,23 @@ import mujoco
 import numpy as np
 from pg_node.bag.writer import BagWriter
 from pg_node.common.params import ConfigError, POLICY_PARAMS
+from pg_node.control import interfaces
+from pg_node.control.composers import trajectory_point
+from pg_node.control.estop import EStop
+from pg_node.control.guards import CommandGuard, GuardSettings
+from pg_node.control.joint_map import arm_joint_names, joint_columns
+from pg_node.control.status import diagnostic_level, Fault, GuardEvent, NodeState, Severity
+from pg_node.control.targets import BASE, clamp_to_reach, frame_key, target_array
+from pg_node.control.watchdog import state_age, Watchdog
 from pg_node.rl.trained_policy import load_trained_policy, PolicySourceError
 from pg_node.ros import command
 from pg_node.ros import table_msg
 from pg_node.ros.diagnostics import Diagnostics, RateCounter
 from pg_node.ros.parameters import declare_params
 from pg_node.ros.runtime import run
-from pg_node.sim.actuation import Actuation, UNITS
+from pg_node.sim.actuation import actuators
 from pg_node.sim.kinematics_check import compare_kinematics
 from pg_node.sim.observation import ObservationBuilder
-from pg_node.sim.safety import CommandGuard, EVENTS, GuardSettings
 from rclpy.clock import Clock, ClockType
 from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, qos_profile_sensor_data, QoSProfile,
@@ -113,69 +121,19 @@ from std_msgs.msg import Bool, Float64MultiArray, String
 from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
-PREFIXED = re.compile(r'^arm(\d+)/(.+)$')
-#: sim_node's frame of arm ``i``'s base
-ARM_FRAME = re.compile(r'arm(\d+)')
-#: the parameters of :class:`pg_node.sim.safety.GuardSettings`
+#: the parameters of :class:`pg_node.control.guards.GuardSettings`
 GUARD_PARAMS = ('smoothing', 'max_change', 'joint_limit_margin', 'max_velocity', 'ramp_time')
-#: the guards whose acting is logged (at most once a second each)
-WARNED = {'nonfinite': 'the policy gave a non-finite action: hold command sent',
-          'joint_limit': 'joint limit guard: a command towards a joint limit was held back',
-          'over_speed': 'over-speed guard: a joint is faster than max_velocity, hold command'}
+#: /diagnostics levels of the control layer's severities
+LEVELS = {Severity.OK: DiagnosticStatus.OK, Severity.WARN: DiagnosticStatus.WARN,
+          Severity.ERROR: DiagnosticStatus.ERROR}
 #: calls of the policy on configure before the first real one
 WARM_UP = 5
 #: the record's topic: one message per control tick
 TICKS_TOPIC = '/policy_node/ticks'
 #: its table's columns, one row per arm
 TICK_FIELDS = ('arm', 'state_age', 'observation', 'mean', 'action', 'command', 'command_si')
-#: a target this much beyond the arm's reach (ObservationBuilder.reach) is warned about
-REACH_MARGIN = 1.05
 #: commands whose state ages the diagnostics summarise
 AGE_WINDOW = 1000
-
-
-def joint_columns(names: Sequence[str], joints: Sequence[str], num_arms: int = 0
-                  ) -> np.ndarray:
-    """
-    Return ``(arms, joints)`` indices into a JointState's arrays for the model's ``joints``.
-
-    One arm with the plain names, or ``num_arms`` (0: as many as the message names) arms
-    named ``arm<i>/<joint>``. Raises ConfigError naming the first model joint that is missing.
-
-    >>> joint_columns(['wrist', 'joint1', 'joint0'], ['joint0', 'joint1']).tolist()
-    [[2, 1]]
-    >>> joint_columns(['arm1/joint0', 'arm0/joint0', 'arm1/x', 'arm0/x'], ['joint0', 'x'])
-    array([[1, 3],
-           [0, 2]])
-    """
-    where = {name: i for i, name in enumerate(names)}
-    plain = [j for j in joints if j in where]
-    if plain and num_arms <= 1:
-        missing = [j for j in joints if j not in where]
-        if missing:
-            raise ConfigError(_missing(missing[0], joints, names))
-        return np.array([[where[j] for j in joints]])
-    if num_arms == 0:
-        arms = {int(m.group(1)) for name in names
-                if (m := PREFIXED.match(name)) and m.group(2) in joints}
-        if not arms:
-            raise ConfigError(_missing(joints[0], joints, names))
-        num_arms = max(arms) + 1
-    index = np.empty((num_arms, len(joints)), dtype=int)
-    for i in range(num_arms):
-        for k, j in enumerate(joints):
-            col = where.get(f'arm{i}/{j}')
-            if col is None:
-                raise ConfigError(_missing(f'arm{i}/{j}', joints, names))
-            index[i, k] = col
-    return index
-
-
-def _missing(joint: str, joints: Sequence[str], names: Sequence[str]) -> str:
-    shown = ', '.join(list(names)[:8]) + (', ...' if len(names) > 8 else '')
-    return (f"joint_states has no joint {joint!r}: the policy's arm has joints "
-            f"{', '.join(joints)} (plain, or as arm<i>/<joint> for several arms); the message "
-            f'names [{shown}] (remap joint_states, or give a model with these joint names)')
 
 
 class PolicyNode(LifecycleNode):
@@ -205,13 +163,13 @@ class PolicyNode(LifecycleNode):
         self.description = None             # robot_description, when published
         self.description_digest = 'none'    # its sha256's first 12 digits, for diagnostics
         self.records_opened = 0
-        self.stale = False
-        self.estop = False                  # latched until ~/reset_estop
-        self.status = 'unconfigured: waiting for configure'
+        self.watchdog = Watchdog()
+        self.estop = EStop()                # latched until ~/reset_estop
+        self.set_status(NodeState.UNCONFIGURED, 'unconfigured: waiting for configure')
         self.counters = {'commands': 0, 'hold_commands': 0, 'stale_events': 0, 'estops': 0,
                          'states_received': 0, 'states_dropped_nonfinite': 0,
                          'targets_ignored': 0, 'targets_out_of_reach': 0,
-                         **{f'guard_{k}': 0 for k in EVENTS}}
+                         **{f'guard_{e.key}': 0 for e in GuardEvent}}
         self.ages = deque(maxlen=AGE_WINDOW)
         self.rate = RateCounter()
         self._cpu = (time.process_time(), time.monotonic())
@@ -290,8 +248,8 @@ class PolicyNode(LifecycleNode):
         except (PolicySourceError, ValueError) as exc:
             return f"parameter 'policy_node.policy': {exc}"
         card, interface = policy.card, p['command_interface']
-        actuation = Actuation(model)
-        reason = actuation.check(interface)
+        arm = actuators(model)
+        reason = interfaces.check(arm, interface)
         if reason is not None:
             return reason
         joints = list(card['joint_names'])
@@ -324,21 +282,21 @@ class PolicyNode(LifecycleNode):
             except (OSError, ValueError) as exc:
                 return f"parameter 'policy_node.record': {exc}"
             self.records_opened += 1
-        self.policy, self.builder, self.actuation = policy, builder, actuation
-        self.guard = CommandGuard(model, joints, interface, self.settings)
+        self.policy, self.builder, self.actuators = policy, builder, arm
+        self.guard = CommandGuard(arm, joints, interface, self.settings)
         self.joints, self.digest = joints, digest
         self.load_seconds, self.warm_up_ms = load_seconds, warm_ms
         self.policy_id = int(digest[:12], 16)
         self.base, self.reach = builder.reach()
         self.rng = np.random.default_rng(p['seed'])
         self.lifecycle = 'inactive'
-        self.status = 'inactive: configured, waiting for activate'
+        self.set_status(NodeState.INACTIVE, 'inactive: configured, waiting for activate')
         self._tf_listener()
         for frame, point in list(self.raw_targets.items()):
             self._take_target(frame, point)
         self.on_parameter('control_rate', p['control_rate'])
-        low, high = actuation.si_range(interface)
-        unit = UNITS[interface]
+        low, high = self.guard.interface.si_range(arm)
+        unit = self.guard.interface.unit
         self.get_logger().info(
             f'configured: policy {policy.describe()} (sha256 {digest[:12]}) loaded in '
             f'{load_seconds:.2f} s, {warm_ms:.2f} ms per call warmed up: {card["model"]} '
@@ -352,7 +310,7 @@ class PolicyNode(LifecycleNode):
         """Start commanding, ramping in from hold over ``ramp_time``."""
         self.guard.start_ramp(time.monotonic())
         self.lifecycle = 'active'
-        self.status = 'waiting: no joint_states yet'
+        self.set_status(NodeState.WAITING, 'waiting: no joint_states yet')
         self.get_logger().info(f'active: commanding, ramping in from hold over '
                                f'{self.settings.ramp_time:g} s')
         return TransitionCallbackReturn.SUCCESS
@@ -361,7 +319,7 @@ class PolicyNode(LifecycleNode):
         """Send one hold command and stop publishing."""
         self.lifecycle = 'inactive'
         self._hold_once()
-        self.status = 'inactive: deactivated, one hold command sent'
+        self.set_status(NodeState.INACTIVE, 'inactive: deactivated, one hold command sent')
         self.get_logger().info(self.status)
         return TransitionCallbackReturn.SUCCESS
 
@@ -371,7 +329,8 @@ class PolicyNode(LifecycleNode):
         self.policy = self.guard = self.builder = None
         self.targets.clear()
         self.lifecycle = 'unconfigured'
-        self.status = 'unconfigured: cleaned up, waiting for configure'
+        self.set_status(NodeState.UNCONFIGURED,
+                        'unconfigured: cleaned up, waiting for configure')
         self.get_logger().info(self.status)
         return TransitionCallbackReturn.SUCCESS
 
@@ -379,7 +338,7 @@ class PolicyNode(LifecycleNode):
         """Hold (if active) and close the record."""
         self.stop()
         self.lifecycle = 'finalized'
-        self.status = 'finalized'
+        self.set_status(NodeState.FINALIZED, 'finalized')
         return TransitionCallbackReturn.SUCCESS
 
     def on_error(self, state) -> TransitionCallbackReturn:
@@ -458,8 +417,7 @@ class PolicyNode(LifecycleNode):
 
     def on_estop(self, msg: Bool):
         """Latch the e-stop on ``true`` (``false`` leaves it as it is)."""
-        if msg.data and not self.estop:
-            self.estop = True
+        if msg.data and self.estop.trip():
             self.counters['estops'] += 1
             self.get_logger().error('e-stop: latched; hold command at every tick until '
                                     '~/reset_estop')
@@ -468,8 +426,7 @@ class PolicyNode(LifecycleNode):
     def on_reset_estop(self, request, response):
         """Clear a latched e-stop; commanding resumes at the next tick."""
         response.success = True
-        if self.estop:
-            self.estop = False
+        if self.estop.reset():
             response.message = 'e-stop cleared: commanding resumes'
             self.get_logger().warning(response.message)
         else:
@@ -494,32 +451,23 @@ class PolicyNode(LifecycleNode):
 
     def _take_target(self, frame: str, point: np.ndarray):
         """Resolve ``frame`` (base, arm, or tf2), clamp to the reach, and keep the goal."""
-        key = self.frame_key(frame)
+        key = frame_key(frame, self.params['base_frame'])
         if key is None:
             point = self._transform(frame, point)
             if point is None:
                 self.counters['targets_ignored'] += 1
                 return
-            key = 'base'
-        distance = float(np.linalg.norm(point - self.base))
-        if distance > REACH_MARGIN * self.reach:
+            key = BASE
+        clamped, distance = clamp_to_reach(point, self.base, self.reach)
+        if distance is not None:
             self.counters['targets_out_of_reach'] += 1
-            clamped = self.base + (point - self.base) * (self.reach / distance)
             self.warn_once(('reach', frame),
                            f'target ({point[0]:g}, {point[1]:g}, {point[2]:g}) in '
                            f"{frame or 'the base frame'} is {distance:.3g} m from the arm's "
                            f'base, beyond its reach of {self.reach:.3g} m: clamped to '
                            f'({clamped[0]:.3g}, {clamped[1]:.3g}, {clamped[2]:.3g}) '
                            '(counted in /diagnostics as targets_out_of_reach)')
-            point = clamped
-        self.targets[key] = point
-
-    def frame_key(self, frame: str):
-        """Return ``'base'`` for the base frame (or none), ``i`` for ``arm<i>``, else None."""
-        if frame in ('', self.params['base_frame']):
-            return 'base'
-        match = ARM_FRAME.fullmatch(frame)
-        return int(match.group(1)) if match else None
+        self.targets[key] = clamped
 
     def _tf_listener(self):
         """Listen to tf2 where it can be imported (a full ROS install; not on PyPI)."""
@@ -556,47 +504,26 @@ class PolicyNode(LifecycleNode):
             self.told.add(key)
             self.get_logger().warning(text)
 
-    def target_array(self):
-        """Return the goals ``(arms, 3)``, or the name of an arm without one."""
-        out = np.empty((self.num_arms, 3))
-        for i in range(self.num_arms):
-            point = self.targets.get('base') if self.plain else \
-                self.targets.get(i, self.targets.get('base'))
-            if point is None:
-                return 'the arm' if self.plain else f'arm{i}'
-            out[i] = point
-        return out
-
     # --- the control loop -----------------------------------------------------------------
-
-    def state_age(self, now: float):
-        """Return the newest joint state's age in s: since arrival, or by its header.stamp."""
-        age, how = now - self.state_time, 'since arrival'
-        ros_now = self.get_clock().now().nanoseconds * 1e-9
-        if self.state_stamp is not None and ros_now > 0:
-            by_stamp = ros_now - self.state_stamp
-            if by_stamp > age or by_stamp < -self.params['state_timeout']:
-                age, how = abs(by_stamp), ('by header.stamp' if by_stamp > 0
-                                           else 'by header.stamp, in the future')
-        return age, how
 
     def on_tick(self):
         """Publish one command computed from the newest joint state, or say why not."""
         if self.lifecycle != 'active':
             return
         now = time.monotonic()
-        if self.estop:
-            self.status = 'e-stop latched: hold command (clear with ~/reset_estop)'
+        if self.estop.latched:
+            self.set_status(NodeState.ESTOP,
+                            'e-stop latched: hold command (clear with ~/reset_estop)')
             self._hold_once()
             return
         if self.state_time is None:
-            self.status = 'waiting: no joint_states yet'
+            self.set_status(NodeState.WAITING, 'waiting: no joint_states yet')
             return
-        age, how = self.state_age(now)
         timeout = self.params['state_timeout']
+        age, how = state_age(now, self.state_time, self.get_clock().now().nanoseconds * 1e-9,
+                             self.state_stamp, timeout)
         if age > timeout:
-            if not self.stale:
-                self.stale = True
+            if self.watchdog.begin():
                 self.counters['stale_events'] += 1
                 hint = (' (a simulator stamps simulated time: give policy_node '
                         'use_sim_time:=true)' if 'stamp' in how and age > 1e4 else '')
@@ -605,34 +532,37 @@ class PolicyNode(LifecycleNode):
                     f'hold command at every tick until fresh joint states come{hint}')
             # every tick, not once: a forward command controller holds its last command
             self.publish_hold(age)
-            self.status = (f'stale: joint states {age:.2f} s old {how}, hold command, '
-                           'waiting for fresh ones')
+            self.set_status(NodeState.STALE, f'stale: joint states {age:.2f} s old {how}, '
+                                             'hold command, waiting for fresh ones')
             return
-        target = self.target_array()
+        target = target_array(self.targets, self.num_arms, self.plain)
         if isinstance(target, str):
             status = f'waiting: no target yet for {target}'
             if status != self.status:
                 self.get_logger().info(f'not commanding: no target yet for {target} (on '
                                        f"topic target, frame_id {self.params['base_frame']!r}"
                                        f"{'' if self.plain else ' or arm<i>'})")
-            self.status = status
+            self.set_status(NodeState.WAITING, status)
             return
-        if self.stale:
-            self.stale = False
+        if self.watchdog.end():
             self.get_logger().info('fresh joint states: commanding again')
         obs = self.builder(self.q, self.qdot, target)
         mean, std = self.policy.mean_std(obs)
         act = mean if self.params['deterministic'] else \
             mean + std * self.rng.standard_normal(mean.shape)
         cmd, acted = self.guard(act, self.q, self.qdot, now)
-        for kind, arms in acted.items():
+        for event, arms in acted.items():
             if arms.any():
-                self.counters[f'guard_{kind}'] += 1
-                if kind in WARNED:
-                    self.get_logger().warning(WARNED[kind], throttle_duration_sec=1.0)
+                self.counters[f'guard_{event.key}'] += 1
+                if event.severity >= Severity.WARN:
+                    self.get_logger().warning(event.warning, throttle_duration_sec=1.0)
         self.record(cmd, self.publish(cmd), age, obs, mean, act)
         self.ages.append(time.monotonic() - self.state_time)
-        self.status = 'commanding'
+        self.set_status(NodeState.COMMANDING, 'commanding')
+
+    def set_status(self, state: NodeState, text: str):
+        """Note what the node is doing: the state (its level) and the text saying why."""
+        self.state, self.status = state, text
 
     def publish_hold(self, age: float = np.nan):
         """
@@ -647,7 +577,7 @@ class PolicyNode(LifecycleNode):
 
     def publish(self, ctrl: np.ndarray, hold: bool = False) -> np.ndarray:
         """Publish controls ``ctrl`` (arms x actuators) in SI units; return those."""
-        si = self.actuation.to_si(ctrl, self.guard.interface)
+        si = self.guard.interface.to_si(self.actuators, ctrl)
         if self.params['command_message'] == 'trajectory':
             self.pub.publish(self.trajectory(si))
         else:
@@ -658,29 +588,14 @@ class PolicyNode(LifecycleNode):
         return si
 
     def trajectory(self, si: np.ndarray) -> JointTrajectory:
-        """
-        Return ``si`` as a one-point trajectory, reached one control period from now.
-
-        Position interface: the point's positions are the commanded angles. Effort interface:
-        its efforts are the commanded torques, its positions and velocities the measured ones,
-        so that the trajectory controller's PID (on the effort interface) sees no error and
-        passes the efforts through as its feed-forward.
-        """
+        """Return ``si`` as a one-point trajectory, reached one control period from now."""
         cols = self.guard.cols
-        names = [self.joints[c] for c in cols]
-        point = JointTrajectoryPoint()
-        if self.guard.interface == 'position':
-            point.positions = si.ravel().tolist()
-        else:
-            point.positions = self.q[:, cols].ravel().tolist()
-            point.velocities = self.qdot[:, cols].ravel().tolist()
-            point.effort = si.ravel().tolist()
-        period = int(1e9 / self.control_rate())
-        point.time_from_start.sec, point.time_from_start.nanosec = divmod(period, 1_000_000_000)
-        msg = JointTrajectory(points=[point])
-        msg.joint_names = names if self.plain else [f'arm{i}/{n}' for i in range(self.num_arms)
-                                                    for n in names]
-        return msg
+        names = arm_joint_names([self.joints[c] for c in cols], self.num_arms, self.plain)
+        composed = trajectory_point(self.guard.interface, si, self.q[:, cols],
+                                    self.qdot[:, cols], names, self.control_rate())
+        point = JointTrajectoryPoint(**composed.fields)
+        point.time_from_start.sec, point.time_from_start.nanosec = composed.time_from_start
+        return JointTrajectory(joint_names=composed.joint_names, points=[point])
 
     def record(self, cmd, si, age, obs=None, mean=None, action=None):
         """
@@ -724,10 +639,10 @@ class PolicyNode(LifecycleNode):
             robot_description=self.description_digest,
             **self.counters)
         # diagnostic_updater's habits: idle WARN, stale or stopped ERROR
-        level = (DiagnosticStatus.OK if self.status == 'commanding'
-                 else DiagnosticStatus.ERROR if self.stale or self.estop
-                 else DiagnosticStatus.WARN)
-        self.diagnostics.publish(values, level, self.status)
+        faults = [f for f, on in ((Fault.STALE_STATE, self.watchdog.stale),
+                                  (Fault.ESTOP, self.estop.latched)) if on]
+        self.diagnostics.publish(values, LEVELS[diagnostic_level(self.state, faults)],
+                                 self.status)
 
 
 def tick_from_msg(msg: Float64MultiArray):

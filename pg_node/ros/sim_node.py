@@ -37,7 +37,7 @@ Subscribed: ``pg_node/commands`` (``std_msgs/Float64MultiArray``, as ros2_contro
 forward_command_controller): ``num_envs * n_actuators`` values, arm-major (arm 0's
 actuators in model order, then arm 1's...), in the policy's control units, or with
 ``command_interface`` ``effort`` / ``position`` in N m / rad as a robot's controller takes
-them (``policy_node`` sends those; :mod:`pg_node.sim.actuation` maps them back), taken as
+them (``policy_node`` sends those; :mod:`pg_node.control.interfaces` maps them back), taken as
 serialised bytes (``raw=True``) and decoded into numpy; bytes that do not decode count as
 a message of another size. A message of another size, with a non-finite value or with an
 absurd one (beyond ``ABSURD_COMMAND``, e.g. 1e300) is dropped, counted and warned about
@@ -100,13 +100,14 @@ from pg_node.common.params import ConfigError, params_for
 from pg_node.common.paths import resolve_model
 from pg_node.common.perturbations import from_params
 from pg_node.common.run import COMMANDS
+from pg_node.control import interfaces
 from pg_node.ros import command
 from pg_node.ros import table_msg
 from pg_node.ros import transition
 from pg_node.ros.parameters import declare_params
 from pg_node.ros.run_protocol import EndWithLearner, RANDOMIZATION, RunGuard
 from pg_node.ros.runtime import run
-from pg_node.sim.actuation import Actuation
+from pg_node.sim.actuation import actuators
 from pg_node.sim.arm_task import arm_groups, ArmTask
 from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.node import Node
@@ -166,8 +167,9 @@ class SimNode(Node):
                             randomization=from_params(p))
         self.params = p
         self.interface = p['command_interface']
-        self.actuation = Actuation(self.task.model)
-        refused = self.interface != 'control' and self.actuation.check(self.interface)
+        self.actuators = actuators(self.task.model)
+        refused = self.interface != 'control' and interfaces.check(self.actuators,
+                                                                   self.interface)
         if refused:
             raise ConfigError(f"parameter 'sim_node.command_interface': {refused}")
         self.run = RunGuard(self, p['run_id'])
@@ -338,7 +340,7 @@ class SimNode(Node):
             self.sent_ns[g] = None
         cmd = cmd.reshape(n_arms, self.task.act_dim)
         if self.interface != 'control':       # the robot's stand-in: N m or rad in
-            cmd = self.actuation.from_si(cmd, self.interface)
+            cmd = interfaces.INTERFACES[self.interface].from_si(self.actuators, cmd)
         clipped = np.clip(cmd, self.task.spec.ctrl_low, self.task.spec.ctrl_high)
         if not np.array_equal(clipped, cmd):
             self.counters['commands_clipped'] += 1

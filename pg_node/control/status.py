@@ -1,0 +1,88 @@
+"""
+What a controller reports: its state, the guards' events and the faults, each with a severity.
+
+The severities are ``diagnostic_msgs/DiagnosticStatus``'s levels, used as
+``diagnostic_updater`` uses them: OK while working, WARN when idle or degraded, ERROR when
+stale or stopped. The ROS side maps :class:`Severity` onto the message's level constants;
+the rule that picks the level (:func:`diagnostic_level`) lives here, apart from the status
+text, which says why in words.
+"""
+from enum import Enum, IntEnum
+from typing import Iterable
+
+
+class Severity(IntEnum):
+    """diagnostic_msgs' levels (``DiagnosticStatus.OK`` ... ``ERROR``), ordered."""
+
+    OK = 0
+    WARN = 1
+    ERROR = 2
+
+
+class GuardEvent(Enum):
+    """
+    A guard of :class:`pg_node.control.guards.CommandGuard` that acted on a tick.
+
+    ``key`` names its counter (``guard_<key>`` in /diagnostics); a WARN event is logged (at
+    most once a second) with ``warning``, an OK one only counted.
+
+    >>> GuardEvent.OVER_SPEED.key, GuardEvent.OVER_SPEED.severity.name
+    ('over_speed', 'WARN')
+    >>> [e.key for e in GuardEvent if e.severity is Severity.OK]
+    ['clipped', 'ramped', 'rate_limited']
+    """
+
+    NONFINITE = ('nonfinite', Severity.WARN,
+                 'the policy gave a non-finite action: hold command sent')
+    CLIPPED = ('clipped', Severity.OK, '')
+    RAMPED = ('ramped', Severity.OK, '')
+    RATE_LIMITED = ('rate_limited', Severity.OK, '')
+    JOINT_LIMIT = ('joint_limit', Severity.WARN,
+                   'joint limit guard: a command towards a joint limit was held back')
+    OVER_SPEED = ('over_speed', Severity.WARN,
+                  'over-speed guard: a joint is faster than max_velocity, hold command')
+
+    def __init__(self, key: str, severity: Severity, warning: str):
+        self.key, self.severity, self.warning = key, severity, warning
+
+
+class NodeState(Enum):
+    """What a commanding node is doing, with the level it reports while no fault latches."""
+
+    UNCONFIGURED = ('unconfigured', Severity.WARN)
+    INACTIVE = ('inactive', Severity.WARN)
+    WAITING = ('waiting', Severity.WARN)
+    COMMANDING = ('commanding', Severity.OK)
+    STALE = ('stale', Severity.WARN)
+    ESTOP = ('estop', Severity.WARN)
+    FINALIZED = ('finalized', Severity.WARN)
+
+    def __init__(self, key: str, severity: Severity):
+        self.key, self.severity = key, severity
+
+
+class Fault(Enum):
+    """A latched condition that makes a node's level ERROR until it clears."""
+
+    STALE_STATE = ('stale joint states', Severity.ERROR)     # a watchdog spell
+    ESTOP = ('e-stop latched', Severity.ERROR)
+
+    def __init__(self, text: str, severity: Severity):
+        self.text, self.severity = text, severity
+
+
+def diagnostic_level(state: NodeState, faults: Iterable[Fault] = ()) -> Severity:
+    """
+    Return the /diagnostics level: OK while commanding, else the worst of state and faults.
+
+    A fault outlives the tick that found it: a node deactivated during a stale spell, or
+    with an e-stop latched, still reports ERROR.
+
+    >>> diagnostic_level(NodeState.COMMANDING).name, diagnostic_level(NodeState.WAITING).name
+    ('OK', 'WARN')
+    >>> diagnostic_level(NodeState.INACTIVE, [Fault.ESTOP]).name
+    'ERROR'
+    """
+    if state is NodeState.COMMANDING:
+        return Severity.OK
+    return max([state.severity] + [f.severity for f in faults])

@@ -1,0 +1,84 @@
+"""
+What policy_node makes of its inputs, without a live node: joints, targets, watchdog, e-stop.
+
+:mod:`pg_node.control.joint_map` (one arm by plain names or several prefixed, the one-line
+refusal), :mod:`pg_node.control.targets` (frames, the reach clamp, goals per arm),
+:mod:`pg_node.control.watchdog` (state age by arrival or stamp, stale spells) and
+:mod:`pg_node.control.estop` (the latch).
+"""
+import doctest
+
+import numpy as np
+from pg_node.common.params import ConfigError
+from pg_node.control import joint_map, targets, watchdog
+from pg_node.control.estop import EStop
+from pg_node.control.joint_map import arm_joint_names, joint_columns
+from pg_node.control.targets import clamp_to_reach, frame_key, REACH_MARGIN, target_array
+from pg_node.control.watchdog import state_age, Watchdog
+import pytest
+
+
+@pytest.mark.parametrize('module', [joint_map, targets, watchdog])
+def test_worked_examples(module):
+    failures, tried = doctest.testmod(module)
+    assert tried > 0 and failures == 0
+
+
+def test_joint_columns_plain_prefixed_and_missing():
+    names = ['arm0/joint0', 'arm0/joint1', 'arm1/joint1', 'arm1/joint0', 'gripper']
+    assert joint_columns(names, ['joint0', 'joint1']).tolist() == [[0, 1], [3, 2]]
+    assert joint_columns(names, ['joint0', 'joint1'], num_arms=1).tolist() == [[0, 1]]
+    with pytest.raises(ConfigError, match=r"no joint 'arm2/joint0'"):
+        joint_columns(names, ['joint0', 'joint1'], num_arms=3)
+    with pytest.raises(ConfigError) as err:
+        joint_columns(['joint0', 'wrist'], ['joint0', 'joint1'])
+    assert str(err.value) == (
+        "joint_states has no joint 'joint1': the policy's arm has joints joint0, joint1 "
+        '(plain, or as arm<i>/<joint> for several arms); the message names [joint0, wrist] '
+        '(remap joint_states, or give a model with these joint names)')
+    with pytest.raises(ConfigError, match=r'names \[j0, j1, j2, j3, j4, j5, j6, j7, \.\.\.\]'):
+        joint_columns([f'j{i}' for i in range(9)], ['joint0'])
+    assert arm_joint_names(['a'], 1, plain=True) == ['a']
+
+
+def test_frames_and_the_reach_clamp():
+    assert frame_key('world', 'world') == 'base' and frame_key('arm12', 'b') == 12
+    assert frame_key('arm1x', 'b') is None and frame_key('left/arm1', 'b') is None
+    base, reach = np.array([1.0, 0.0, 0.0]), 0.2
+    inside = np.array([1.0, REACH_MARGIN * reach, 0.0])          # on the margin: kept
+    assert clamp_to_reach(inside, base, reach)[0] is inside
+    point, distance = clamp_to_reach(np.array([1.0, 0.0, 0.4]), base, reach)
+    np.testing.assert_allclose(point, [1.0, 0.0, 0.2])
+    assert distance == pytest.approx(0.4)
+
+
+def test_goals_per_arm():
+    goals = {'base': np.zeros(3), 1: np.ones(3)}
+    np.testing.assert_array_equal(target_array(goals, 2, plain=False), [[0, 0, 0], [1, 1, 1]])
+    # one arm with plain names takes only the base frame's goal
+    assert target_array({0: np.ones(3)}, 1, plain=True) == 'the arm'
+    np.testing.assert_array_equal(target_array({0: np.ones(3)}, 1, plain=False), [[1, 1, 1]])
+
+
+def test_state_age_by_arrival_or_stamp():
+    assert state_age(5.0, 4.0, 100.0, 99.5, 0.2) == (1.0, 'since arrival')   # older by arrival
+    assert state_age(5.0, 4.9, 0.0, 50.0, 0.2)[1] == 'since arrival'         # clock not running
+    # slightly ahead (within the timeout) does not count: clocks differ a little
+    assert state_age(5.0, 4.9, 100.0, 100.1, 0.2)[1] == 'since arrival'
+    age, how = state_age(5.0, 4.99, 1e9, 10.0, 0.2)                         # sim time stamps
+    assert age == pytest.approx(1e9 - 10.0) and how == 'by header.stamp'
+
+
+def test_a_stale_spell_is_one_event_and_ends_on_commanding():
+    w = Watchdog()
+    assert not w.end()                          # fresh and commanding: no spell
+    assert [w.begin() for _ in range(3)] == [True, False, False] and w.stale
+    assert w.end() and not w.stale and not w.end()
+    assert w.begin()                            # a second spell
+
+
+def test_the_estop_latches_until_reset():
+    e = EStop()
+    assert not e.reset()
+    assert e.trip() and e.latched and not e.trip()
+    assert e.reset() and not e.latched and not e.reset()
