@@ -53,3 +53,10 @@ def test_kinds_card_and_refusals_in_one_line():
     assert 'joint1 (other)' in check(other, 'effort')
     unlimited = replace(REACHER2, ctrl_low=np.array([-np.inf, -1.0]))
     assert card(unlimited)['effort']['low'] == [None, -200.0]
+
+
+def test_the_parameter_table_offers_exactly_the_registrys_interfaces():
+    """common/ cannot import control/, so the two lists are held equal here."""
+    from pg_node.common.params import POLICY_PARAMS, SIM_PARAMS
+    assert tuple(POLICY_PARAMS['command_interface'].choices) == tuple(INTERFACES)
+    assert tuple(SIM_PARAMS['command_interface'].choices) == ('control',) + tuple(INTERFACES)
