@@ -9,6 +9,7 @@ update shares with others, or a default given back, is accepted.
 from pg_node.common.params import (ALGO_SETTINGS, check_algo_setting, ConfigError, defaults,
                                    LEARNER_PARAMS, load_config)
 from pg_node.common.paths import default_config
+import numpy as np
 from pg_node.rl.learner import Learner
 from pg_node.rl.policy import GaussianPolicy
 from pg_node.rl.updaters import make_updater, UPDATERS
@@ -25,7 +26,9 @@ def other(key):
         return next(c for c in param.choices if c != value)
     if isinstance(value, bool):
         return not value
-    return value * 2 if isinstance(value, float) else value + 1
+    if isinstance(value, float):
+        return value * 2 if value else 0.25
+    return value + 1
 
 
 def learner_cfg(**change):
@@ -104,3 +107,18 @@ def test_live_changes_reach_the_update_or_are_refused(algo):
                 learner.configure(key, other(key))
             assert learner.cfg[key] == LEARNER_PARAMS[key].default
             learner.configure(key, LEARNER_PARAMS[key].default)    # given back: accepted
+
+
+@pytest.mark.parametrize('algo, merged', [('a2c', False), ('ppo', True), ('npg', False),
+                                          ('trpo', False)])
+def test_a_skipped_step_merges_the_observations_only_where_others_moved_the_policy(algo, merged):
+    """PPO skips minibatches, the rest move the policy; the others skip the whole step."""
+    learner = Learner(4, 1, learner_cfg(algo=algo, **({'batch_size': 2} if algo == 'ppo'
+                                                       else {})))
+    adv = np.ones(8)
+    adv[0] = np.nan                     # one minibatch (PPO) or the whole step is skipped
+    obs = np.random.default_rng(0).normal(size=(8, 4))
+    count = float(learner.policy.obs_norm.count)
+    stats = learner.learn(obs, np.zeros((8, 1)), np.zeros(8), adv)
+    assert stats['skipped_updates'] >= 1
+    assert (float(learner.policy.obs_norm.count) > count) == merged
