@@ -6,10 +6,10 @@ settings; a setting of another update, set off its default, is refused in one li
 configuration, when the learner is built, and when it is changed live), while a setting the
 update shares with others, or a default given back, is accepted.
 """
+import numpy as np
 from pg_node.common.params import (ALGO_SETTINGS, check_algo_setting, ConfigError, defaults,
                                    LEARNER_PARAMS, load_config)
 from pg_node.common.paths import default_config
-import numpy as np
 from pg_node.rl.learner import Learner
 from pg_node.rl.policy import GaussianPolicy
 from pg_node.rl.updaters import make_updater, UPDATERS
@@ -113,8 +113,8 @@ def test_live_changes_reach_the_update_or_are_refused(algo):
                                           ('trpo', False)])
 def test_a_skipped_step_merges_the_observations_only_where_others_moved_the_policy(algo, merged):
     """PPO skips minibatches, the rest move the policy; the others skip the whole step."""
-    learner = Learner(4, 1, learner_cfg(algo=algo, **({'batch_size': 2} if algo == 'ppo'
-                                                       else {})))
+    small = {'batch_size': 2} if algo == 'ppo' else {}
+    learner = Learner(4, 1, learner_cfg(algo=algo, **small))
     adv = np.ones(8)
     adv[0] = np.nan                     # one minibatch (PPO) or the whole step is skipped
     obs = np.random.default_rng(0).normal(size=(8, 4))
