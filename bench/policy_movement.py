@@ -55,12 +55,11 @@ def measure(preset, overrides, steps: int, seed: int):
     import torch
     from pg_node.common.params import load_config
     from pg_node.common.paths import config_file
-    from pg_node.rl import a2c, natural_gradient
     from pg_node.rl.train_inprocess import train_inprocess
+    from pg_node.rl.updaters import UPDATERS
     cfg = load_config(config_file(preset) if preset else None, [*overrides, f'seed={seed}'])
     kls, explained = [], []
-    originals = {cls: cls.update for cls in (a2c.PolicyUpdate,
-                                             natural_gradient.NaturalGradientUpdate)}
+    originals = {cls: cls.update for cls in UPDATERS.values()}
 
     def wrap(cls):
         def update(self, batch):

@@ -143,6 +143,9 @@ def test_train_refuses_a_model_that_is_not_mjcf_before_starting(tmp_path, text, 
     ('critic_node.vf_epoch=3', ["'vf_epoch' in section 'critic_node'",
                                 "did you mean 'vf_epochs'"]),
     ('model:=nosuch.xml', ["parameter 'model'", "'nosuch.xml'", 'shipped: ']),
+    # a setting the default update (a2c) does not have: it would be taken and ignored
+    ('clip_range=0.3', ["parameter 'learner_node.clip_range'", "algo 'a2c' has no clip_range",
+                        'its settings: learning_rate, optimizer']),
     ('gamma', ['not of the form key=value (or key:=value)']),
 ])
 def test_train_refuses_a_bad_override_before_starting(tmp_path, override, words):

@@ -11,7 +11,7 @@ from pg_node.common.params import load_config
 from pg_node.rl.a2c import PolicyBatch
 from pg_node.rl.learner import Learner
 from pg_node.rl.natural_gradient import (conjugate_gradient, fisher_vector_product, flat,
-                                         NaturalGradientUpdate)
+                                         NPGUpdate, TRPOUpdate)
 from pg_node.rl.policy import GaussianPolicy
 from pg_node.tools.train import read_progress
 import pytest
@@ -99,7 +99,7 @@ def _batch(seed=0, n=512):
 @pytest.mark.parametrize('max_kl', [0.001, 0.01, 0.05])
 def test_trpo_step_keeps_the_kl_bound_and_improves_the_surrogate(max_kl):
     policy, batch = _batch()
-    update = NaturalGradientUpdate(policy, 'trpo', max_kl=max_kl)
+    update = TRPOUpdate(policy, max_kl=max_kl)
     adv = (batch.adv - batch.adv.mean()) / (batch.adv.std() + 1e-8)
     with torch.no_grad():
         before = float(update.surrogate(batch, adv))
@@ -116,7 +116,7 @@ def test_trpo_step_keeps_the_kl_bound_and_improves_the_surrogate(max_kl):
 def test_npg_step_has_the_kl_it_was_sized_for():
     """The step is sized by the quadratic model of the KL: the measured KL is close to max_kl."""
     policy, batch = _batch(1)
-    update = NaturalGradientUpdate(policy, 'npg', max_kl=0.005, cg_iters=20, cg_damping=1e-3)
+    update = NPGUpdate(policy, max_kl=0.005, cg_iters=20, cg_damping=1e-3)
     stats = update.update(batch)
     assert 0.5 * 0.005 < stats['approx_kl'] < 2.0 * 0.005
     assert stats['step_fraction'] == 1.0

@@ -4,9 +4,10 @@ import math
 
 import numpy as np
 from pg_node.rl import losses
-from pg_node.rl.a2c import make_optimizer, PolicyBatch, PolicyUpdate, ValueUpdate
+from pg_node.rl.a2c import make_optimizer, PolicyBatch, ValueUpdate
 from pg_node.rl.normalization import RunningNorm
 from pg_node.rl.policy import GaussianPolicy, segment_score_sq
+from pg_node.rl.updaters import UPDATERS
 from pg_node.rl.value import ValueFunction
 import pytest
 import torch
@@ -150,8 +151,8 @@ def test_normalize_advantage():
 def test_policy_update_climbs_a_gaussian_bandit(algo):
     """Reward -(u - 2)^2 with phi = reward - mean: the policy mean must move to about 2."""
     pol = GaussianPolicy(1, 1, hidden=(), normalize_obs=False, log_std_init=0.0)
-    upd = PolicyUpdate(pol, learning_rate=0.05, algo=algo, optimizer='adam',
-                       max_grad_norm=10.0, n_epochs=4, batch_size=128)
+    extra = {'n_epochs': 4, 'batch_size': 128} if algo == 'ppo' else {}
+    upd = UPDATERS[algo](pol, learning_rate=0.05, optimizer='adam', max_grad_norm=10.0, **extra)
     gen = torch.Generator().manual_seed(0)
     obs = torch.ones(256, 1)
     for _ in range(150):
@@ -164,7 +165,7 @@ def test_policy_update_climbs_a_gaussian_bandit(algo):
 
 def test_non_finite_batch_is_skipped_and_weights_kept():
     pol = GaussianPolicy(2, 1)
-    upd = PolicyUpdate(pol)
+    upd = UPDATERS['a2c'](pol)
     before = [p.detach().clone() for p in pol.parameters()]
     obs, act = torch.randn(8, 2), torch.randn(8, 1)
     adv = torch.ones(8)

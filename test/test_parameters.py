@@ -155,6 +155,13 @@ def test_learner_and_critic_apply_live_hyperparameters(client, tmp_path):
             assert not res.successful and 'read-only' in res.reason, name
         res = client.wait(lp.set_parameters([Parameter('n_epochs', value=0)])).results[0]
         assert not res.successful
+        # a setting the learner's update (a2c) lacks: refused, naming the ones it has; its
+        # default given back (a `ros2 param load` of a dump) is accepted
+        res = client.wait(lp.set_parameters([Parameter('clip_range', value=0.3)])).results[0]
+        assert not res.successful and "algo 'a2c' has no clip_range" in res.reason
+        assert 'its settings: learning_rate, optimizer, ent_coef' in res.reason
+        res = client.wait(lp.set_parameters([Parameter('clip_range', value=0.2)])).results[0]
+        assert res.successful, res.reason
         cp = client.params('/critic_node')
         res = client.wait(cp.set_parameters([Parameter('gamma', value=0.99)])).results[0]
         assert res.successful, res.reason

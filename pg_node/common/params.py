@@ -17,7 +17,7 @@ import difflib
 import math
 from pathlib import Path
 import re
-from typing import Any, Callable, Dict, Optional, Sequence
+from typing import Any, Callable, Dict, Optional, Sequence, Tuple
 
 from pg_node.common.paths import check_model
 from pg_node.common.perturbations import PARAM_PREFIX, parse_term, TERMS
@@ -207,11 +207,22 @@ CRITIC_PARAMS: Dict[str, Param] = {
     'sched_idle': SCHED_IDLE,
 }
 
+#: the policy updates ``algo`` names and the learner settings each has (the classes are
+#: pg_node.rl.updaters.UPDATERS; this layer cannot import them, and train validates here)
+ALGO_SETTINGS: Dict[str, Tuple[str, ...]] = {
+    'a2c': ('learning_rate', 'optimizer', 'ent_coef', 'max_grad_norm', 'normalize_advantage'),
+    'ppo': ('learning_rate', 'optimizer', 'ent_coef', 'max_grad_norm', 'normalize_advantage',
+            'n_epochs', 'batch_size', 'clip_range'),
+    'npg': ('ent_coef', 'normalize_advantage', 'max_kl', 'cg_iters', 'cg_damping'),
+    'trpo': ('ent_coef', 'normalize_advantage', 'max_kl', 'cg_iters', 'cg_damping',
+             'line_search_steps'),
+}
+
 LEARNER_PARAMS: Dict[str, Param] = {
     'algo': Param('a2c', 'a2c: one gradient step per batch; ppo: clipped surrogate, epochs; '
                          'npg: natural gradient step of KL max_kl; trpo: npg with a line '
                          'search that keeps the KL within max_kl and improves the surrogate',
-                  choices=('a2c', 'ppo', 'npg', 'trpo')),
+                  choices=tuple(ALGO_SETTINGS)),
     'learning_rate': Param(1e-3, 'learning rate of the policy', **POSITIVE, live=True),
     'optimizer': Param('adam', 'optimiser of the policy', choices=('rmsprop', 'adam')),
     'ent_coef': Param(0.0, 'entropy bonus weight', low=0.0, live=True),
@@ -233,6 +244,23 @@ LEARNER_PARAMS: Dict[str, Param] = {
     'nice': NICE,
     'sched_idle': SCHED_IDLE,
 }
+
+
+def check_algo_setting(label: str, algo: str, key: str, value) -> None:
+    """
+    Raise ConfigError if ``key`` is a setting ``algo``'s update lacks, set off its default.
+
+    A value equal to the default passes: the shipped parameter file and ``ros2 param dump``
+    list every parameter, every update's settings included, and giving those back changes
+    nothing. Any other value would be taken and ignored, so it is refused, naming the
+    settings ``algo`` has.
+    """
+    has = ALGO_SETTINGS[algo]
+    if key in has or not any(key in s for s in ALGO_SETTINGS.values()):
+        return
+    if value != LEARNER_PARAMS[key].default:
+        raise ConfigError(f'parameter {label!r}: {value!r} is not allowed: algo {algo!r} has '
+                          f'no {key}; its settings: {", ".join(has)}')
 
 
 def _writable_file(path: str) -> None:
@@ -446,6 +474,9 @@ def load_config(path=None, overrides: Sequence[str] = (), extra_sections=None
                 value = param.default
             label = key if name == SHARED else f'{name}.{key}'
             values[key] = param.check(label, value)
+        if 'algo' in values:                     # the learner's section
+            for key, value in values.items():
+                check_algo_setting(f'{name}.{key}', values['algo'], key, value)
         out[name] = values
     return out
 

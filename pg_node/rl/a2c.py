@@ -1,19 +1,20 @@
 """
-One learner step and one critic step: the A2C update (and PPO's) on a finished batch.
+One learner step and one critic step: the A2C and PPO updates on a finished batch.
 
 In pg_node the actor and the critic are separate networks living in separate processes
 (the learner and critic nodes), so SB3's single loss ``pg + vf_coef * vl - ent_coef * H`` is
-split in two: :class:`PolicyUpdate` minimises ``pg - ent_coef * H`` for the policy and
-:class:`ValueUpdate` minimises ``vf_coef * vl`` for V. With no shared parameters this is the
-same gradient step SB3 takes.
+split in two: :class:`A2CUpdate` (and :class:`PPOUpdate`) minimises ``pg - ent_coef * H``
+for the policy and :class:`ValueUpdate` minimises ``vf_coef * vl`` for V. With no shared
+parameters this is the same gradient step SB3 takes.
 
 A step whose loss or gradient is not finite is skipped: the weights stay as they were and
 the step is reported (``skipped``), so one bad batch cannot poison the policy.
 """
 from dataclasses import dataclass
-from typing import Dict, Optional
+from typing import Dict, List, Optional
 
 import numpy as np
+from pg_node.common.params import ALGO_SETTINGS
 from pg_node.rl import losses
 import torch
 from torch import nn
@@ -80,29 +81,55 @@ class _Optimized:
         for group in self.opt.param_groups:
             group['lr'] = value
 
+    def optimizer_state(self) -> Dict:
+        """Return the optimiser's state, for a checkpoint."""
+        return self.opt.state_dict()
 
-class PolicyUpdate(_Optimized):
-    """Applies A2C (one gradient step on the whole batch) or PPO (epochs of minibatches)."""
+    def load_optimizer_state(self, state: Dict) -> None:
+        """Load a checkpoint's optimiser state, keeping the configured learning rate."""
+        learning_rate = self.learning_rate
+        self.opt.load_state_dict(state)
+        self.learning_rate = learning_rate       # the run's configuration decides, not the file
+
+
+class A2CUpdate(_Optimized):
+    """A2C: one gradient step of ``pg - ent_coef * H`` on the whole batch."""
+
+    name = 'a2c'
+    settings = ALGO_SETTINGS['a2c']
+    #: a skipped step left the policy as it was: its batch's observations are not merged
+    merge_obs_after_skip = False
+    #: stop a batch's epochs once the approximate KL exceeds 1.5 of this (None: never)
+    target_kl: Optional[float] = None
 
     def __init__(self, policy: nn.Module, learning_rate: float = 7e-4, ent_coef: float = 0.0,
                  max_grad_norm: float = 0.5, normalize_advantage: bool = False,
-                 algo: str = 'a2c', optimizer: str = 'rmsprop', clip_range: float = 0.2,
-                 n_epochs: int = 10, batch_size: int = 64, target_kl: Optional[float] = None,
-                 seed: int = 0):
-        if algo not in ('a2c', 'ppo'):
-            raise ValueError(f"unknown algo {algo!r}; choose 'a2c' or 'ppo'")
+                 optimizer: str = 'rmsprop'):
         self.policy = policy
+        self.optimizer = optimizer
         self.opt = make_optimizer(optimizer, policy.parameters(), learning_rate)
         self.ent_coef = ent_coef
         self.max_grad_norm = max_grad_norm
         self.normalize_advantage = normalize_advantage
-        self.algo = algo
-        self.clip_range = clip_range
-        self.n_epochs = n_epochs
-        self.batch_size = batch_size
-        self.target_kl = target_kl
-        self.gen = torch.Generator().manual_seed(seed)
         self.skipped = 0
+
+    @classmethod
+    def from_config(cls, policy: nn.Module, cfg: Dict) -> 'A2CUpdate':
+        """Build the update from the learner's configuration: its own settings."""
+        return cls(policy, **{k: cfg[k] for k in cls.settings})
+
+    def _plan(self, n: int) -> List[List[torch.Tensor]]:
+        """Return the minibatches of each epoch: A2C takes one step on all ``n`` samples."""
+        return [[torch.arange(n)]]
+
+    def _policy_loss(self, logp, old_logp, adv):
+        """Return the policy-gradient loss and its statistics (A2C: -mean(logp * phi))."""
+        pg = losses.policy_gradient_loss(logp, adv)
+        with torch.no_grad():
+            log_ratio = logp - old_logp
+            stats = {'approx_kl': float(((log_ratio.exp() - 1) - log_ratio).mean()),
+                     'clip_fraction': 0.0}
+        return pg, stats
 
     def _loss(self, b: PolicyBatch, idx):
         obs, act, old_logp, adv = b.obs[idx], b.act[idx], b.logp[idx], b.adv[idx]
@@ -111,29 +138,15 @@ class PolicyUpdate(_Optimized):
         dist = self.policy.distribution(obs)
         logp = dist.log_prob(act).sum(-1)
         entropy = dist.entropy().sum(-1)
-        if self.algo == 'ppo':
-            pg, stats = losses.ppo_clip_loss(logp, old_logp, adv, self.clip_range)
-        else:
-            pg = losses.policy_gradient_loss(logp, adv)
-            with torch.no_grad():
-                log_ratio = logp - old_logp
-                stats = {'approx_kl': float(((log_ratio.exp() - 1) - log_ratio).mean()),
-                         'clip_fraction': 0.0}
+        pg, stats = self._policy_loss(logp, old_logp, adv)
         loss = pg + self.ent_coef * losses.entropy_loss(entropy)
         stats.update(policy_loss=float(pg.detach()), entropy=float(entropy.detach().mean()))
         return loss, stats
 
     def update(self, batch: PolicyBatch) -> Dict[str, float]:
         """Update the policy on one batch; return the metrics SB3/CleanRL users know."""
-        n = batch.obs.shape[0]
-        if self.algo == 'a2c':
-            plan = [[torch.arange(n)]]
-        else:
-            size = min(self.batch_size, n)
-            plan = [list(torch.randperm(n, generator=self.gen).split(size))
-                    for _ in range(self.n_epochs)]
         logs, norms, skipped = [], [], 0
-        for epoch in plan:
+        for epoch in self._plan(batch.obs.shape[0]):
             for idx in epoch:
                 loss, stats = self._loss(batch, idx)
                 norm = _step(self.policy, self.opt, loss, self.max_grad_norm)
@@ -150,6 +163,42 @@ class PolicyUpdate(_Optimized):
         out['grad_norm'] = float(np.mean(norms)) if norms else float('nan')
         out['skipped_updates'] = float(skipped)
         return out
+
+
+class PPOUpdate(A2CUpdate):
+    """PPO: ``n_epochs`` passes of shuffled minibatches on the clipped surrogate."""
+
+    name = 'ppo'
+    settings = ALGO_SETTINGS['ppo']
+    #: ``skipped`` counts minibatches: the others moved the policy, so the batch is merged
+    merge_obs_after_skip = True
+
+    def __init__(self, policy: nn.Module, learning_rate: float = 7e-4, ent_coef: float = 0.0,
+                 max_grad_norm: float = 0.5, normalize_advantage: bool = False,
+                 optimizer: str = 'rmsprop', clip_range: float = 0.2, n_epochs: int = 10,
+                 batch_size: int = 64, target_kl: Optional[float] = None, seed: int = 0):
+        super().__init__(policy, learning_rate, ent_coef, max_grad_norm, normalize_advantage,
+                         optimizer)
+        self.clip_range = clip_range
+        self.n_epochs = n_epochs
+        self.batch_size = batch_size
+        self.target_kl = target_kl
+        self.gen = torch.Generator().manual_seed(seed)
+
+    @classmethod
+    def from_config(cls, policy: nn.Module, cfg: Dict) -> 'PPOUpdate':
+        """Build the update from its settings and the run's ``seed`` (the minibatch order)."""
+        return cls(policy, seed=cfg['seed'], **{k: cfg[k] for k in cls.settings})
+
+    def _plan(self, n: int) -> List[List[torch.Tensor]]:
+        """Return ``n_epochs`` shuffles of the ``n`` samples, split into minibatches."""
+        size = min(self.batch_size, n)
+        return [list(torch.randperm(n, generator=self.gen).split(size))
+                for _ in range(self.n_epochs)]
+
+    def _policy_loss(self, logp, old_logp, adv):
+        """Return PPO's clipped surrogate loss and its statistics."""
+        return losses.ppo_clip_loss(logp, old_logp, adv, self.clip_range)
 
 
 class ValueUpdate(_Optimized):

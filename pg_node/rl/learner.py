@@ -1,5 +1,5 @@
 """
-The learner's job, without ROS: the policy, its A2C/PPO update, versions and checkpoints.
+The learner's job, without ROS: the policy, its update, versions and checkpoints.
 
 Each applied update increases the policy ``version`` by one. A batch is tagged with the
 version of the policy that sampled it; in synchronous mode only a batch of the current
@@ -10,10 +10,11 @@ that the step is taken at exactly the policy the actor sampled from.
 from typing import Dict, Optional
 
 import numpy as np
-from pg_node.rl.a2c import PolicyBatch, PolicyUpdate
+from pg_node.common.params import check_algo_setting
+from pg_node.rl.a2c import PolicyBatch
 from pg_node.rl.checkpoint import load_latest, save_checkpoint
-from pg_node.rl.natural_gradient import ALGOS as NATURAL, NaturalGradientUpdate
 from pg_node.rl.policy import GaussianPolicy
+from pg_node.rl.updaters import make_updater
 from pg_node.rl.weights import flatten_state
 import torch
 
@@ -34,29 +35,12 @@ def policy_from_checkpoint(state: Dict) -> GaussianPolicy:
 
 
 class Learner:
-    """The policy, its optimiser and its version."""
-
-    #: settings that may change between updates: config key -> attribute of the update
-    UPDATE_SETTINGS = {'learning_rate': 'learning_rate', 'ent_coef': 'ent_coef',
-                       'max_grad_norm': 'max_grad_norm',
-                       'normalize_advantage': 'normalize_advantage', 'clip_range': 'clip_range',
-                       'n_epochs': 'n_epochs', 'batch_size': 'batch_size', 'max_kl': 'max_kl'}
+    """The policy, its update (:mod:`pg_node.rl.updaters`) and its version."""
 
     def __init__(self, obs_dim: int, act_dim: int, cfg: Dict):
         self.cfg = cfg
         self.policy = make_policy(obs_dim, act_dim, cfg)
-        if cfg['algo'] in NATURAL:
-            self.update = NaturalGradientUpdate(
-                self.policy, algo=cfg['algo'], max_kl=cfg['max_kl'], cg_iters=cfg['cg_iters'],
-                cg_damping=cfg['cg_damping'], line_search_steps=cfg['line_search_steps'],
-                ent_coef=cfg['ent_coef'], normalize_advantage=cfg['normalize_advantage'])
-        else:
-            self.update = PolicyUpdate(
-                self.policy, learning_rate=cfg['learning_rate'], ent_coef=cfg['ent_coef'],
-                max_grad_norm=cfg['max_grad_norm'],
-                normalize_advantage=cfg['normalize_advantage'], algo=cfg['algo'],
-                optimizer=cfg['optimizer'], clip_range=cfg['clip_range'],
-                n_epochs=cfg['n_epochs'], batch_size=cfg['batch_size'], seed=cfg['seed'])
+        self.update = make_updater(self.policy, cfg)
         self.version = 0
         self.env_steps = 0
         self.rejected = 0
@@ -77,7 +61,7 @@ class Learner:
         next version in sync mode, and must get one to go on sampling.
         """
         stats = self.update.update(PolicyBatch.from_numpy(obs, act, logp, adv))
-        if stats['skipped_updates'] == 0 or self.cfg['algo'] == 'ppo':
+        if stats['skipped_updates'] == 0 or self.update.merge_obs_after_skip:
             self.policy.obs_norm.update(np.asarray(obs).reshape(-1, self.policy.obs_dim))
         self.version += 1
         self.env_steps += int(np.asarray(adv).size)
@@ -85,10 +69,16 @@ class Learner:
         return stats
 
     def configure(self, name: str, value) -> None:
-        """Change one setting between updates (``ros2 param set``); the next update uses it."""
+        """
+        Change one setting between updates (``ros2 param set``); the next update uses it.
+
+        Raises :class:`~pg_node.common.params.ConfigError` for a setting the update does not
+        have, unless ``value`` is its default (then nothing changes).
+        """
+        check_algo_setting(name, self.cfg['algo'], name, value)
         self.cfg[name] = value
-        if name in self.UPDATE_SETTINGS and hasattr(self.update, self.UPDATE_SETTINGS[name]):
-            setattr(self.update, self.UPDATE_SETTINGS[name], value)
+        if name in self.update.settings:
+            setattr(self.update, name, value)
 
     def weights(self):
         """Return ``(layout, vector)`` of the current policy, for the actors."""
@@ -96,9 +86,7 @@ class Learner:
 
     def state(self) -> Dict:
         """Return what a checkpoint keeps of the learner."""
-        opt = getattr(self.update, 'opt', None)      # NPG and TRPO have no optimiser
-        return {'policy': self.policy.state_dict(),
-                'opt': opt.state_dict() if opt is not None else None,
+        return {'policy': self.policy.state_dict(), 'opt': self.update.optimizer_state(),
                 'env_steps': self.env_steps, 'obs_dim': self.policy.obs_dim,
                 'act_dim': self.policy.act_dim, 'config': dict(self.cfg)}
 
@@ -111,11 +99,8 @@ class Learner:
         state, problems = load_latest(directory)
         if state is not None:
             self.policy.load_state_dict(state['policy'])
-            if state.get('opt') is not None and hasattr(self.update, 'opt'):
-                self.update.opt.load_state_dict(state['opt'])
-                # the optimiser's state holds the learning rate it was saved with: the run's
-                # configuration decides, as for every other setting
-                self.update.learning_rate = self.cfg['learning_rate']
+            if state.get('opt') is not None:
+                self.update.load_optimizer_state(state['opt'])
             self.version = int(state['version'])
             self.env_steps = int(state.get('env_steps', 0))
         return state, problems

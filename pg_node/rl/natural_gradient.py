@@ -19,15 +19,14 @@ step. TRPO then searches back along it (halving) and accepts the first fraction 
 improves the surrogate and keeps the measured mean KL within ``max_kl``; if none does, the
 policy is left as it was.
 """
-from typing import Callable, Dict, List
+from typing import Callable, Dict, List, Tuple
 
 import numpy as np
+from pg_node.common.params import ALGO_SETTINGS
 from pg_node.rl import losses
 import torch
 from torch import nn
 from torch.distributions import kl_divergence, Normal
-
-ALGOS = ('npg', 'trpo')
 
 
 def conjugate_gradient(avp: Callable[[torch.Tensor], torch.Tensor], b: torch.Tensor,
@@ -87,31 +86,43 @@ def fisher_vector_product(kl_fn: Callable[[], torch.Tensor], params: List[nn.Par
     return flat(hv) + damping * v
 
 
-class NaturalGradientUpdate:
+class NPGUpdate:
     """
-    NPG or TRPO on one batch, with the interface of :class:`pg_node.rl.a2c.PolicyUpdate`.
+    NPG on one batch: the natural gradient step whose quadratic model of the KL is ``max_kl``.
 
     phi is normalised per batch when ``normalize_advantage`` (as for A2C); an entropy bonus
-    ``ent_coef * H`` is part of the surrogate. Settings that PolicyUpdate has and the
-    natural gradient does not use (learning rate, clipping, epochs) are kept as attributes,
-    so :meth:`pg_node.rl.learner.Learner.configure` works the same.
+    ``ent_coef * H`` is part of the surrogate.
     """
 
-    def __init__(self, policy: nn.Module, algo: str = 'trpo', max_kl: float = 0.01,
-                 cg_iters: int = 10, cg_damping: float = 0.1, line_search_steps: int = 10,
-                 ent_coef: float = 0.0, normalize_advantage: bool = True, **unused):
-        if algo not in ALGOS:
-            raise ValueError(f"unknown algo {algo!r}; choose one of {', '.join(ALGOS)}")
+    name = 'npg'
+    settings = ALGO_SETTINGS['npg']
+    #: no learning rate: the step is sized by ``max_kl``; the logs show 0
+    learning_rate = 0.0
+    #: a skipped step left the policy as it was: its batch's observations are not merged
+    merge_obs_after_skip = False
+
+    def __init__(self, policy: nn.Module, max_kl: float = 0.01, cg_iters: int = 10,
+                 cg_damping: float = 0.1, ent_coef: float = 0.0,
+                 normalize_advantage: bool = True):
         self.policy = policy
-        self.algo = algo
         self.max_kl = max_kl
         self.cg_iters = cg_iters
         self.cg_damping = cg_damping
-        self.line_search_steps = line_search_steps
         self.ent_coef = ent_coef
         self.normalize_advantage = normalize_advantage
-        self.learning_rate = unused.get('learning_rate', 0.0)
         self.skipped = 0
+
+    @classmethod
+    def from_config(cls, policy: nn.Module, cfg: Dict) -> 'NPGUpdate':
+        """Build the update from the learner's configuration: its own settings."""
+        return cls(policy, **{k: cfg[k] for k in cls.settings})
+
+    def optimizer_state(self) -> None:
+        """Return None: a natural gradient step keeps no optimiser state."""
+        return None
+
+    def load_optimizer_state(self, state: Dict) -> None:
+        """Ignore a checkpoint's optimiser state (one of another update): there is none here."""
 
     def _params(self) -> List[nn.Parameter]:
         return [p for p in self.policy.parameters() if p.requires_grad]
@@ -127,7 +138,7 @@ class NaturalGradientUpdate:
         return kl_divergence(old, self.policy.distribution(batch.obs)).sum(-1).mean()
 
     def update(self, batch) -> Dict[str, float]:
-        """Take one NPG or TRPO step on ``batch``; return SB3-style metrics and the step's."""
+        """Take one step on ``batch``; return SB3-style metrics and the step's."""
         params = self._params()
         adv = batch.adv
         if self.normalize_advantage:
@@ -152,29 +163,18 @@ class NaturalGradientUpdate:
         if not np.isfinite(xfx) or xfx <= 0:
             return self._skip(stats, params, theta)
         step = np.sqrt(2.0 * self.max_kl / xfx) * x
-        fraction, kl = 1.0, float('nan')
-        if self.algo == 'npg':
-            assign(params, theta + step)
-            with torch.no_grad():
-                kl = float(self.mean_kl(batch, old))
-        else:
-            base = float(surr.detach())
-            for k in range(self.line_search_steps):
-                fraction = 0.5 ** k
-                assign(params, theta + fraction * step)
-                with torch.no_grad():
-                    kl = float(self.mean_kl(batch, old))
-                    gain = float(self.surrogate(batch, adv)) - base
-                if np.isfinite(kl) and kl <= self.max_kl and gain > 0:
-                    break
-            else:
-                assign(params, theta)                   # no acceptable step: keep the policy
-                fraction, kl = 0.0, 0.0
+        fraction, kl = self._take(batch, adv, old, params, theta, step, float(surr.detach()))
         with torch.no_grad():
             dist = self.policy.distribution(batch.obs)
             stats['entropy'] = float(dist.entropy().sum(-1).mean())
         stats.update(approx_kl=kl, step_fraction=fraction, skipped_updates=0.0)
         return stats
+
+    def _take(self, batch, adv, old, params, theta, step, base) -> Tuple[float, float]:
+        """Move the policy to ``theta + step``; return the fraction taken and the mean KL."""
+        assign(params, theta + step)
+        with torch.no_grad():
+            return 1.0, float(self.mean_kl(batch, old))
 
     def _skip(self, stats, params, theta) -> Dict[str, float]:
         assign(params, theta)
@@ -183,3 +183,29 @@ class NaturalGradientUpdate:
             stats['entropy'] = float('nan')
         stats.update(approx_kl=float('nan'), step_fraction=0.0, skipped_updates=1.0)
         return stats
+
+
+class TRPOUpdate(NPGUpdate):
+    """TRPO on one batch: NPG's step, searched back until the KL bound holds and it improves."""
+
+    name = 'trpo'
+    settings = ALGO_SETTINGS['trpo']
+
+    def __init__(self, policy: nn.Module, max_kl: float = 0.01, cg_iters: int = 10,
+                 cg_damping: float = 0.1, line_search_steps: int = 10, ent_coef: float = 0.0,
+                 normalize_advantage: bool = True):
+        super().__init__(policy, max_kl, cg_iters, cg_damping, ent_coef, normalize_advantage)
+        self.line_search_steps = line_search_steps
+
+    def _take(self, batch, adv, old, params, theta, step, base) -> Tuple[float, float]:
+        """Halve the step until surrogate ``base`` improves within ``max_kl``; else keep theta."""
+        for k in range(self.line_search_steps):
+            fraction = 0.5 ** k
+            assign(params, theta + fraction * step)
+            with torch.no_grad():
+                kl = float(self.mean_kl(batch, old))
+                gain = float(self.surrogate(batch, adv)) - base
+            if np.isfinite(kl) and kl <= self.max_kl and gain > 0:
+                return fraction, kl
+        assign(params, theta)                           # no acceptable step: keep the policy
+        return 0.0, 0.0

@@ -1,5 +1,5 @@
 """
-A2C in one process, with the very classes the nodes wrap: the reference for the ROS graph.
+Training in one process, with the very classes the nodes wrap: the reference for the ROS graph.
 
 The simulator, actor, critic and learner steps are called in turn, as the graph runs them in
 lock-step synchronous mode; what differs is only the transport. The policy is sampled for

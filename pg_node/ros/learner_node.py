@@ -41,7 +41,7 @@ import time
 from diagnostic_msgs.msg import DiagnosticStatus
 import numpy as np
 from pg_node.bag.recorder import EPISODE_QOS, EpisodeRecorder
-from pg_node.common.params import params_for
+from pg_node.common.params import check_algo_setting, ConfigError, params_for
 from pg_node.common.paths import resolve_model
 from pg_node.rl.learner import EpisodeStats, Learner
 from pg_node.rl.logger import TensorBoardLog
@@ -53,6 +53,7 @@ from pg_node.ros.qos import LATCHED, RELIABLE
 from pg_node.ros.run_protocol import (DONE, LEARNER_STATE, learner_state_msg, RANDOMIZATION,
                                       RunGuard, TRAINING)
 from pg_node.ros.runtime import run
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from std_msgs.msg import Float64, Float64MultiArray
 import torch
@@ -76,6 +77,7 @@ class LearnerNode(Node):
         self.cfg = declare_params(self, {**params_for('learner_node'),
                                          **params_for('actor_node')},
                                   lambda name, value: self.learner.configure(name, value))
+        self.add_on_set_parameters_callback(self.refuse_other_updates_settings)
         import mujoco
         from pg_node.sim.arm_task import ArmSpec
         model_path = resolve_model(self.cfg['model'])
@@ -144,6 +146,16 @@ class LearnerNode(Node):
         self.get_logger().info(
             f'learner: {self.cfg["algo"]}, version {self.learner.version}, '
             f'{self.learner.env_steps}/{self.cfg["total_steps"]} steps, run dir {self.run_dir}')
+
+    def refuse_other_updates_settings(self, params) -> SetParametersResult:
+        """Refuse (``ros2 param set``) a setting the update lacks, naming the ones it has."""
+        for p in params:
+            try:
+                check_algo_setting(f'{self.get_name()}.{p.name}', self.cfg['algo'], p.name,
+                                   p.value)
+            except ConfigError as exc:
+                return SetParametersResult(successful=False, reason=str(exc))
+        return SetParametersResult(successful=True)
 
     def publish_weights(self):
         """Publish the current policy (latched)."""

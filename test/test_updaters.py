@@ -1,0 +1,124 @@
+"""
+One way to choose the policy update: the registry, the settings each update has, the refusals.
+
+The ``algo`` parameter offers exactly the registered updates; each builds itself from its own
+settings; a setting of another update, set off its default, is refused in one line (in the
+configuration, when the learner is built, and when it is changed live), while a setting the
+update shares with others, or a default given back, is accepted.
+"""
+import numpy as np
+from pg_node.common.params import (ALGO_SETTINGS, check_algo_setting, ConfigError, defaults,
+                                   LEARNER_PARAMS, load_config)
+from pg_node.common.paths import default_config
+from pg_node.rl.learner import Learner
+from pg_node.rl.policy import GaussianPolicy
+from pg_node.rl.updaters import make_updater, UPDATERS
+import pytest
+
+SETTINGS = sorted(set().union(*ALGO_SETTINGS.values()))
+
+
+def other(key):
+    """Return an allowed value of learner setting ``key`` other than its default."""
+    param = LEARNER_PARAMS[key]
+    value = param.default
+    if param.choices is not None:
+        return next(c for c in param.choices if c != value)
+    if isinstance(value, bool):
+        return not value
+    if isinstance(value, float):
+        return value * 2 if value else 0.25
+    return value + 1
+
+
+def learner_cfg(**change):
+    return {**defaults('learner_node'), **defaults('actor_node'), **change}
+
+
+def test_the_registry_holds_exactly_the_algos_the_parameter_offers():
+    assert tuple(UPDATERS) == LEARNER_PARAMS['algo'].choices == tuple(ALGO_SETTINGS)
+    for name, cls in UPDATERS.items():
+        assert cls.name == name and cls.settings == ALGO_SETTINGS[name]
+
+
+def test_every_setting_is_a_learner_parameter_and_its_description_names_its_updates():
+    """``ppo: ...``, ``npg/trpo: ...``: the table's words agree with who has the setting."""
+    for key in SETTINGS:
+        assert key in LEARNER_PARAMS, key
+    for key, param in LEARNER_PARAMS.items():
+        head = param.description.split(':')[0]
+        if key != 'algo' and set(head.split('/')) <= set(ALGO_SETTINGS):
+            assert {a for a, has in ALGO_SETTINGS.items() if key in has} == \
+                set(head.split('/')), key
+
+
+@pytest.mark.parametrize('algo', list(UPDATERS))
+def test_each_update_is_built_from_its_own_settings(algo):
+    """Every setting the update declares is an attribute holding the configured value."""
+    change = {k: other(k) for k in ALGO_SETTINGS[algo]}
+    update = make_updater(GaussianPolicy(3, 1), learner_cfg(algo=algo, **change))
+    assert type(update) is UPDATERS[algo]
+    for key, value in change.items():
+        assert getattr(update, key) == pytest.approx(value), key
+    assert (update.optimizer_state() is None) == (algo in ('npg', 'trpo'))
+
+
+@pytest.mark.parametrize('algo, key', [(a, k) for a in ALGO_SETTINGS for k in SETTINGS
+                                       if k not in ALGO_SETTINGS[a]])
+def test_a_setting_of_another_update_is_refused_in_the_configuration(algo, key):
+    value = other(key)
+    with pytest.raises(ConfigError) as err:
+        load_config(None, [f'algo={algo}', f'{key}={value}'])
+    assert str(err.value) == (
+        f"parameter 'learner_node.{key}': {value!r} is not allowed: algo {algo!r} has no "
+        f'{key}; its settings: {", ".join(ALGO_SETTINGS[algo])}')
+    with pytest.raises(ConfigError, match=f'has no {key}'):       # a node started with it
+        Learner(4, 1, learner_cfg(algo=algo, **{key: value}))
+
+
+@pytest.mark.parametrize('algo', list(UPDATERS))
+def test_defaults_given_back_and_shared_settings_are_accepted(algo):
+    """The shipped file lists every update's settings at their defaults: any algo takes it."""
+    cfg = load_config(default_config(), [f'algo={algo}', 'ent_coef=0.01',
+                                         'normalize_advantage=false'])
+    assert cfg['learner_node']['algo'] == algo
+    for key in SETTINGS:
+        check_algo_setting(key, algo, key, LEARNER_PARAMS[key].default)
+
+
+def test_a_preset_tuned_for_one_update_is_refused_under_another():
+    from pg_node.common.paths import config_file
+    with pytest.raises(ConfigError, match="'learner_node.learning_rate'.*algo 'trpo'"):
+        load_config(config_file('ppo'), ['algo=trpo'])
+
+
+@pytest.mark.parametrize('algo', list(UPDATERS))
+def test_live_changes_reach_the_update_or_are_refused(algo):
+    """``Learner.configure`` (what ``ros2 param set`` calls) sets its own, refuses others'."""
+    learner = Learner(4, 1, learner_cfg(algo=algo))
+    for key in ALGO_SETTINGS[algo]:
+        if LEARNER_PARAMS[key].live:
+            learner.configure(key, other(key))
+            assert getattr(learner.update, key) == pytest.approx(other(key))
+            assert learner.cfg[key] == other(key)
+    for key in SETTINGS:
+        if key not in ALGO_SETTINGS[algo] and LEARNER_PARAMS[key].live:
+            with pytest.raises(ConfigError, match=f"algo '{algo}' has no {key}"):
+                learner.configure(key, other(key))
+            assert learner.cfg[key] == LEARNER_PARAMS[key].default
+            learner.configure(key, LEARNER_PARAMS[key].default)    # given back: accepted
+
+
+@pytest.mark.parametrize('algo, merged', [('a2c', False), ('ppo', True), ('npg', False),
+                                          ('trpo', False)])
+def test_a_skipped_step_merges_the_observations_only_where_others_moved_the_policy(algo, merged):
+    """PPO skips minibatches, the rest move the policy; the others skip the whole step."""
+    small = {'batch_size': 2} if algo == 'ppo' else {}
+    learner = Learner(4, 1, learner_cfg(algo=algo, **small))
+    adv = np.ones(8)
+    adv[0] = np.nan                     # one minibatch (PPO) or the whole step is skipped
+    obs = np.random.default_rng(0).normal(size=(8, 4))
+    count = float(learner.policy.obs_norm.count)
+    stats = learner.learn(obs, np.zeros((8, 1)), np.zeros(8), adv)
+    assert stats['skipped_updates'] >= 1
+    assert (float(learner.policy.obs_norm.count) > count) == merged
