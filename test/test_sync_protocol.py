@@ -214,6 +214,14 @@ def test_critic_keeps_the_newest_sent_batches_also_when_versions_go_back():
     assert c.on_rollout(0, 0, 10, 'r').resend is None         # forgotten: none to re-send
 
 
+def test_critic_a_version_sent_again_is_the_newest_sent():
+    c = CriticBatching(sync=True, num_actors=1)
+    for k, v in enumerate([5, 6, 7, 8, 5, 9]):   # the learner went back to version 5
+        c.on_rollout(0, k, v, 'r')
+        c.sent(v, f'batch {v} #{k}')
+    assert list(c.batches) == [7, 8, 5, 9] and c.batches[5] == 'batch 5 #4'
+
+
 def test_critic_forgets_the_oldest_rollouts_beyond_its_memory():
     c = CriticBatching(sync=False, num_actors=1)
     for k in range(SEEN_MAX + 1):

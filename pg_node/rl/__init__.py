@@ -5,8 +5,9 @@ One concept per module, bottom up: ``rollout`` (the data), ``returns``, ``baseli
 ``gae`` and ``estimators`` (every choice of phi in the notes' eq. 20), ``networks``,
 ``normalization``, ``policy`` and ``value``, ``losses`` and ``a2c`` (the updates),
 ``natural_gradient`` (NPG, TRPO), ``rollout_buffer``, ``weights`` and ``checkpoint`` (what
-crosses process boundaries), ``logger`` (TensorBoard), and the two jobs the nodes run,
-``critic`` and ``learner``. ``evaluate`` and ``train_inprocess`` drive the simulator layer's
+crosses process boundaries), ``logger`` (TensorBoard), the two jobs the nodes run,
+``critic`` and ``learner``, and the training protocol's rules as one machine per node:
+``actor_sync``, ``critic_batching``, ``learner_gate``. ``evaluate`` and ``train_inprocess`` drive the simulator layer's
 ``ArmTask`` directly: the graph's computation in one process. ``trained_policy`` loads a
 policy from a run, a checkpoint or an ONNX export (``onnx_export``) for use outside training.
 """

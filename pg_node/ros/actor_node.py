@@ -210,7 +210,7 @@ class ActorNode(Node):
     def act(self, g: int, tr: transition.Transition):
         """Sample and send the command for ``tr``'s observations (group ``g``)."""
         if not any(b.pos or b.pending for b in self.bufs):
-            self.protocol.start_rollout()          # the first command of a rollout
+            self.protocol.start_rollout()      # the first command of a rollout
         act, logp = self.policy.sample(tr.obs, self.rng)
         cmd = np.clip(act, self.spec.ctrl_low, self.spec.ctrl_high)
         # the simulator waits for the command: send it first, then keep the step
