@@ -6,8 +6,9 @@ One concept per module, bottom up: ``rollout`` (the data), ``returns``, ``baseli
 ``normalization``, ``policy`` and ``value``, ``losses`` and ``a2c`` (A2C, PPO),
 ``natural_gradient`` (NPG, TRPO), ``updaters`` (the registry: the update ``algo`` names),
 ``rollout_buffer``, ``weights`` and ``checkpoint`` (what crosses process boundaries),
-``logger`` (TensorBoard), and the two jobs the nodes run,
-``critic`` and ``learner``. ``evaluate`` and ``train_inprocess`` drive the simulator layer's
-``ArmTask`` directly: the graph's computation in one process. ``trained_policy`` loads a
-policy from a run, a checkpoint or an ONNX export (``onnx_export``) for use outside training.
+``logger`` (TensorBoard), the two jobs the nodes run, ``critic`` and ``learner``, and the
+training protocol's rules as one machine per node: ``actor_sync``, ``critic_batching``,
+``learner_gate``. ``evaluate`` and ``train_inprocess`` drive the simulator layer's ``ArmTask``
+directly: the graph's computation in one process. ``trained_policy`` loads a policy from a
+run, a checkpoint or an ONNX export (``onnx_export``) for use outside training.
 """

@@ -7,13 +7,15 @@ transition, ``num_envs x n_actuators`` values, arm-major, clipped to the control
 every ``n_steps`` control steps, the rollout on ``/<run>/pg_node/rollout`` tagged with the policy
 version that sampled it (layout in :mod:`pg_node.ros.messages`).
 
-It acts only once it holds the learner's weights. In ``sync`` mode, after sending rollout k
-sampled by version v it waits for version v + 1 before acting again: exact on-policy A2C
-(the simulator, in lock-step, waits with it). If no new weights come within
+Every decision of the protocol (when it may act, what a repeated or skipped transition
+means, when a rollout goes again) is :class:`pg_node.rl.actor_sync.ActorSync`'s; the node
+drives it. It acts only once it holds the learner's weights. In ``sync`` mode, after sending
+rollout k sampled by version v it waits for version v + 1 before acting again: exact
+on-policy A2C (the simulator, in lock-step, waits with it). If no new weights come within
 ``rollout_resend_timeout`` seconds (plus the time the rollout takes on a slow link:
-:func:`resend_timeout`) it sends the rollout again (the critic drops duplicates),
-so a lost message or a restarted critic cannot deadlock the graph. In ``async`` mode it
-keeps sampling with the newest weights it has.
+:func:`pg_node.rl.actor_sync.resend_timeout`) it sends the rollout again (the critic drops
+duplicates), so a lost message or a restarted critic cannot deadlock the graph. In
+``async`` mode it keeps sampling with the newest weights it has.
 
 A transition re-sent by the simulator (same ``seq``: it had no command for a second) gets the
 command already sent for it once more, the same torques: the first was lost, as it is when a
@@ -36,6 +38,7 @@ import numpy as np
 from pg_node.common.params import params_for
 from pg_node.common.paths import resolve_model
 from pg_node.common.run import COMMANDS
+from pg_node.rl.actor_sync import ActorSync, resend_timeout, Step
 from pg_node.rl.rollout_buffer import concat_arms, RolloutBuffer
 from pg_node.rl.sampler import make_rng, NumpySampler
 from pg_node.ros import command
@@ -53,24 +56,6 @@ from rclpy.qos import QoSProfile
 from std_msgs.msg import Float64MultiArray
 
 
-#: bytes per second a rollout is given on the way to the critic and back as weights: a
-#: tenth of a 1 GbE link, so that a re-send never starts while the first is still in flight
-LINK_BYTES_PER_SECOND = 12.5e6
-
-
-def resend_timeout(configured: float, values: int) -> float:
-    """
-    Return the seconds to wait for new weights before re-sending a rollout of ``values``.
-
-    ``rollout_resend_timeout`` plus the rollout's time on a tenth of a 1 GbE link: the
-    ``arm7`` preset's rollouts are 1.1 MB, 0.09 s more; reacher2's 0.12 MB, 0.01 s.
-
-    >>> resend_timeout(5.0, 125_000)
-    5.08
-    """
-    return configured + round(8 * values / LINK_BYTES_PER_SECOND, 2)
-
-
 class ActorNode(Node):
     """Samples the policy for all arms of one simulator and gathers rollouts."""
 
@@ -83,14 +68,10 @@ class ActorNode(Node):
         self.act_dim = len(self.spec.ctrl_low)
         self.obs_dim = self.spec.obs_layout.size
         self.policy = NumpySampler.from_config(self.obs_dim, self.act_dim, self.cfg)
-        self.version = -1                      # no weights yet: do not act
         self.rng = make_rng(self.cfg['seed'] + 7919 * self.cfg['actor_id'])
+        self.protocol = ActorSync(self.cfg['sync_mode'] == 'sync')
         self.set_groups(1)
-        self.buf_version = None
-        self.wait_for = None                   # version awaited in sync mode
         self.last_rollout = None
-        self.last_rollout_time = 0.0
-        self.rollout_seq = 0
         self.counters = {'commands': 0, 'commands_resent': 0, 'rollouts': 0,
                          'rollouts_resent': 0, 'rollouts_discarded': 0, 'transitions_dropped': 0,
                          'transitions_repeated': 0, 'weights_dropped': 0,
@@ -131,18 +112,13 @@ class ActorNode(Node):
             self.get_logger().warning(f'dropped policy weights: {exc}',
                                       throttle_duration_sec=1.0)
             return
-        if header['version'] < self.version:
-            # the learner restarted from an older checkpoint: what we gathered with newer
-            # weights will be refused, so start over with the version it has now
+        held = self.protocol.version
+        if self.protocol.on_weights(header['version']):
             self.get_logger().warning(
-                f'policy version went back from {self.version} to {header["version"]} '
+                f'policy version went back from {held} to {header["version"]} '
                 '(learner restarted): discarding the partial rollout')
             self.discard_partial()
-            self.wait_for = None
-        self.version = header['version']
         self.counters['weights_received'] += 1
-        if self.wait_for is not None and self.version >= self.wait_for:
-            self.wait_for = None
         self.act_pending()
 
     def on_transition(self, msg):
@@ -173,23 +149,23 @@ class ActorNode(Node):
             self.get_logger().warning(f'dropped a transition: {exc}', throttle_duration_sec=1.0)
             return
         buf = self.bufs[g]
-        if tr.seq == self.last_seq[g]:
+        step, previous = self.protocol.on_transition(g, tr.seq, answered=buf.pending,
+                                                     waiting=g in self.pending,
+                                                     partial=buf.pos + buf.pending > 0)
+        if step.repeated:
             self.counters['transitions_repeated'] += 1
-            if buf.pending:
-                # answered, yet the simulator is still waiting: the command was lost
-                self.pub_cmd.publish(self.last_cmd[g])
-                self.counters['commands_resent'] += 1
-                self.get_logger().info(f'transition {tr.seq} came again: sending its command '
-                                       'again', throttle_duration_sec=1.0)
-                return
-            if g in self.pending:
-                return
-            # a re-send of a transition we never answered (e.g. we just started): answer it
-        elif tr.seq != self.last_seq[g] + tr.groups and buf.pos + buf.pending > 0:
+        if step is Step.REPEAT_ANSWERED:
+            self.pub_cmd.publish(self.last_cmd[g])
+            self.counters['commands_resent'] += 1
+            self.get_logger().info(f'transition {tr.seq} came again: sending its command '
+                                   'again', throttle_duration_sec=1.0)
+            return
+        if step is Step.REPEAT_WAITING:
+            return
+        if step is Step.SKIPPED:
             self.get_logger().warning(
-                f'transition {tr.seq} after {self.last_seq[g]}: discarding the partial rollout')
+                f'transition {tr.seq} after {previous}: discarding the partial rollout')
             self.discard_partial()
-        self.last_seq[g] = tr.seq
         if buf.pending:
             buf.add_outcome(tr.reward, tr.terminated, tr.truncated, tr.final_obs)
             if all(b.full for b in self.bufs):
@@ -207,8 +183,8 @@ class ActorNode(Node):
         self.groups = groups_of
         self.bufs = [RolloutBuffer(self.cfg['n_steps'], arms.stop - arms.start, self.obs_dim,
                                    self.act_dim) for arms in self.groups]
-        self.last_seq = [-1] * groups
-        self.last_cmd = [None] * groups        # the serialised command sent for last_seq
+        self.protocol.set_groups(groups)
+        self.last_cmd = [None] * groups        # each group's last serialised command
         self.pending = {}                      # group -> transition not answered yet
 
     def discard_partial(self):
@@ -217,6 +193,7 @@ class ActorNode(Node):
             self.counters['rollouts_discarded'] += 1
         for b in self.bufs:
             b.reset()
+        self.protocol.discard()
 
     def act_pending(self):
         """
@@ -225,7 +202,7 @@ class ActorNode(Node):
         Not before the first weights, nor in sync mode before the awaited version; a group
         whose buffer is full waits until every group's is and the rollout is sent.
         """
-        if self.version < 0 or self.wait_for is not None:
+        if not self.protocol.may_act:
             return
         for g in [g for g in self.pending if not self.bufs[g].full]:
             self.act(g, self.pending.pop(g))
@@ -233,7 +210,7 @@ class ActorNode(Node):
     def act(self, g: int, tr: transition.Transition):
         """Sample and send the command for ``tr``'s observations (group ``g``)."""
         if not any(b.pos or b.pending for b in self.bufs):
-            self.buf_version = self.version    # the first command of a rollout
+            self.protocol.start_rollout()      # the first command of a rollout
         act, logp = self.policy.sample(tr.obs, self.rng)
         cmd = np.clip(act, self.spec.ctrl_low, self.spec.ctrl_high)
         # the simulator waits for the command: send it first, then keep the step
@@ -246,35 +223,30 @@ class ActorNode(Node):
     def send_rollout(self):
         """Publish the full rollout; in sync mode, wait for the next policy version."""
         ro = concat_arms([b.finish() for b in self.bufs])
+        tag = self.protocol.seal_rollout()
         self.last_rollout = table_msg.to_msg(*messages.pack_rollout(
-            ro, self.buf_version, self.cfg['actor_id'], self.rollout_seq, self.run.token))
-        self.rollout_seq += 1
+            ro, tag.version, self.cfg['actor_id'], tag.seq, self.run.token))
         self.pub_rollout.publish(self.last_rollout)
-        self.last_rollout_time = time.monotonic()
+        self.protocol.sent(time.monotonic())
         self.counters['rollouts'] += 1
-        self.counters['policy_lag'] = self.version - self.buf_version
-        if self.cfg['sync_mode'] == 'sync':
-            self.wait_for = self.buf_version + 1
+        self.counters['policy_lag'] = tag.lag
 
     def on_tick(self):
         """Re-send a rollout the learner never answered; publish diagnostics."""
         timeout = resend_timeout(self.cfg['rollout_resend_timeout'],
                                  len(self.last_rollout.data) if self.last_rollout else 0)
-        if (self.wait_for is not None and self.last_rollout is not None
-                and time.monotonic() - self.last_rollout_time > timeout):
+        if self.protocol.resend_due(time.monotonic(), timeout):
             self.get_logger().warning(
-                f'no policy version {self.wait_for} after {timeout:g} s: sending the '
+                f'no policy version {self.protocol.wait_for} after {timeout:g} s: sending the '
                 'rollout again')
             self.pub_rollout.publish(self.last_rollout)
-            self.last_rollout_time = time.monotonic()
+            self.protocol.sent(time.monotonic())
             self.counters['rollouts_resent'] += 1
-        waiting = 'weights' if self.version < 0 else (
-            f'version {self.wait_for}' if self.wait_for is not None else 'nothing')
         self.diag.publish({**self.counters, 'foreign_messages': self.run.dropped,
-                           'run_id': self.run.run_id, 'policy_version': self.version,
-                           'waiting_for': waiting,
+                           'run_id': self.run.run_id, 'policy_version': self.protocol.version,
+                           'waiting_for': self.protocol.waiting(),
                            'steps_per_second': round(self.steps.rate(), 1)},
-                          message=f'policy version {self.version}')
+                          message=f'policy version {self.protocol.version}')
 
 
 def main(args=None):

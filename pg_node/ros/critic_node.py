@@ -5,10 +5,12 @@ Subscribes ``/<run>/pg_node/rollout`` (from the actors) and ``/<run>/pg_node/pol
 (only the optimal baseline needs the policy); publishes ``/<run>/pg_node/batch`` (layout in
 :mod:`pg_node.ros.messages`) for the learner, and ``/diagnostics``.
 
-In ``sync`` mode a batch holds one rollout of each of the ``num_actors`` actors, all sampled
-by the same policy version, side by side in actor-id order: batched A2C across processes,
-and reproducible because the order never depends on which message came first. In ``async``
-mode every rollout is annotated and sent as it comes. A rollout seen before (an actor's
+Which rollouts make which batch, and what a repeated one means, is decided by
+:class:`pg_node.rl.critic_batching.CriticBatching`; the node drives it. In ``sync`` mode a
+batch holds one rollout of each of the ``num_actors`` actors, all sampled by the same policy
+version, side by side in actor-id order: batched A2C across processes, and reproducible
+because the order never depends on which message came first. In ``async`` mode every
+rollout is annotated and sent as it comes. A rollout seen before (an actor's
 re-send) is not annotated again: the batch made from it is sent again instead (the batch or
 the new weights may have been lost, and the learner answers a repeated batch by publishing
 its weights again), so no single lost message stalls synchronous training. A malformed
@@ -23,13 +25,13 @@ rollout before that step, and the next rollout's phi waits for the step, as in-p
 V is checkpointed to ``<run_dir>/critic`` every ``checkpoint_every`` batches and on exit, and
 a restarted critic resumes from the newest valid checkpoint.
 """
-from collections import OrderedDict
 from pathlib import Path
 
 import numpy as np
 from pg_node.common.params import params_for
 from pg_node.rl.checkpoint import load_latest, save_checkpoint
 from pg_node.rl.critic import Critic
+from pg_node.rl.critic_batching import CriticBatching
 from pg_node.rl.learner import make_policy
 from pg_node.rl.rollout_buffer import RolloutArrays
 from pg_node.rl.weights import load_flat_state
@@ -43,8 +45,6 @@ from pg_node.ros.runtime import run
 from rclpy.node import Node
 from std_msgs.msg import Float64MultiArray
 import torch
-
-SEEN_MAX = 1000
 
 
 class CriticNode(Node):
@@ -62,9 +62,7 @@ class CriticNode(Node):
         self.policy_weights = None
         self.ckpt_dir = Path(self.cfg['run_dir']) / 'critic'
         self.batches = 0
-        self.seen = OrderedDict()
-        self.groups = {}
-        self.sent = OrderedDict()              # version -> last batch sent (for re-sends)
+        self.batching = CriticBatching(self.cfg['sync_mode'] == 'sync', self.cfg['num_actors'])
         self.counters = {'rollouts': 0, 'rollouts_dropped': 0, 'duplicates': 0,
                          'batches': 0, 'batches_resent': 0, 'stale_groups_dropped': 0}
         self.steps = RateCounter()
@@ -128,38 +126,19 @@ class CriticNode(Node):
             self.counters['rollouts_dropped'] += 1
             self.get_logger().warning(f'dropped a rollout: {exc}', throttle_duration_sec=1.0)
             return
-        key = (header['actor_id'], header['rollout_seq'], header['version'])
-        if key in self.seen:
-            # an actor sends a rollout again when no new weights came: the batch or the
-            # weights may have been lost, so send the batch made from it again
+        step = self.batching.on_rollout(header['actor_id'], header['rollout_seq'],
+                                        header['version'], ro)
+        if step.duplicate:
             self.counters['duplicates'] += 1
-            sent = self.sent.get(header['version'])
-            if sent is not None:
-                self.pub_batch.publish(sent)
+            if step.resend is not None:
+                self.pub_batch.publish(step.resend)
                 self.counters['batches_resent'] += 1
             return
-        self.seen[key] = True
-        while len(self.seen) > SEEN_MAX:
-            self.seen.popitem(last=False)
         self.counters['rollouts'] += 1
+        self.counters['stale_groups_dropped'] += step.stale
         self._ensure_critic(ro.obs.shape[-1])
-        if self.cfg['sync_mode'] == 'async':
-            self.annotate(header['version'], [(header['actor_id'], ro)])
-            return
-        version = header['version']
-        for newer in [v for v in self.groups if v > version]:
-            # a new rollout of an older version: the learner restarted from a checkpoint,
-            # and those groups of the versions it lost can never be completed
-            del self.groups[newer]
-            self.counters['stale_groups_dropped'] += 1
-        group = self.groups.setdefault(version, {})
-        group[header['actor_id']] = ro
-        if len(group) >= self.cfg['num_actors']:
-            del self.groups[version]
-            for old in [v for v in self.groups if v < version]:
-                del self.groups[old]
-                self.counters['stale_groups_dropped'] += 1
-            self.annotate(version, sorted(group.items()))
+        if step.parts:
+            self.annotate(step.version, step.parts)
 
     def annotate(self, version: int, parts):
         """Concatenate rollouts along the arm axis, compute phi, send the batch, fit V."""
@@ -194,12 +173,7 @@ class CriticNode(Node):
         # (critic_and_learner), and at once when the learner is a process of its own
         self.pending_fit = (ro.obs, ret)
         self.schedule(self.finish_fit)
-        self.sent[version] = msg
-        self.sent.move_to_end(version)
-        while len(self.sent) > 4:
-            # the oldest *sent*, not the lowest version: after a learner restart the
-            # versions go back, and the batch just sent must stay ready for a re-send
-            self.sent.popitem(last=False)
+        self.batching.sent(version, msg)
         self.batches += 1
         self.counters['batches'] += 1
         self.steps.add(ro.rew.size)

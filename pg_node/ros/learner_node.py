@@ -15,7 +15,8 @@ then ``done``; nodes started one by one end at ``done``,
 ``run_id`` parameter (:mod:`pg_node.common.run`); the
 empty one drops the prefix.
 
-Each accepted batch is one update and one new policy version. A batch received again (the
+Each accepted batch is one update and one new policy version; which batch is accepted is
+:class:`pg_node.rl.learner_gate.LearnerGate`'s decision. A batch received again (the
 same version and number: the critic re-sends when the actor's rollout comes again) is not
 learned from twice; the weights are published again instead, in case they were lost. In
 ``sync`` mode a batch sampled by any version other than the current one is refused and
@@ -44,6 +45,7 @@ from pg_node.bag.recorder import EPISODE_QOS, EpisodeRecorder
 from pg_node.common.params import check_algo_setting, ConfigError, params_for
 from pg_node.common.paths import resolve_model
 from pg_node.rl.learner import EpisodeStats, Learner
+from pg_node.rl.learner_gate import LearnerGate, Verdict
 from pg_node.rl.logger import TensorBoardLog
 from pg_node.ros import messages
 from pg_node.ros import table_msg
@@ -97,7 +99,7 @@ class LearnerNode(Node):
         self.counters = {'batches': 0, 'rejected_batches': 0, 'dropped_batches': 0,
                          'repeated_batches': 0, 'skipped_updates': 0, 'sim_restarts_seen': 0,
                          'gaps': 0}
-        self.last_batch = None
+        self.gate = LearnerGate(self.cfg['sync_mode'] == 'sync', self.cfg['max_policy_lag'])
         self.last_batch_time = None            # time.monotonic() of the newest batch learned
         self.gap_reported = False
         self.last_seq = {}                     # actor -> last transition number learned
@@ -185,24 +187,24 @@ class LearnerNode(Node):
             return
         if self.run.foreign(header['run'], self.run.topic('batch')):
             return
-        key = (header['version'], header['batch_seq'])
-        if key == self.last_batch:
+        verdict = self.gate.on_batch(header['version'], header['batch_seq'],
+                                     self.learner.version)
+        if verdict is Verdict.REPEAT:
             # the critic sent a batch again: our weights were probably lost on the way
             self.counters['repeated_batches'] += 1
             self.publish_weights()
             return
-        lag = self.learner.version - header['version']
-        max_lag = self.cfg['max_policy_lag'] if self.cfg['sync_mode'] == 'async' else 0
-        if not self.learner.accepts(header['version'], max_lag):
+        if verdict is Verdict.REFUSE:
             self.counters['rejected_batches'] += 1
             self.get_logger().warning(
                 f'refused a batch of policy version {header["version"]}: the policy is at '
                 f'{self.learner.version} ({self.cfg["sync_mode"]} mode, lag allowed '
-                f'{max_lag})', throttle_duration_sec=1.0)
+                f'{self.gate.max_lag})', throttle_duration_sec=1.0)
             return
+        lag = self.learner.version - header['version']
         self.note_batch_after_gap()
         stats = self.learner.learn(batch.obs, batch.act, batch.logp, batch.adv)
-        self.last_batch = key
+        self.gate.learned(self.learner.version)
         self.counters['batches'] += 1
         self.counters['skipped_updates'] += int(stats['skipped_updates'])
         self.steps.add(batch.rew.size)

@@ -6,12 +6,9 @@ The two nodes, their names, parameters, topics and services are those of
 shared, as a ROS 2 component container holds several nodes. Their lock-step exchange (a
 transition out, its command back, every control step) then needs no wake-up of another
 process: Fast DDS hands a message to a reader of the same process without its transports,
-and one executor runs both callbacks in turn. Measured on 2 cores (BENCHMARKS.md, the ROS
-tax, two invocations of 5 paired runs): the round trip within a rollout 0.33-0.34 ms at the
-median and 0.91-0.92 ms at p99, against 0.68-0.82 and 2.3-2.9 ms with two processes, and
-training faster in each of the ten pairs (graph / in-process 0.765 and 0.639 against 0.559
-and 0.543). The critic and the learner share another process the same way
-(:mod:`pg_node.ros.critic_and_learner`).
+and one executor runs both callbacks in turn (about half the round trip of two processes:
+docs/ros_graph.md has the measurement). The critic and the learner share another process
+the same way (:mod:`pg_node.ros.critic_and_learner`).
 
 ``python -m pg_node train`` starts it in place of the two processes (``--separate``: the
 two); started by hand it takes the ROS arguments both nodes take (``--ros-args
