@@ -3,9 +3,10 @@ The learner's job, without ROS: the policy, its update, versions and checkpoints
 
 Each applied update increases the policy ``version`` by one. A batch is tagged with the
 version of the policy that sampled it; in synchronous mode only a batch of the current
-version is exact on-policy A2C, so :meth:`Learner.accepts` refuses any other (and the node
-counts the refusal). The observation statistics are merged *after* the gradient step, so
-that the step is taken at exactly the policy the actor sampled from.
+version is exact on-policy A2C, so the node's gate
+(:class:`pg_node.rl.learner_gate.LearnerGate`) lets no other reach :meth:`Learner.learn`. The
+observation statistics are merged *after* the gradient step, so that the step is taken at
+exactly the policy the actor sampled from.
 """
 from typing import Dict, Optional
 
@@ -43,14 +44,6 @@ class Learner:
         self.update = make_updater(self.policy, cfg)
         self.version = 0
         self.env_steps = 0
-        self.rejected = 0
-
-    def accepts(self, batch_version: int, max_lag: int = 0) -> bool:
-        """Return whether a batch sampled with ``batch_version`` may be learned from now."""
-        ok = 0 <= self.version - batch_version <= max_lag
-        if not ok:
-            self.rejected += 1
-        return ok
 
     def learn(self, obs, act, logp, adv) -> Dict[str, float]:
         """
