@@ -14,7 +14,7 @@ import sys
 import time
 import uuid
 
-from pg_node.tools.bench_pool import guarded, run_all
+from bench.pool import guarded, run_all
 import pytest
 
 REPO = Path(__file__).resolve().parent.parent
@@ -66,7 +66,7 @@ def processes_marked(mark):
 
 @pytest.mark.slow
 def test_learning_runs_two_at_a_time_evaluate_as_one_alone(tmp_path):
-    from pg_node.tools.bench_runs import inprocess_learning
+    from bench.runs import inprocess_learning
     cmd = [sys.executable, '-m', 'pg_node', 'bench', '--quick', '--only', 'learning',
            '--jobs', '2', '--learners', 'pg_node_inprocess:2', '--learning-steps', '2048',
            '--out', str(tmp_path)]
