@@ -535,3 +535,7 @@ def main(argv=None) -> int:
         return 130
     print(json.dumps(report, indent=2) if args.json else format_report(report))
     return 0 if report['ok'] else 1
+
+
+if __name__ == '__main__':
+    sys.exit(main())
