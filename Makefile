@@ -76,17 +76,18 @@ lint: $(STAMP)
 variance: $(STAMP)
 	$(PY) -m pg_node variance $(ARGS)
 
+# the benchmarks are the repository's bench package (not installed); they write docs/results/
 bench: $(STAMP)
-	$(PY) -m pg_node bench $(ARGS)
+	$(PY) -m bench $(ARGS)
 
 bench-quick: $(STAMP)
-	$(PY) -m pg_node bench --quick --out /tmp/pg_node_bench $(ARGS)
+	$(PY) -m bench --quick --out /tmp/pg_node_bench $(ARGS)
 
 bench-sim: $(STAMP)
 	$(PY) bench/bench_sim.py $(ARGS)
 
 profile: $(STAMP)
-	$(PY) -m pg_node bench --only profile --report PROFILE.md $(ARGS)
+	$(PY) -m bench --only profile --report PROFILE.md $(ARGS)
 
 # Regenerate requirements.lock after editing requirements.in.
 lock:

@@ -8,7 +8,8 @@ package_name = 'pg_node'
 setup(
     name=package_name,
     version='0.1.0',
-    packages=find_packages(exclude=['test']),
+    # pg_node alone: the repository's bench/ (benchmarks, soak) and test/ are not installed
+    packages=find_packages(include=[package_name, package_name + '.*']),
     package_data={package_name + '.sim': ['models/*.xml', 'models/urdf/*.urdf']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),

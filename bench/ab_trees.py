@@ -3,9 +3,10 @@ Benchmark: the graph / in-process ratio of two versions of the code, run alterna
 
 A cut to the ROS tax is worth a few percent; this machine drifts by more than that from
 one minute to the next. So the two versions run in turns (A B, B A, A B, ...), each run an
-in-process training and then the same training through the graph (``bench_tax``'s
+in-process training and then the same training through the graph (``bench.tax``'s
 ``inprocess_rate`` and ``graph_run``, default settings), and the ratio is read within each
-run. Give each version its own git worktree::
+run (both versions from issue 43 on, where the bench is the ``bench`` package). Give each
+version its own git worktree::
 
     git worktree add /tmp/before <commit>
     AMENT_PREFIX_PATH=$PWD/.venv .venv/bin/python bench/ab_trees.py /tmp/before . --repeats 6
@@ -25,9 +26,9 @@ import sys
 
 def one_run(steps: int, overrides) -> dict:
     """Train in-process, then through the graph, with the code on ``sys.path``."""
-    from pg_node.tools import bench_tax
-    inprocess = bench_tax.inprocess_rate(steps)
-    summary = bench_tax.graph_run(steps, overrides)
+    from bench import tax
+    inprocess = tax.inprocess_rate(steps)
+    summary = tax.graph_run(steps, overrides)
     trained = summary['session_steps']
     return {'inprocess': inprocess, 'graph': summary['steps_per_second'],
             'ratio': summary['steps_per_second'] / inprocess,

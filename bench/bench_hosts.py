@@ -11,7 +11,7 @@ end (the wait for the update, in sync mode) as median. Placements:
 * one host, shared memory (Fast DDS's default transports);
 * one host, UDP only (``FASTDDS_BUILTIN_TRANSPORTS=UDPv4``);
 * a learner host and 1 worker host, and a learner host and 2 worker hosts: network
-  namespaces on a bridge (:mod:`pg_node.tools.lan`), UDP only, multicast discovery; one
+  namespaces on a bridge (:mod:`bench.lan`), UDP only, multicast discovery; one
   simulator/actor pair per worker host (``num_actors`` = worker hosts).
 
 Then what crosses the network per update (the rollout of each worker host in, the weights
@@ -32,13 +32,14 @@ import sys
 import tempfile
 import time
 
-import numpy as np
-from pg_node.common.params import defaults, load_config, SHARED
-from pg_node.tools import processes
-from pg_node.tools.bench_tax import split_round_trips
-from pg_node.tools.lan import dds_env, Lan, unavailable
-
 REPO = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(REPO))
+
+from bench.lan import dds_env, Lan, unavailable  # noqa: E402
+from bench.tax import split_round_trips  # noqa: E402
+import numpy as np  # noqa: E402
+from pg_node.common.params import defaults, load_config, SHARED  # noqa: E402
+from pg_node.tools import processes  # noqa: E402
 
 
 def train_args(run_dir, steps, mode, actors, *extra):
@@ -58,7 +59,7 @@ def trips(paths):
 
     Within a rollout the actor answers at once; after a rollout's last step it waits for the
     next weights (sync) or sends the rollout first (async): that round trip is the hand-over
-    (:func:`pg_node.tools.bench_tax.split_round_trips`, the first 25 rollouts left out).
+    (:func:`bench.tax.split_round_trips`, the first 25 rollouts left out).
     """
     n_steps = defaults('actor_node')['n_steps']
     parts = [split_round_trips(np.load(p), n_steps, skip_rollouts=25)

@@ -11,9 +11,12 @@ read. The CPU seconds per 100k steps are each node process's, in training.
     .venv/bin/python bench/bench_pair.py 200000 2 '' lock_step_groups=2
 """
 import argparse
+from pathlib import Path
 import sys
 
-from pg_node.tools.bench_tax import graph_run, inprocess_rate
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # the repository root
+
+from bench.tax import graph_run, inprocess_rate  # noqa: E402
 
 
 def one_pair(steps: int, overrides) -> dict:

@@ -16,11 +16,13 @@ import subprocess
 import sys
 import tempfile
 
-import numpy as np
-from pg_node.common.params import load_config
-from pg_node.common.paths import config_file
-from pg_node.tools.bench_runs import run_graph
-from pg_node.tools.train import read_progress
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # the repository root
+
+from bench.runs import run_graph  # noqa: E402
+import numpy as np  # noqa: E402
+from pg_node.common.params import load_config  # noqa: E402
+from pg_node.common.paths import config_file  # noqa: E402
+from pg_node.tools.train import read_progress  # noqa: E402
 
 
 def one_preset(preset: str, seeds, steps: int, root: Path) -> dict:

@@ -15,9 +15,12 @@ asserted.
 """
 import argparse
 from pathlib import Path
+import sys
 import tempfile
 
-from pg_node.tools import bench_runs
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # the repository root
+
+from bench.runs import run_graph  # noqa: E402
 
 
 def main():
@@ -31,7 +34,7 @@ def main():
     for spec in args.runs:
         arms, pairs, *extra = spec.split(':')
         with tempfile.TemporaryDirectory() as tmp:
-            summary = bench_runs.run_graph(
+            summary = run_graph(
                 Path(tmp) / 'run', args.steps, 0,
                 [f'num_envs={arms}', f'num_actors={pairs}', *extra, '--eval-episodes', '1'])
         wall = summary['session_training_seconds']

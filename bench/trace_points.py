@@ -12,7 +12,7 @@ processes of the machine) when it exits; ``report`` reads them::
     mkdir /tmp/stamps /tmp/stamps_ip
     # then from /tmp/trace, with PYTHONPATH=/tmp/trace and AMENT_PREFIX_PATH=<the .venv>:
     # PROBE_DIR=/tmp/stamps python -m pg_node train --total-steps 300000 --no-progress
-    # PROBE_DIR=/tmp/stamps_ip python -c 'from pg_node.tools.bench_tax import *;
+    # PROBE_DIR=/tmp/stamps_ip python -c 'from bench.tax import *;
     #     inprocess_rate(300000)'
     .venv/bin/python bench/trace_points.py report /tmp/stamps /tmp/stamps_ip
 

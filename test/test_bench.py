@@ -1,5 +1,5 @@
 """
-``python -m pg_node bench`` end to end on a tiny budget, and its report logic on fixed numbers.
+``python -m bench`` end to end on a tiny budget, and its report logic on fixed numbers.
 
 Benchmarks are scripts: nothing here asserts a speed, only that every section runs, writes
 its table with the expected rows, and that the numbers in it are finite.
@@ -12,8 +12,8 @@ import re
 import subprocess
 import sys
 
-from pg_node.tools import bench
-from pg_node.tools.bench_runs import graph_available
+from bench import suite
+from bench.runs import graph_available
 import pytest
 
 REPO = Path(__file__).resolve().parent.parent
@@ -26,7 +26,7 @@ def fake_results():
            'wall_seconds': 4.1, 'total_steps': 4096, 'steps_per_second': 1000.0}
     return {
         'date': '2026-01-01 00:00', 'quick': True, 'elapsed_seconds': 60.0,
-        'machine': bench.machine_facts(), 'load_start': '1', 'load_end': '1', 'errors': [],
+        'machine': suite.machine_facts(), 'load_start': '1', 'load_end': '1', 'errors': [],
         'throughput': {'load': '1', 'rows': [
             {'key': 'mujoco', 'name': 'raw', 'steps_per_second': 40000.0, 'note': ''},
             {'key': 'graph', 'name': 'graph', 'steps_per_second': 9000.0, 'note': ''},
@@ -43,7 +43,7 @@ def fake_results():
 
 
 def test_targets_from_fixed_numbers():
-    rows = {t['target']: t for t in bench.targets(fake_results())}
+    rows = {t['target']: t for t in suite.targets(fake_results())}
     assert rows['graph >= 2x SB3 A2C env steps/s']['met'] is True
     assert rows['lock-step p99 < 2 ms (64 arms)']['met'] is False
     ret = [t for name, t in rows.items() if name.startswith('pg_node eval return')]
@@ -56,7 +56,7 @@ def test_targets_from_fixed_numbers():
 
 
 def test_time_to_threshold_and_value_at():
-    from pg_node.tools.bench_runs import first_time_at, value_at
+    from bench.runs import first_time_at, value_at
     curve = fake_results()['learning']['runs']['pg_node_graph'][0]['curve']
     assert first_time_at(curve, -10.0) == pytest.approx(3.072)
     assert first_time_at(curve, 100.0) is None
@@ -65,9 +65,9 @@ def test_time_to_threshold_and_value_at():
 
 def test_markdown_marks_missing_graph():
     res = fake_results()
-    res['learning']['runs']['pg_node_graph'] = bench.NOT_AVAILABLE
-    text = bench.render_markdown(res, 'python -m pg_node bench --quick', {})
-    assert bench.NOT_AVAILABLE in text
+    res['learning']['runs']['pg_node_graph'] = suite.NOT_AVAILABLE
+    text = suite.render_markdown(res, 'python -m bench --quick', {})
+    assert suite.NOT_AVAILABLE in text
     assert '| SB3 A2C |' in text
 
 
@@ -76,7 +76,7 @@ def test_partial_report_while_a_learner_has_no_finished_run():
     # partial report written between runs: an invocation died on this, 7e0c30c)
     res = fake_results()
     res['learning']['runs']['sb3_a2c'] = []
-    text = bench.render_markdown(res, 'python -m pg_node bench', {})
+    text = suite.render_markdown(res, 'python -m bench', {})
     assert '| pg_node A2C, ROS graph |' in text and '| SB3 A2C |' not in text
 
 
@@ -84,9 +84,9 @@ def test_results_are_saved_before_the_report_is_rendered(tmp_path, monkeypatch):
     def broken(*args):
         raise RuntimeError('a bug in the report')
 
-    monkeypatch.setattr(bench, 'render_markdown', broken)
+    monkeypatch.setattr(suite, 'render_markdown', broken)
     with pytest.raises(RuntimeError, match='a bug in the report'):
-        bench.main(['--quick', '--only', 'variance', '--variance-batches', '2',
+        suite.main(['--quick', '--only', 'variance', '--variance-batches', '2',
                     '--out', str(tmp_path)])
     saved = json.loads((tmp_path / 'bench_results.json').read_text())
     assert len(saved['variance']['rows']) == 11
@@ -94,7 +94,7 @@ def test_results_are_saved_before_the_report_is_rendered(tmp_path, monkeypatch):
 
 def fake_curves(order):
     """Curves results in which the estimators' final evaluations follow ``order`` (best first)."""
-    from pg_node.tools import bench_curves as bc
+    from bench import curves as bc
     points = bc.points_of(4096)
     runs = {}
     for key in bc.configurations():
@@ -108,7 +108,7 @@ def fake_curves(order):
 
 
 def test_curves_table_ranks_and_quotes_from_fixed_numbers():
-    from pg_node.tools import bench_curves as bc
+    from bench import curves as bc
     by_variance = list(bc.ESTIMATORS)   # variance rows in this order, lowest first
     variance = {'rows': [{'estimator': e, 'relative_variance': 10.0 ** -i}
                          for i, e in enumerate(reversed(by_variance))]}
@@ -143,7 +143,7 @@ def test_curves_table_ranks_and_quotes_from_fixed_numbers():
 
 def test_curves_time_to_a_return_is_the_first_point_that_reached_it():
     """Per seed, the training seconds of the first evaluation at or above the return."""
-    from pg_node.tools import bench_curves as bc
+    from bench import curves as bc
     points = [1024, 2048, 4096]
     runs = [{'seed': 0, 'evals': {1024: -6.0, 2048: -4.8, 4096: -4.4},
              'wall_at': {1024: 10.0, 2048: 20.0, 4096: 40.0}, 'wall_seconds': 40.0,
@@ -176,7 +176,7 @@ def test_bench_runs_join_the_domain_ros_domain_id_sets(monkeypatch):
     Its background graph takes the id after it; unset, ids come from the pid and differ run
     by run.
     """
-    from pg_node.tools.bench_runs import domain_id
+    from bench.runs import domain_id
     monkeypatch.setenv('ROS_DOMAIN_ID', '42')
     assert [domain_id(), domain_id(), domain_id(background=True)] == [42, 42, 43]
     monkeypatch.delenv('ROS_DOMAIN_ID')
@@ -185,7 +185,7 @@ def test_bench_runs_join_the_domain_ros_domain_id_sets(monkeypatch):
 
 
 def test_rejects_unknown_section():
-    res = subprocess.run([sys.executable, '-m', 'pg_node', 'bench', '--only', 'nope'],
+    res = subprocess.run([sys.executable, '-m', 'bench', '--only', 'nope'],
                          capture_output=True, text=True, cwd=REPO)
     assert res.returncode == 2 and '--only takes' in res.stderr
 
@@ -199,7 +199,7 @@ def numbers(line):
 @pytest.mark.e2e
 def test_quick_bench_writes_every_table(tmp_path):
     env = dict(os.environ, PYTHONPATH=str(REPO))
-    cmd = [sys.executable, '-m', 'pg_node', 'bench', '--quick', '--out', str(tmp_path),
+    cmd = [sys.executable, '-m', 'bench', '--quick', '--out', str(tmp_path),
            '--seconds', '0.2', '--latency-steps', '100', '--graph-steps', '2048',
            '--learning-steps', '2048', '--learners', 'pg_node_graph,pg_node_inprocess,sb3_a2c']
     res = subprocess.run(cmd, capture_output=True, text=True, cwd=REPO, env=env, timeout=900)
@@ -210,7 +210,7 @@ def test_quick_bench_writes_every_table(tmp_path):
                     '## 2. Lock-step latency', '## 3. Learning',
                     '## 4. Estimator variance on the arm'):
         assert heading in text
-    assert 'python -m pg_node bench --quick' in text
+    assert 'python -m bench --quick' in text
     graph = graph_available()
     for key in ('mujoco', 'task1', 'task16', 'task64', 'sim_node1', 'sim_node64', 'inprocess',
                 'sb3_a2c') + (('graph',) if graph else ()):
@@ -218,7 +218,7 @@ def test_quick_bench_writes_every_table(tmp_path):
         assert row and row[0]['steps_per_second'] > 0, (key, row)
         assert f'| {row[0]["name"]} | ' in text
     if not graph:
-        assert bench.NOT_AVAILABLE in text
+        assert suite.NOT_AVAILABLE in text
     for row in data['latency']['rows']:
         assert row['round_trips'] >= 100
         assert all(math.isfinite(row[k]) for k in ('median_ms', 'p99_ms', 'max_ms'))
@@ -227,7 +227,7 @@ def test_quick_bench_writes_every_table(tmp_path):
     var = data['variance']['rows']
     assert [r['estimator'] for r in var][0] == 'total_return' and len(var) == 11
     assert all(math.isfinite(r['variance']) and r['variance'] > 0 for r in var)
-    from pg_node.tools.bench_curves import configurations
+    from bench.curves import configurations
     assert "## 5. Every estimator's learning curve" in text
     curves = data['curves']
     assert set(curves['runs']) == set(configurations())
@@ -270,7 +270,7 @@ def test_throughput_plot_ticks_read_apart(tmp_path, monkeypatch):
     res = fake_results()
     res['throughput']['rows'].append(
         {'key': 'sim_node1', 'name': 'one arm', 'steps_per_second': 1900.0, 'note': ''})
-    bench.make_plots({'throughput': res['throughput']}, tmp_path)
+    suite.make_plots({'throughput': res['throughput']}, tmp_path)
     (fig,) = figures
     ax = fig.axes[0]
     fig.canvas.draw()
@@ -298,11 +298,7 @@ def test_bench_bag_keeps_only_the_rows_asked_for():
 
 
 def test_bench_presets_table_from_fixed_numbers():
-    sys.path.insert(0, str(REPO / 'bench'))
-    try:
-        from bench_presets import table
-    finally:
-        sys.path.remove(str(REPO / 'bench'))
+    from bench.bench_presets import table
     runs = [{'eval': e, 'seconds': 100.0 + i, 'rate': 9000.0, 'max_kl': 0.01 + i / 1000}
             for i, e in enumerate((-4.0, -3.5, -4.5))]
     text = table([{'preset': 'trpo', 'evals': [-4.0, -3.5, -4.5], 'mean': -4.0, 'std': 0.408,
@@ -318,7 +314,7 @@ def test_curves_plot_two_panels_with_a_band_per_row(tmp_path, monkeypatch):
     matplotlib.use('Agg')
     from matplotlib.axes import Axes
     from PIL import Image
-    from pg_node.tools import bench_curves as bc
+    from bench import curves as bc
     bands = []
     real = Axes.fill_between
     monkeypatch.setattr(Axes, 'fill_between',

@@ -1,5 +1,5 @@
 """
-``python -m pg_node bench --jobs``: runs in worker processes, the same numbers, Ctrl-C.
+``python -m bench --jobs``: runs in worker processes, the same numbers, Ctrl-C.
 
 Nothing here times anything: it checks where runs went, that pg_node's evaluations do not
 depend on running beside another, and that an interrupted bench keeps what finished.
@@ -14,7 +14,7 @@ import sys
 import time
 import uuid
 
-from pg_node.tools.bench_pool import guarded, run_all
+from bench.pool import guarded, run_all
 import pytest
 
 REPO = Path(__file__).resolve().parent.parent
@@ -66,8 +66,8 @@ def processes_marked(mark):
 
 @pytest.mark.slow
 def test_learning_runs_two_at_a_time_evaluate_as_one_alone(tmp_path):
-    from pg_node.tools.bench_runs import inprocess_learning
-    cmd = [sys.executable, '-m', 'pg_node', 'bench', '--quick', '--only', 'learning',
+    from bench.runs import inprocess_learning
+    cmd = [sys.executable, '-m', 'bench', '--quick', '--only', 'learning',
            '--jobs', '2', '--learners', 'pg_node_inprocess:2', '--learning-steps', '2048',
            '--out', str(tmp_path)]
     res = subprocess.run(cmd, capture_output=True, text=True, cwd=REPO,
@@ -84,7 +84,7 @@ def test_learning_runs_two_at_a_time_evaluate_as_one_alone(tmp_path):
 @pytest.mark.slow
 def test_ctrl_c_keeps_the_finished_runs_in_one_line_and_leaves_no_worker(tmp_path):
     mark = uuid.uuid4().hex
-    cmd = [sys.executable, '-m', 'pg_node', 'bench', '--quick', '--only', 'curves',
+    cmd = [sys.executable, '-m', 'bench', '--quick', '--only', 'curves',
            '--jobs', '2', '--out', str(tmp_path)]
     # as from a terminal, whatever this test run inherited: the workers must not see the
     # group's SIGINT through an inherited SIG_IGN but by ignoring it themselves

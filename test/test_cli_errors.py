@@ -294,3 +294,12 @@ def test_replay_rate_option_says_what_it_takes():
     done = run('replay', SAMPLE, '--rate', 'fast')
     refused(done, 2, 'argument --rate/-r: expected a number >= 0 (0: as fast as possible), '
                      "got 'fast'")
+
+
+@pytest.mark.parametrize('name, instead', [('bench', 'python -m bench'),
+                                           ('soak', 'python -m bench.soak')])
+def test_a_command_that_left_the_package_says_where_it_went_in_one_line(name, instead):
+    """The benchmarks and the soak live in the repository's ``bench`` package, not installed."""
+    done = run(name, '--quick')
+    refused(done, 2, f'`{instead}`', 'docs/benchmarks.md')
+    assert len(done.stderr.strip().splitlines()) == 1, done.stderr

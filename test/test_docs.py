@@ -1,11 +1,11 @@
 """
 The documentation's links stay in the repository, and each page says what it answers.
 
-Every relative link of README.md, BENCHMARKS.md and docs/ names a file of this repository:
-a newcomer's clone has nothing outside it. A link to a heading (``page.md#heading``, or
-``#heading`` in the page itself) names a heading that page has, as GitHub makes anchors of
-them: a section that moved to another page leaves no dead link behind. Each page of docs/
-starts, after its title, with the line that says what it answers.
+Every relative link of README.md and docs/ (its pages, and the reports of docs/results/) names
+a file of this repository: a newcomer's clone has nothing outside it. A link to a heading
+(``page.md#heading``, or ``#heading`` in the page itself) names a heading that page has, as
+GitHub makes anchors of them: a section that moved to another page leaves no dead link behind.
+Each page of docs/ starts, after its title, with the line that says what it answers.
 """
 from pathlib import Path
 import re
@@ -13,7 +13,7 @@ import re
 import pytest
 
 REPO = Path(__file__).resolve().parent.parent
-PAGES = [REPO / 'README.md', REPO / 'BENCHMARKS.md', *sorted((REPO / 'docs').glob('*.md'))]
+PAGES = [REPO / 'README.md', *sorted((REPO / 'docs').glob('**/*.md'))]
 # a markdown link's target, or a path in backticks that leaves its folder ("`../x/y.md`")
 LINK = re.compile(r'\]\(([^)\s]+)\)|`(\.\./[^`\s]+)`')
 

@@ -769,7 +769,7 @@ def test_soak_sends_garbage_only_when_every_restarted_node_has_spoken_since():
     still importing torch: the message reaches nobody and the drop counter stays at 0.
     """
     from diagnostic_msgs.msg import DiagnosticStatus
-    from pg_node.tools import soak
+    from bench import soak
 
     def diag(name):
         return DiagnosticArray(status=[DiagnosticStatus(name=name)])
@@ -791,7 +791,7 @@ def test_soak_sends_garbage_only_when_every_restarted_node_has_spoken_since():
 @pytest.mark.slow
 def test_two_minute_soak_keeps_memory_flat_and_bags_readable(tmp_path):
     """
-    ``python -m pg_node soak --minutes 2``: every fault recovered, bags readable, flat memory.
+    ``python -m bench.soak --minutes 2``: every fault recovered, bags readable, flat memory.
 
     Memory is judged per process from a baseline taken 20 s (the soak's ``--warmup``) after
     the process started, not from its start: in its first seconds a node imports torch and
@@ -802,7 +802,7 @@ def test_two_minute_soak_keeps_memory_flat_and_bags_readable(tmp_path):
     or more would show it. A node restarted by a fault is a new process with its own
     baseline; the soak schedules the kills early so that the new processes are judged too.
     """
-    res = subprocess.run([sys.executable, '-m', 'pg_node', 'soak', '--minutes', '2', '--json',
+    res = subprocess.run([sys.executable, '-m', 'bench.soak', '--minutes', '2', '--json',
                           '--run-dir', str(tmp_path / 'soak')], env=env(GRAPH), cwd=REPO,
                          capture_output=True, text=True, timeout=600)
     assert res.stdout.strip(), res.stderr[-3000:]
@@ -819,7 +819,7 @@ def test_two_minute_soak_keeps_memory_flat_and_bags_readable(tmp_path):
     assert all(b['episodes'] > 0 for b in report['bags'])
     # every malformed message was dropped and counted by the node it was sent to (the
     # actor may never read a malformed transition that the simulator's next one superseded
-    # in its keep-last-1 queue: that one is not counted, see pg_node.tools.soak.Injector.garbage)
+    # in its keep-last-1 queue: that one is not counted, see bench.soak.Injector.garbage)
     rounds = kinds.count('garbage')
     dropped = report['malformed_reported_dropped']
     assert report['malformed_sent']['commands'] == 3 * rounds

@@ -16,8 +16,8 @@ import subprocess
 import sys
 import time
 
+from bench.lan import dds_env, Lan, unavailable
 from domains import ros_domains
-from pg_node.tools.lan import dds_env, Lan, unavailable
 from pg_node.tools.processes import proc_stat
 from pg_node.tools.train import read_progress
 import pytest

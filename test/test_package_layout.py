@@ -14,7 +14,9 @@ import pytest
 REPO = Path(__file__).resolve().parent.parent
 EXECUTABLES = ('sim_node', 'actor_node', 'critic_node', 'learner_node', 'replay_node',
                'policy_node', 'sim_and_actor', 'critic_and_learner', 'pg_node')
-SOURCES = ('package.xml', 'setup.py', 'setup.cfg', 'resource', 'pg_node', 'config', 'launch')
+# bench/ too: a package of the repository that the build sees and must leave out
+SOURCES = ('package.xml', 'setup.py', 'setup.cfg', 'resource', 'pg_node', 'config', 'launch',
+           'bench')
 
 
 @pytest.fixture(scope='module')
@@ -43,6 +45,14 @@ def test_executables_in_lib(install):
         assert path.is_file(), f'{path} missing: ros2 run pg_node {exe} would fail'
         text = path.read_text()
         assert f"'console_scripts', '{exe}'" in text or exe in text
+
+
+def test_the_benchmarks_and_the_soak_are_not_installed(install):
+    """bench/ is a package of the repository (``python -m bench``), not of the install."""
+    site = next((install / 'lib').glob('python3*/site-packages'))
+    installed = {p.name for p in site.iterdir()}
+    assert 'pg_node' in installed and 'bench' not in installed, sorted(installed)
+    assert not (site / 'pg_node' / 'tools' / 'soak.py').exists()
 
 
 def test_share_holds_package_xml_config_launch_models(install):

@@ -292,7 +292,7 @@ def bag_metadata(topics, files, custom_data=None) -> dict:
 
 
 # libyaml's emitter when PyYAML has it: the metadata of a bag with many topics is dumped
-# often, and the pure-Python emitter takes about 20 ms for a few dozen topics.
+# often, and the pure-Python emitter is slow at it (docs/results/PROFILE.md).
 _YAML_DUMPER = getattr(yaml, 'CSafeDumper', yaml.SafeDumper)
 
 

@@ -38,8 +38,8 @@ class TensorBoardLog:
 
         All of them go in one event (one ``Summary`` with a value per tag, as TensorFlow's
         writers do; TensorBoard reads each value as its tag's point): ``add_scalar`` writes
-        an event per metric, 1.4 ms of the learner's CPU per update for 15 metrics against
-        0.24 ms for one event.
+        an event per metric, several times the learner's CPU per update (the figures:
+        docs/results/PROFILE.md).
         """
         from tensorboard.compat.proto.summary_pb2 import Summary
         values = []

@@ -34,9 +34,9 @@ def make_executor(context=None):
     ``events`` is rclpy's EventsExecutor (``rclpy.experimental``), whose wait loop and
     dispatch are C++: every message of the lock-step loop wakes a node, and rclpy's Python
     ``SingleThreadedExecutor`` spends more per wake-up than the actor spends sampling (see
-    PROFILE.md). Its ``spin()`` does not return on shutdown in this rclpy, so nodes call
-    ``spin_once`` in a loop, which does. ``single_threaded`` is rclpy's default executor,
-    the one ``rclpy.spin`` uses. ``context``: rclpy's default context if None.
+    docs/results/PROFILE.md). Its ``spin()`` does not return on shutdown in this rclpy, so
+    nodes call ``spin_once`` in a loop, which does. ``single_threaded`` is rclpy's default
+    executor, the one ``rclpy.spin`` uses. ``context``: rclpy's default context if None.
     """
     name = os.environ.get('PG_NODE_EXECUTOR', 'events').strip() or 'events'
     if name == 'events':
@@ -76,9 +76,8 @@ def take_idle() -> Optional[str]:
     What ``chrt --idle -a -p 0 <pid>`` does; threads started later inherit it. A thread
     under SCHED_IDLE runs only when no other thread wants its core, and a waking thread of
     the normal policy takes the core from it at once, where a nice-10 thread keeps it for
-    a while (PROFILE.md: the simulator's second stepping thread waited 0.55 ms at p90 for a
-    core beside a nice-10 critic and learner, 0.06-0.1 ms beside SCHED_IDLE ones). An
-    unprivileged process cannot leave the policy again.
+    a while (measured: docs/results/PROFILE.md, "Measurements and incidents behind code
+    choices"). An unprivileged process cannot leave the policy again.
     """
     if not hasattr(os, 'SCHED_IDLE'):
         return 'SCHED_IDLE is Linux only'
@@ -217,13 +216,12 @@ def stop_with_supervisor(request: StopRequest) -> bool:
     A supervisor starts its nodes in sessions of their own, so a Ctrl-C reaches each once,
     and stops them on its way out; killed with SIGKILL (``kill -9``, the OOM killer, a
     test's timeout) it cannot. Without this its nodes would run on, a training graph on the
-    ROS domain that the next run joins and hears (the 2026-12-02 CI run: an orphaned graph
-    fed a later test's simulator foreign commands for minutes). SIGHUP is a stop request
-    (:func:`stop_on_signals`): the node closes its bag and checkpoint and exits. Not
-    SIGTERM: the kernel may send the signal more than once (strace showed two, 3 us apart,
-    when ``train``, which runs several threads, was killed), and a second SIGTERM kills a
-    node that is saving, as it should in ``ros2 launch``'s escalation; half the nodes died
-    unsaved that way.
+    ROS domain that the next run joins and hears, feeding its simulator foreign commands.
+    SIGHUP is a stop request (:func:`stop_on_signals`): the node closes its bag and
+    checkpoint and exits. Not SIGTERM: the kernel may send the signal more than once, and a
+    second SIGTERM kills a node that is saving, as it should in ``ros2 launch``'s
+    escalation (the incident and the trace: docs/results/PROFILE.md, "Measurements and
+    incidents behind code choices").
 
     Only when ``PG_NODE_SUPERVISOR_PID`` names this process's parent (``prctl`` watches the
     parent): a node started by ``ros2 run`` or ``ros2 launch`` has no such variable, and one

@@ -15,9 +15,9 @@ Topics published:
   changes (episode start) while someone subscribes, and every arm's current target when a
   subscriber joins (on its matched event, or within 0.5 s if that event was lost),
   ``frame_id = 'arm<i>'`` and the point in that arm's own coordinates; reliable,
-  transient-local, depth ``num_envs``, so a late subscriber gets the current targets (one
-  message per arm and episode cost the lock-step loop about 7 ms every 50 steps for 64
-  arms, the p99 of its round trip, when nobody listened);
+  transient-local, depth ``num_envs``, so a late subscriber gets the current targets (only
+  while someone subscribes: unheard, they set the p99 of the lock-step round trip; the
+  figure is in docs/results/PROFILE.md);
 * ``/pg_node/transition`` (``std_msgs/Float64MultiArray``): every control step, the layout
   of :mod:`pg_node.ros.transition`; reliable, transient-local, depth ``lock_step_groups``
   (one message per group: a subscriber needs that depth too, or it may keep only the
@@ -521,8 +521,8 @@ class SimNode(Node):
 
         One ``LINE_LIST`` holds every arm's links and one ``SPHERE_LIST`` each the fingertips
         and the targets, each arm shifted by its grid offset: three markers whatever the
-        number of arms (192 single markers for 64 arms cost 46 ms a call in Python, the
-        simulator's largest cost in PROFILE.md).
+        number of arms (single markers per arm were once the simulator's largest cost:
+        docs/results/PROFILE.md, "Measurements and incidents behind code choices").
         """
         if not self.pub_markers.get_subscription_count():
             return                      # nobody draws them: do not spend the time

@@ -20,19 +20,23 @@ COMMANDS = {
     'robustness': ('pg_node.tools.robustness', 'compare trained policies on arms that are not '
                                                'their model (mass, strength, latency, noise)'),
     'variance': ('pg_node.tools.variance', 'bias and variance of every gradient estimator'),
-    'bench': ('pg_node.tools.bench', 'throughput, latency and learning benchmarks'),
     'replay': ('pg_node.ros.replay_node', 'play a rosbag2 MCAP bag back onto its topics'),
     'monitor': ('pg_node.tools.monitor', 'live terminal view of a running training'),
     'topics': ('pg_node.tools.topics', "list the graph's topics, types, endpoints and rates"),
     'plot': ('pg_node.tools.plot', 'learning-curve PNG from a bag or run directory'),
     'render': ('pg_node.tools.render', 'animation of a recorded episode'),
-    'soak': ('pg_node.tools.soak', 'training with injected faults, and a report'),
     'reindex': ('pg_node.tools.reindex', 'make bags whole after a killed writer (ros2 bag '
                                          'reindex)'),
     'export': ('pg_node.tools.export', 'a trained policy as ONNX with its card (runs without '
                                        'torch)'),
     'play': ('pg_node.tools.play', 'watch a trained policy act: real-time sim_node + policy_node'),
     'arm': ('pg_node.tools.arm', "import a robot's URDF as an arm model (arm import)"),
+}
+#: commands that left the installed package for the repository's ``bench`` package: what to
+#: type instead, from a checkout of the repository
+MOVED = {
+    'bench': 'python -m bench',
+    'soak': 'python -m bench.soak',
 }
 
 
@@ -54,6 +58,11 @@ def main(argv=None) -> int:
         print(usage())
         return 0 if argv else 2
     name, rest = argv[0], argv[1:]
+    if name in MOVED:
+        print(f'pg_node: {name!r} is not part of the installed package any more: from a '
+              f'checkout of the repository, run `{MOVED[name]}` (docs/benchmarks.md)',
+              file=sys.stderr)
+        return 2
     if name not in COMMANDS:
         print(f'pg_node: unknown command {name!r}\n\n{usage()}', file=sys.stderr)
         return 2

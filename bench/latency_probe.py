@@ -1,7 +1,7 @@
 """
 sim_node with every lock-step round trip written to a file, for the benchmarks.
 
-``python -m pg_node.tools.latency_probe OUT.npy --ros-args -p num_envs:=64`` runs sim_node
+``python -m bench.latency_probe OUT.npy --ros-args -p num_envs:=64`` runs sim_node
 (:mod:`pg_node.ros.sim_node`: its parameters, topics, code path and executor loop) with
 ``round_trip_log:=OUT.npy``: in its own process and clock, the node times each transition
 from just before it is published to the arrival of the command that answers it
@@ -19,7 +19,7 @@ def main(argv=None) -> int:
     """Run sim_node with ``round_trip_log`` until SIGINT."""
     argv = list(sys.argv if argv is None else argv)
     if len(argv) < 2 or argv[1].startswith('-'):
-        print('usage: python -m pg_node.tools.latency_probe OUT.npy [--ros-args ...]',
+        print('usage: python -m bench.latency_probe OUT.npy [--ros-args ...]',
               file=sys.stderr)
         return 2
     out, ros_args = argv[1], [argv[0]] + argv[2:]

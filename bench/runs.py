@@ -1,12 +1,12 @@
 """
-The measurements behind ``python -m pg_node bench``, one function per thing measured.
+The measurements behind ``python -m bench``, one function per thing measured.
 
-Each returns plain numbers (no tables, no plots; :mod:`pg_node.tools.bench` makes those):
+Each returns plain numbers (no tables, no plots; :mod:`bench.suite` makes those):
 
 * throughput: raw ``mj_step`` and the task in-process (taken from ``bench/bench_sim.py``),
   ``sim_node`` lock-step with a minimal client, A2C in-process, the training graph
   (``python -m pg_node train``), SB3 A2C training;
-* latency: :mod:`pg_node.tools.latency_probe` (sim_node timing its own round trips) driven by a
+* latency: :mod:`bench.latency_probe` (sim_node timing its own round trips) driven by a
   client that answers every transition at once;
 * learning: SB3 A2C / PPO and pg_node (graph and in-process) with deterministic evaluations at
   fixed step counts and a training-return curve against wall-clock time.
@@ -167,7 +167,7 @@ def run_graph(run_dir: Path, steps: int, seed: int, overrides: Sequence[str] = (
 def lock_step_latency(n: int, steps: int, warmup: int = 200, timeout: float = 600.0,
                       ros_args: Sequence[str] = ()) -> Dict:
     """
-    Drive :mod:`pg_node.tools.latency_probe` for ``warmup + steps`` lock-step steps; return stats.
+    Drive :mod:`bench.latency_probe` for ``warmup + steps`` lock-step steps; return stats.
 
     The client answers every new transition at once with a fixed command tagged as its answer
     (as the actor does, :mod:`pg_node.ros.command`), so what is
@@ -185,7 +185,7 @@ def lock_step_latency(n: int, steps: int, warmup: int = 200, timeout: float = 60
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / 'round_trips.npy'
         proc = subprocess.Popen(
-            [sys.executable, '-m', 'pg_node.tools.latency_probe', str(out), '--ros-args',
+            [sys.executable, '-m', 'bench.latency_probe', str(out), '--ros-args',
              '-p', f'num_envs:={n}', '-p', 'lock_step_groups:=1', *ros_args],
             cwd=REPO, env=child_env(domain), stdout=subprocess.DEVNULL,
             stderr=subprocess.DEVNULL, start_new_session=True)

@@ -1,5 +1,5 @@
 """
-``python -m pg_node soak --minutes N``: training with faults injected on a schedule, and a report.
+``python -m bench.soak --minutes N``: training with faults injected on a schedule, and a report.
 
 The graph is started and supervised as ``python -m pg_node train`` does it (the same
 :class:`pg_node.tools.train.Supervisor`, with a large restart budget), with ``total_steps`` out of
@@ -57,7 +57,7 @@ DROP_COUNTERS = ('commands_dropped_size', 'commands_dropped_nonfinite',
 def parse_args(argv):
     """Parse the command line."""
     parser = argparse.ArgumentParser(
-        prog='python -m pg_node soak',
+        prog='python -m bench.soak',
         description='Train with faults injected on a schedule (kill each node in turn, '
                     'stall nodes, send malformed messages) and report what survived.')
     parser.add_argument('overrides', nargs='*', metavar='key=value',
@@ -522,7 +522,7 @@ def format_report(r: dict) -> str:
 
 
 def main(argv=None) -> int:
-    """Run ``python -m pg_node soak``."""
+    """Run ``python -m bench.soak``."""
     args = parse_args(argv)
     try:
         with terminate_as_interrupt():
@@ -535,3 +535,7 @@ def main(argv=None) -> int:
         return 130
     print(json.dumps(report, indent=2) if args.json else format_report(report))
     return 0 if report['ok'] else 1
+
+
+if __name__ == '__main__':
+    sys.exit(main())

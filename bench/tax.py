@@ -1,5 +1,5 @@
 """
-The ``tax`` section of ``python -m pg_node bench``: what the ROS graph costs against one process.
+The ``tax`` section of ``python -m bench``: what the ROS graph costs against one process.
 
 Three tables, from one invocation:
 
@@ -18,7 +18,7 @@ Three tables, from one invocation:
   (the ratio's graph runs log every one, sim_node's ``round_trip_log``: within a rollout the
   actor answers at once; at a rollout's end the answer waits for the critic, the learner and
   the new weights) and with a client that answers at once
-  (:func:`pg_node.tools.bench_runs.lock_step_latency`), with no training running and while
+  (:func:`bench.runs.lock_step_latency`), with no training running and while
   a training graph runs in another DDS domain on the same two cores.
 """
 from pathlib import Path
@@ -78,7 +78,7 @@ def graph_run(steps: int, overrides: Sequence[str] = (), round_trips: bool = Fal
     With ``round_trips``, sim_node logs its lock-step round trips (``round_trip_log``) and
     the summary gets them as ``round_trips_ns``.
     """
-    from pg_node.tools import bench_runs as br
+    from bench import runs as br
     with tempfile.TemporaryDirectory() as tmp:
         log = Path(tmp) / 'round_trips.npy'
         extra = [f'sim_node.round_trip_log={log}'] if round_trips else []
@@ -122,7 +122,7 @@ def trip_stats(ms: np.ndarray) -> Dict:
 def run_tax(b: Dict, log: Callable[[str], None]) -> Dict:
     """Measure the three tables; return every number."""
     from pg_node.common.params import defaults
-    from pg_node.tools import bench_runs as br
+    from bench import runs as br
     out = {'steps': b['tax_steps'], 'pairs': [], 'nodes': {}, 'scaling': [], 'latency': {}}
     steps = b['tax_steps']
     trips = {'rollout': [], 'boundary': [], 'separate_rollout': [], 'separate_boundary': []}
@@ -197,7 +197,7 @@ def _train_until(done: threading.Event, learning: threading.Event):
     """
     import subprocess
     import sys
-    from pg_node.tools import bench_runs as br
+    from bench import runs as br
     from pg_node.tools.processes import child_env, REPO, stop
     from pg_node.tools.train import last_progress
     with tempfile.TemporaryDirectory() as tmp:

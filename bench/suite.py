@@ -1,8 +1,8 @@
 """
-``python -m pg_node bench``: throughput, latency, learning and estimator-variance benchmarks.
+``python -m bench``: throughput, latency, learning and estimator-variance benchmarks.
 
 Runs every selected section in this one invocation (so that ratios between rows hold on a
-noisy machine) and writes, under ``--out`` (default: the current directory):
+noisy machine) and writes, under ``--out`` (default: ``docs/results/`` of this checkout):
 
 * ``BENCHMARKS.md``: the tables, the exact command, the machine, the load average, and
   whether each performance target of issue 6 is met;
@@ -16,22 +16,22 @@ Sections (``--only``, comma-separated; default all):
   in-process, the training graph (``python -m pg_node train``) and SB3 A2C (8 envs, its
   defaults) training on ``pg_node/Reacher2-v0``; each as a ratio to SB3 A2C and to raw MuJoCo;
 * ``latency``: sim_node's lock-step round trip (transition published to its command
-  received), measured inside sim_node (:mod:`pg_node.tools.latency_probe`), for 1 and 64 arms;
+  received), measured inside sim_node (:mod:`bench.latency_probe`), for 1 and 64 arms;
 * ``tax``: the graph against the same computation in one process, each node's memory and
   CPU, scaling with arms and simulator/actor pairs, the round trip while training runs
-  (:mod:`pg_node.tools.bench_tax`);
+  (:mod:`bench.tax`);
 * ``learning``: pg_node A2C through the graph and in-process, SB3 A2C and SB3 PPO on
   ``pg_node/Reacher2-v0``, and SB3 A2C/PPO on Gymnasium's ``Reacher-v5``, over seeds:
   deterministic evaluation return at fixed step counts, wall-clock time to -10 and -6;
 * ``variance``: the gradient-estimator lab on the arm (:mod:`pg_node.lab.arm`);
 * ``curves``: every estimator's (and algorithm's) learning curve, beside the variance table
-  (:mod:`pg_node.tools.bench_curves`; SB3 rows from ``learning``);
+  (:mod:`bench.curves`; SB3 rows from ``learning``);
 * ``profile`` (only when asked for): the training graph with every node under cProfile, and
   where each node's time goes (``--only profile --report PROFILE.md`` keeps it apart).
 
 ``--quick`` shrinks every budget to a smoke run (seconds, not a measurement) and leaves out
 the rows that only repeat another with other settings (the lean graph). The numbers
-of the measurement functions come from :mod:`pg_node.tools.bench_runs`.
+of the measurement functions come from :mod:`bench.runs`.
 """
 import argparse
 from datetime import datetime, timezone
@@ -46,11 +46,10 @@ import time
 import traceback
 from typing import Dict, List, Sequence
 
+from bench import curves, tax
+from bench.curves import eval_time_at, reached
+from bench.pool import JOBS_NOTE, run_all
 import numpy as np
-from pg_node.tools import bench_curves
-from pg_node.tools import bench_tax
-from pg_node.tools.bench_curves import eval_time_at, reached
-from pg_node.tools.bench_pool import JOBS_NOTE, run_all
 from pg_node.tools.processes import terminate_as_interrupt
 
 SECTIONS = ('throughput', 'latency', 'tax', 'variance', 'curves', 'learning', 'profile')
@@ -66,6 +65,8 @@ LEARNER_NAMES = {
     'sb3_ppo_v5': 'SB3 PPO on Reacher-v5',
 }
 THRESHOLDS = (-10.0, -6.0)
+#: where the committed reports and plots live: the default of ``--out``
+RESULTS = Path(__file__).resolve().parent.parent / 'docs' / 'results'
 #: overrides that take the sim's MarkerArray and the bag's per-step records off the graph
 LEAN_GRAPH = ('sim_node.marker_rate=0.0', 'learner_node.record_arms=0')
 #: latency rows: (arms, extra sim_node parameters)
@@ -91,8 +92,8 @@ BUDGETS = {
     'var_true_episodes': (32_768, 256),
     'var_value_episodes': (4_096, 128),
     'profile_steps': (100_000, 4_096),
-    **bench_curves.BUDGETS,
-    **bench_tax.BUDGETS,
+    **curves.BUDGETS,
+    **tax.BUDGETS,
 }
 
 
@@ -143,7 +144,7 @@ def _commit() -> str:
                               capture_output=True, timeout=10).stdout.strip()
         # the reports this command writes are not changes to what it measures
         dirty = subprocess.run(['git', 'status', '--porcelain', '--untracked-files=no', '--',
-                                '.', ':!*.md', ':!bench_plots'],
+                                '.', ':!*.md', ':!docs/results'],
                                cwd=repo, text=True, capture_output=True,
                                timeout=10).stdout.strip()
     except (OSError, subprocess.SubprocessError):
@@ -168,7 +169,7 @@ def load_average() -> str:
 
 def run_throughput(b: Dict, log) -> Dict:
     """Measure the throughput ladder; return ``{'rows': [...]}`` in env steps/s."""
-    from pg_node.tools import bench_runs as br
+    from bench import runs as br
     rows = []
 
     def add(key, name, fn, note='', repeats=1):
@@ -219,7 +220,7 @@ def run_throughput(b: Dict, log) -> Dict:
 
 def run_latency(b: Dict, log) -> Dict:
     """Measure lock-step round trips for 1 and 64 arms."""
-    from pg_node.tools import bench_runs as br
+    from bench import runs as br
     out = {'rows': [], 'samples_ms': {}}
     for n, extra in LATENCY_ROWS:
         label = f'{n} arm{"s" if n > 1 else ""}' + (', markers off' if extra else '')
@@ -239,7 +240,7 @@ def run_latency(b: Dict, log) -> Dict:
 def learning_run(key: str, steps: int, seed: int, points: Sequence[int],
                  eval_episodes: int) -> Dict:
     """Train one learner (a key of :data:`LEARNERS`) once; evaluations at ``points``."""
-    from pg_node.tools import bench_runs as br
+    from bench import runs as br
     if key == 'pg_node_graph':
         with tempfile.TemporaryDirectory() as tmp:  # bag and checkpoints: gone
             return br.graph_learning(Path(tmp) / 'run', steps, seed, points)
@@ -256,9 +257,9 @@ def run_learning(b: Dict, learners: List[str], log, progress=None, jobs: int = 1
 
     ``progress(partial)`` is called after every run with the results so far. With ``jobs``
     > 1 the graph's runs go first, alone, then the in-process ones (pg_node, SB3) that many
-    at a time (:mod:`pg_node.tools.bench_pool`).
+    at a time (:mod:`bench.pool`).
     """
-    from pg_node.tools import bench_runs as br
+    from bench import runs as br
     steps, seeds = b['learning_steps'], list(range(b['seeds']))
     points = sorted({steps // 4, steps // 2, steps})
     runs, specs = {}, []
@@ -306,7 +307,7 @@ def run_learning(b: Dict, learners: List[str], log, progress=None, jobs: int = 1
 
 def run_profile(b: Dict, log) -> Dict:
     """Profile every node of the training graph with cProfile."""
-    from pg_node.tools import bench_runs as br
+    from bench import runs as br
     if not br.graph_available():
         return {'note': NOT_AVAILABLE}
     log(f'profile: training graph under cProfile, {b["profile_steps"]:,} steps')
@@ -346,7 +347,7 @@ def _mean_std(values):
 
 def learning_summary(learning: Dict) -> Dict[str, Dict]:
     """Per learner: eval return mean/std over seeds at each point, and times to thresholds."""
-    from pg_node.tools.bench_runs import first_time_at, value_at
+    from bench.runs import first_time_at, value_at
     out = {}
     for key, runs in learning['runs'].items():
         if isinstance(runs, str):
@@ -507,7 +508,7 @@ def render_markdown(results: Dict, command: str, plots: Dict[str, str]) -> str:
         if 'latency' in plots:
             out += [f'![latency]({plots["latency"]})', '']
     if 'tax' in results:
-        out += bench_tax.render_tax(results['tax'], _table)
+        out += tax.render_tax(results['tax'], _table)
     if 'learning' in results:
         learn = results['learning']
         summ = learning_summary(learn)
@@ -593,7 +594,7 @@ def render_markdown(results: Dict, command: str, plots: Dict[str, str]) -> str:
                     for r in var['rows']]), '']
         if 'variance' in plots:
             out += [f'![variance]({plots["variance"]})', '']
-    out += bench_curves.render(results, plots)
+    out += curves.render(results, plots)
     if 'profile' in results:
         out += render_profile(results['profile'])
     if results.get('errors'):
@@ -603,7 +604,7 @@ def render_markdown(results: Dict, command: str, plots: Dict[str, str]) -> str:
 
 def render_profile(prof: Dict) -> List[str]:
     """Return the lines of the profile section."""
-    from pg_node.tools.bench_runs import PROFILE_GROUPS
+    from bench.runs import PROFILE_GROUPS
     out = ['## Profile of the training graph', '']
     if 'nodes' not in prof:
         return out + [prof.get('note', 'not run'), '']
@@ -723,7 +724,7 @@ def make_plots(results: Dict, plot_dir: Path) -> Dict[str, str]:
         fig.savefig(plot_dir / 'variance.png', dpi=100)
         plt.close(fig)
         out['variance'] = f'{rel}/variance.png'
-    out.update(bench_curves.make_plot(results, plot_dir))
+    out.update(curves.make_plot(results, plot_dir))
     return out
 
 
@@ -732,11 +733,11 @@ def make_plots(results: Dict, plot_dir: Path) -> Dict[str, str]:
 def parse_args(argv):
     """Parse the command line; return ``(args, budgets)``."""
     parser = argparse.ArgumentParser(
-        prog='python -m pg_node bench',
+        prog='python -m bench',
         description='Throughput, latency, learning and estimator-variance benchmarks; '
                     'writes BENCHMARKS.md and plots.')
-    parser.add_argument('--out', default='.', help='directory of BENCHMARKS.md, '
-                        'bench_plots/ and bench_results.json (default: current directory)')
+    parser.add_argument('--out', default=str(RESULTS), help='directory of BENCHMARKS.md, '
+                        'bench_plots/ and bench_results.json (default: %(default)s)')
     parser.add_argument('--only', default=','.join(DEFAULT_SECTIONS),
                         help=f'comma-separated sections of {", ".join(SECTIONS)} '
                              f'(default: {",".join(DEFAULT_SECTIONS)})')
@@ -791,12 +792,12 @@ def parse_args(argv):
 
 
 def main(argv=None) -> int:
-    """Run ``python -m pg_node bench``."""
+    """Run ``python -m bench``."""
     argv = list(sys.argv[1:] if argv is None else argv)
     args, budgets = parse_args(argv)
     out_dir = Path(args.out).resolve()
     out_dir.mkdir(parents=True, exist_ok=True)
-    command = ' '.join(['python -m pg_node bench'] + argv)
+    command = ' '.join(['python -m bench'] + argv)
     start = time.perf_counter()
     if args.from_json:
         results = json.loads(Path(args.from_json).read_text())
@@ -835,11 +836,11 @@ def main(argv=None) -> int:
     runners = {
         'throughput': lambda: run_throughput(budgets, log),
         'latency': lambda: run_latency(budgets, log),
-        'tax': lambda: bench_tax.run_tax(budgets, log),
+        'tax': lambda: tax.run_tax(budgets, log),
         'learning': lambda: run_learning(budgets, args.learners, log, learning_progress,
                                          args.jobs),
         'variance': lambda: run_variance(budgets, log),
-        'curves': lambda: bench_curves.run_curves(
+        'curves': lambda: curves.run_curves(
             budgets, log, lambda partial: (results.update(curves=partial), write_report()),
             jobs=args.jobs),
         'profile': lambda: run_profile(budgets, log),

@@ -3,7 +3,7 @@ Independent benchmark runs, one at a time in the bench's process or ``jobs`` at 
 
 A 1M-step learning run trains in one process on one core for most of its time (the arm's
 two stepping threads and a single torch thread), so on a slow 2-core machine the ``curves``
-and ``learning`` sections of ``python -m pg_node bench`` (about 50 such runs) take longer
+and ``learning`` sections of ``python -m bench`` (about 50 such runs) take longer
 than a working session. ``--jobs 2`` runs them two at a time, each in a fresh process of
 its own (``multiprocessing``'s spawn start method: nothing of the bench's process state
 leaks in, as in a sequential run that starts clean). Training graph runs never go through

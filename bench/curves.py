@@ -1,5 +1,5 @@
 """
-The ``curves`` section of ``python -m pg_node bench``: every estimator's learning curve.
+The ``curves`` section of ``python -m bench``: every estimator's learning curve.
 
 Each choice of phi of the critic (``estimator``: total return, reward-to-go, constant,
 optimal and time baselines, value baseline, TD residual, GAE) is trained in-process
@@ -22,8 +22,8 @@ correlation between the two.
 import time
 from typing import Callable, Dict, List, Optional, Sequence
 
+from bench.pool import JOBS_NOTE, run_all
 import numpy as np
-from pg_node.tools.bench_pool import JOBS_NOTE, run_all
 
 ESTIMATORS = ('total_return', 'reward_to_go', 'constant_baseline', 'optimal_baseline',
               'time_baseline', 'value_baseline', 'td_residual', 'gae')
@@ -131,7 +131,7 @@ def run_curves(b: Dict, log: Callable[[str], None],
 
     ``b`` holds :data:`BUDGETS`' keys (one value each). A failed run is kept as its error.
     ``jobs`` > 1 trains that many runs at a time, each in a process of its own
-    (:mod:`pg_node.tools.bench_pool`); the evaluations are the same, the clocks then count a
+    (:mod:`bench.pool`); the evaluations are the same, the clocks then count a
     neighbour. Interrupted, it hands the runs that finished to ``progress`` and re-raises.
     """
     steps, seeds = b['curve_steps'], list(range(b['curve_seeds']))
