@@ -87,8 +87,10 @@ def _executable(name):
 
 
 def _presets():
-    """Return the names of the parameter files in the package's ``config/``, sorted."""
-    return sorted(f[:-5] for f in os.listdir(_config_dir()) if f.endswith('.yaml'))
+    """Return the training parameter files in the package's ``config/``, sorted."""
+    # policy_node.yaml is the deployment's (pg_node.common.paths.DEPLOY_CONFIG)
+    return sorted(f[:-5] for f in os.listdir(_config_dir())
+                  if f.endswith('.yaml') and f != 'policy_node.yaml')
 
 
 def _preset_file(name):

@@ -37,9 +37,14 @@ def default_config() -> Path:
     return share_dir() / 'config' / 'pg_node.yaml'
 
 
+#: the shipped parameter file that is no training preset: the deployment's (policy_node)
+DEPLOY_CONFIG = 'policy_node'
+
+
 def presets() -> list:
-    """Return the names of the shipped parameter files (``config/<name>.yaml``), sorted."""
-    return sorted(p.stem for p in (share_dir() / 'config').glob('*.yaml'))
+    """Return the names of the shipped training parameter files (``config/<name>.yaml``)."""
+    return sorted(p.stem for p in (share_dir() / 'config').glob('*.yaml')
+                  if p.stem != DEPLOY_CONFIG)
 
 
 def preset_names() -> list:
