@@ -62,6 +62,9 @@ def test_share_holds_package_xml_config_launch_models(install):
     for preset in ('a2c', 'a2c_tuned', 'ppo'):
         assert (share / 'config' / f'{preset}.yaml').is_file()
     assert (share / 'launch' / 'train.launch.py').is_file()
+    # the deployment's launch file and its parameter file (setup.py's globs take them)
+    assert (share / 'launch' / 'deploy.launch.py').is_file()
+    assert (share / 'config' / 'policy_node.yaml').is_file()
     models = {p.name for p in (share / 'models').glob('*.xml')}
     assert models >= {'reacher2.xml', 'arm5_3d.xml'}
     assert (install / 'share' / 'ament_index' / 'resource_index' / 'packages'
