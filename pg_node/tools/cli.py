@@ -31,6 +31,8 @@ COMMANDS = {
                                        'torch)'),
     'play': ('pg_node.tools.play', 'watch a trained policy act: real-time sim_node + policy_node'),
     'arm': ('pg_node.tools.arm', "import a robot's URDF as an arm model (arm import)"),
+    'lifecycle': ('pg_node.tools.lifecycle', "get or change a managed node's lifecycle state "
+                                             '(ros2 lifecycle get/set)'),
 }
 #: commands that left the installed package for the repository's ``bench`` package: what to
 #: type instead, from a checkout of the repository
