@@ -132,6 +132,12 @@ class FakeGraph:
     def get_node_names_and_namespaces(self):
         return [('sim_node', '/'), ('policy_node', '/left')]
 
+    def get_service_names_and_types(self):
+        # the graph's list holds clients' service names too: this command's own client of
+        # /sim_node/get_state among them
+        return [('/left/policy_node/get_state', ['lifecycle_msgs/srv/GetState']),
+                ('/sim_node/get_state', ['lifecycle_msgs/srv/GetState'])]
+
     def get_service_names_and_types_by_node(self, name, namespace):
         return {'/left/policy_node': [
             ('/left/policy_node/get_state', ['lifecycle_msgs/srv/GetState']),
