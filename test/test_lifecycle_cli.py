@@ -54,13 +54,26 @@ def one_line(done, code, *words):
 
 @pytest.mark.e2e
 def test_lifecycle_command_drives_policy_node(tmp_path, policy):
-    """get, a refused activate, configure, activate, deactivate, cleanup; an unknown node."""
+    """
+    get, a refused activate, configure, activate, deactivate, cleanup; an unknown node.
+
+    A second policy_node, in a namespace, fails its configure: the refusal names its state.
+    """
     from pg_node.tools import processes
-    node = processes.start_logged(
-        [sys.executable, '-m', 'pg_node.ros.policy_node', '--ros-args', '--params-file',
-         str(REPO / 'config' / 'policy_node.yaml'), '-p', f'policy:={policy}'],
-        tmp_path / 'policy_node.log', processes.child_env(DOMAIN_ID))
+
+    def start(name, *args):
+        return processes.start_logged(
+            [sys.executable, '-m', 'pg_node.ros.policy_node', '--ros-args', '--params-file',
+             str(REPO / 'config' / 'policy_node.yaml'), '-p', f'policy:={policy}', *args],
+            tmp_path / f'{name}.log', processes.child_env(DOMAIN_ID))
+
+    node = start('policy_node')
+    # in a namespace, with a record it cannot write: its configure callback fails
+    bad = start('bad', '-r', '__ns:=/bad', '-p', 'record:=/proc/no_bags_here/bag')
     try:
+        one_line(lifecycle('/bad/policy_node', 'configure', '--timeout', '30'), 1,
+                 'Transitioning failed: /bad/policy_node refused configure and is '
+                 'unconfigured [1] (its log says why)')
         first = lifecycle('policy_node', 'get', '--timeout', '30')   # a bare name: /policy_node
         assert (first.returncode, first.stdout) == (0, 'unconfigured [1]\n'), first.stderr
         # activate does not start from unconfigured: the node answers success false
@@ -74,12 +87,17 @@ def test_lifecycle_command_drives_policy_node(tmp_path, policy):
                 (command, done.stderr)
             done = lifecycle('/policy_node', 'get')
             assert (done.returncode, done.stdout) == (0, state + '\n'), (command, done.stderr)
-        one_line(lifecycle('/no_such_node', 'get', '--timeout', '1'), 1,
-                 'Node not found: no lifecycle node /no_such_node answered within 1 s',
-                 f'lifecycle nodes seen on ROS_DOMAIN_ID {DOMAIN_ID}: /policy_node')
+        # 3 s: time enough for the command to discover both nodes' services
+        one_line(lifecycle('/no_such_node', 'get', '--timeout', '3'), 1,
+                 'Node not found: no lifecycle node /no_such_node answered within 3 s',
+                 f'lifecycle nodes seen on ROS_DOMAIN_ID {DOMAIN_ID}: /bad/policy_node, '
+                 '/policy_node (ros2 lifecycle nodes lists them)')
     finally:
         code, log = processes.stop_logged(node)
+        bad_code, bad_log = processes.stop_logged(bad)
     assert code == 0, log[-3000:]
+    assert bad_code == 0 and "configure failed: parameter 'policy_node.record'" in bad_log, \
+        bad_log[-3000:]
     assert 'active: commanding' in log and 'cleaned up' in log, log[-3000:]
 
 

@@ -126,9 +126,18 @@ def lifecycle_nodes(node) -> list:
     Asked node by node (``get_service_names_and_types_by_node`` lists a node's servers):
     the graph's list of service names holds clients' too, this command's own among them.
     """
+    from rclpy.impl.implementation_singleton import rclpy_implementation
+    gone = rclpy_implementation.NodeNameNonExistentError
+
+    def serves_get_state(full, name, namespace):
+        try:
+            servers = node.get_service_names_and_types_by_node(name, namespace)
+        except gone:                    # it left the graph since it was listed
+            return False
+        return any(s == f'{full}/get_state' and GET_STATE_TYPE in types for s, types in servers)
+
     return sorted(full for full, (n, ns) in full_names(node).items()
-                  if any(name == f'{full}/get_state' and GET_STATE_TYPE in types
-                         for name, types in node.get_service_names_and_types_by_node(n, ns)))
+                  if serves_get_state(full, n, ns))
 
 
 def not_found(node, name: str, timeout: float) -> str:
