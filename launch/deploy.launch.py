@@ -35,6 +35,7 @@ from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, EmitEvent, OpaqueFunction
 from launch.events import Shutdown
 from launch_ros.actions import LifecycleNode
+from launch_ros.parameter_descriptions import ParameterValue
 import yaml
 
 #: launch argument -> the policy_node topic it remaps
@@ -67,7 +68,9 @@ def _file_policy(path):
 
 def _bring_up(context):
     params_file = _value(context, 'params_file')
-    given = {'policy': _value(context, 'policy')} if _value(context, 'policy') else {}
+    # a path as it is: launch_ros reads a plain string as YAML (a name of digits, an int)
+    given = ({'policy': ParameterValue(_value(context, 'policy'), value_type=str)}
+             if _value(context, 'policy') else {})
     if not given and not _file_policy(params_file):
         raise RuntimeError(f'policy:= is required (a run directory, a ckpt_*.pt file or an '
                            f'exported .onnx file): {params_file} gives none')

@@ -75,12 +75,25 @@ def test_the_deployment_file_is_no_training_preset():
     assert DEPLOY_CONFIG not in presets() and DEPLOY_CONFIG not in preset_names()
 
 
+class _Given(dict):
+    """The parameters dict of the launch, ``policy`` read out of its ParameterValue."""
+
+    def pop(self, key):
+        value = super().pop(key)
+        assert type(value).__name__ == 'ParameterValue' and value.kwargs == {'value_type': str}
+        return value.args[0]
+
+
 def _launch(monkeypatch, **given):
     """Run deploy.launch.py's bring-up as ``ros2 launch`` would; return (actions, declared)."""
     import ament_index_python.packages
     import runpy
     modules = _fake_launch_modules()
     modules['launch_ros.actions'].LifecycleNode = type('LifecycleNode', (_Recorded,), {})
+    modules['launch_ros.parameter_descriptions'] = types.ModuleType(
+        'launch_ros.parameter_descriptions')
+    modules['launch_ros.parameter_descriptions'].ParameterValue = type(
+        'ParameterValue', (_Recorded,), {})
     for name, module in modules.items():
         monkeypatch.setitem(sys.modules, name, module)
     monkeypatch.setattr(ament_index_python.packages, 'get_package_share_directory',
@@ -93,7 +106,10 @@ def _launch(monkeypatch, **given):
     context = types.SimpleNamespace(launch_configurations={
         **{k: v['default_value'] for k, v in declared.items()}, **given})
     bring_up = next(e for e in entities if type(e).__name__ == 'OpaqueFunction')
-    return bring_up.kwargs['function'](context), declared
+    actions = bring_up.kwargs['function'](context)
+    for action in actions:
+        action.kwargs['parameters'][1] = _Given(action.kwargs['parameters'][1])
+    return actions, declared
 
 
 def test_deploy_launch_starts_a_lifecycle_policy_node_with_the_shipped_file(monkeypatch):
@@ -102,8 +118,9 @@ def test_deploy_launch_starts_a_lifecycle_policy_node_with_the_shipped_file(monk
     kw = node.kwargs
     assert (kw['package'], kw['executable'], kw['name'], kw['namespace']) == (
         'pg_node', 'policy_node', 'policy_node', '')
-    assert kw['parameters'] == [str(SHIPPED), {'policy': '/p/reach.onnx', 'autostart': False,
-                                               'use_sim_time': False}]
+    path, given = kw['parameters']
+    assert path == str(SHIPPED) and given.pop('policy') == '/p/reach.onnx'
+    assert given == {'autostart': False, 'use_sim_time': False}
     # by default each topic keeps the node's own name
     assert kw['remappings'] == [('arm_controller/commands', 'arm_controller/commands'),
                                 ('arm_controller/joint_trajectory',
@@ -121,15 +138,16 @@ def test_deploy_launch_starts_a_lifecycle_policy_node_with_the_shipped_file(monk
 def test_deploy_launch_remaps_to_the_robots_controllers(monkeypatch):
     """A UR5e on its scaled JTC, in a namespace, started at once: the docs' line."""
     (node,), _ = _launch(
-        monkeypatch, policy='reach.onnx', command_interface='position',
+        monkeypatch, policy='2024', command_interface='position',
         command_message='trajectory', namespace='/ur',
         trajectory_topic='/scaled_joint_trajectory_controller/joint_trajectory',
         commands_topic='/forward_position_controller/commands', autostart='true')
     kw = node.kwargs
     assert kw['namespace'] == '/ur'
-    assert kw['parameters'][1] == {'policy': 'reach.onnx', 'command_interface': 'position',
-                                   'command_message': 'trajectory', 'autostart': True,
-                                   'use_sim_time': False}
+    given = kw['parameters'][1]
+    assert given.pop('policy') == '2024'        # a name of digits stays a string
+    assert given == {'command_interface': 'position', 'command_message': 'trajectory',
+                     'autostart': True, 'use_sim_time': False}
     assert dict(kw['remappings']) == {
         'arm_controller/commands': '/forward_position_controller/commands',
         'arm_controller/joint_trajectory': '/scaled_joint_trajectory_controller/joint_trajectory',
