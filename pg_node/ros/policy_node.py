@@ -141,7 +141,8 @@ WARM_UP = 5
 #: the record's topic: one message per control tick
 TICKS_TOPIC = '/policy_node/ticks'
 #: its table's columns, one row per arm
-TICK_FIELDS = ('arm', 'state_age', 'observation', 'mean', 'action', 'command', 'command_si')
+TICK_FIELDS = ('arm', 'state_age', 'observation', 'mean', 'action', 'command', 'command_si',
+               'guards')
 #: commands whose state ages the diagnostics summarise
 AGE_WINDOW = 1000
 
@@ -575,7 +576,7 @@ class PolicyNode(LifecycleNode):
                 self.counters[f'guard_{event.key}'] += 1
                 if event.severity >= Severity.WARN:
                     self.get_logger().warning(event.warning, throttle_duration_sec=1.0)
-        self.record(cmd, self.publish(cmd), age, obs, mean, act)
+        self.record(cmd, self.publish(cmd), age, obs, mean, act, acted)
         self.ages.append(time.monotonic() - self.state_time)
         self.set_status(NodeState.COMMANDING, 'commanding')
 
@@ -618,12 +619,14 @@ class PolicyNode(LifecycleNode):
         point.time_from_start.sec, point.time_from_start.nanosec = composed.time_from_start
         return JointTrajectory(joint_names=composed.joint_names, points=[point])
 
-    def record(self, cmd, si, age, obs=None, mean=None, action=None):
+    def record(self, cmd, si, age, obs=None, mean=None, action=None, acted=None):
         """
         Write one tick into the record: per arm what came in, what the guards made of it.
 
         ``cmd`` and ``si``: the command sent, in controls and in SI units; a hold has no
-        observation, mean or action (NaN in the record).
+        observation, mean or action (NaN in the record). ``acted``: the guards' events per
+        arm, recorded as ``guards``, bit ``i`` for the ``i``-th
+        :class:`pg_node.control.status.GuardEvent` (0 on a hold tick).
         """
         if self.recorder is None:
             return
@@ -631,8 +634,12 @@ class PolicyNode(LifecycleNode):
         if obs is None:
             obs = np.full((arms, self.policy.obs_dim), np.nan)
             mean = action = np.full((arms, self.policy.act_dim), np.nan)
+        guards = np.zeros(arms)
+        for bit, event in enumerate(GuardEvent):
+            if acted is not None:
+                guards += (1 << bit) * acted[event]
         fields = dict(zip(TICK_FIELDS, (np.arange(arms), np.full(arms, age), obs, mean, action,
-                                        cmd, si)))
+                                        cmd, si, guards)))
         stamp = self.get_clock().now().nanoseconds
         msg = table_msg.to_msg(*table_msg.pack([stamp * 1e-9, self.policy_id], fields))
         self.recorder.write(TICKS_TOPIC, msg, time.time_ns())
