@@ -371,7 +371,7 @@ class PolicyNode(LifecycleNode):
 
     def _hold_once(self):
         """Send the one hold left in force (deactivate, stop): zero torque or the angles."""
-        if self.guard is not None and self._index is not None:
+        if self.guard is not None and self.q is not None:     # a state was taken
             self.publish_hold(decay=0.0)
 
     def _close_record(self):
@@ -535,7 +535,7 @@ class PolicyNode(LifecycleNode):
         if self.estop.latched:
             self.set_status(NodeState.ESTOP,
                             'e-stop latched: hold command (clear with ~/reset_estop)')
-            if self.guard is not None and self._index is not None:
+            if self.guard is not None and self.q is not None:
                 # the active hold from the newest state (a stale one's damping decays)
                 self.publish_hold(decay=hold_decay(age, timeout))
             return
