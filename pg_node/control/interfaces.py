@@ -74,8 +74,8 @@ class Actuators:
 #: the hold of an interface (:meth:`pg_node.control.guards.CommandGuard.hold`): a damping
 #: torque against the measured velocity (and a spring to the angle where the hold began), or
 #: the last commanded angle kept. Not zero effort: on an arm whose driver compensates gravity
-#: (libfranka's torques are "without gravity and friction", include/franka/control_types.h:43)
-#: zero torque lets it float and coast.
+#: (libfranka (main 155ddac) include/franka/control_types.h:43: torques "without gravity and
+#: friction") zero torque lets it float and coast.
 HOLD_DAMPING = 'damping'
 HOLD_LAST_COMMAND = 'last commanded angles'
 #: what the joint-limit guard does near a limit: brake a joint whose braking distance
