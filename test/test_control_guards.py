@@ -2,15 +2,18 @@
 The guards step by step on hand-made actuator records, and the severities they report.
 
 :class:`pg_node.control.guards.CommandGuard`: range, ramp, smoothing, rate limit, joint limits
-with both interfaces, over-speed, hold; :mod:`pg_node.control.status`: which events warn, and
-the /diagnostics level from a node's state and its latched faults.
+with both interfaces (the braking distance with effort), over-speed, the holds (effort: a
+damping torque, position: the last command) and the ramp after each kind of hold, the
+defaults taken from the model; :mod:`pg_node.control.status`: which events warn, and the
+/diagnostics level from a node's state and its latched faults.
 """
+from dataclasses import replace
 import doctest
 
 from control_records import POSITION_SERVOS, REACHER2
 import numpy as np
-from pg_node.control import status
-from pg_node.control.guards import CommandGuard, GuardSettings
+from pg_node.control import status, watchdog
+from pg_node.control.guards import CommandGuard, GuardSettings, model_limits
 from pg_node.control.interfaces import INTERFACES
 from pg_node.control.status import diagnostic_level, Fault, GuardEvent, NodeState, Severity
 import pytest
@@ -28,7 +31,8 @@ def test_range_nonfinite_and_over_speed_give_clipped_or_hold_commands():
     q = np.zeros((3, 2))
     qdot = np.array([[0.0, 0.0], [0.0, 0.0], [0.0, -6.0]])
     u, acted = g(np.array([[2.0, -0.5], [np.nan, 0.1], [0.3, 0.3]]), q, qdot, 0.0)
-    np.testing.assert_array_equal(u, [[1.0, -0.5], [0.0, 0.0], [0.0, 0.0]])
+    # the holds: damping, -1 N m s/rad x qdot (200 N m per unit of control)
+    np.testing.assert_allclose(u, [[1.0, -0.5], [0.0, 0.0], [0.0, 6.0 / 200]])
     assert acted[E.CLIPPED].tolist() == [True, False, False]
     assert acted[E.NONFINITE].tolist() == [False, True, False]
     assert acted[E.OVER_SPEED].tolist() == [False, False, True]
@@ -48,11 +52,11 @@ def test_ramp_blends_from_hold_then_lets_the_command_through():
 def test_smoothing_is_a_first_order_filter_and_max_change_a_rate_limit():
     q, qdot = np.zeros((1, 2)), np.zeros((1, 2))
     g = guard(smoothing=0.75)
-    g.sent(np.zeros((1, 2)))
+    g.hold_tick(q, qdot)                     # a hold of zero torque (at rest) was sent
     out = [g(np.array([[1.0, -1.0]]), q, qdot, 0.0)[0][0, 0] for _ in range(3)]
     np.testing.assert_allclose(out, [0.25, 0.4375, 0.578125])
     g = guard(max_change=0.1)                 # 0.1 of the range [-1, 1]: 0.2 per tick
-    g.sent(np.zeros((1, 2)))
+    g.hold_tick(q, qdot)                     # a hold of zero torque (at rest) was sent
     steps = [g(np.array([[1.0, 0.1]]), q, qdot, 0.0) for _ in range(6)]
     np.testing.assert_allclose([u[0, 0] for u, _ in steps], [0.2, 0.4, 0.6, 0.8, 1.0, 1.0])
     assert [bool(a[E.RATE_LIMITED][0]) for _, a in steps] == [True] * 4 + [False] * 2
@@ -75,13 +79,162 @@ def test_joint_limit_guard_holds_back_commands_towards_the_limit():
     assert acted[E.JOINT_LIMIT].tolist() == [True, False]
 
 
-def test_hold_is_zero_effort_or_the_measured_angles():
-    q = np.array([[0.4, -1.2], [3.5, 2.0]])
-    np.testing.assert_array_equal(guard().hold(q, 2), np.zeros((2, 2)))
-    p = guard(POSITION_SERVOS, 'position')
+def to_si(u, record=REACHER2, interface='effort'):
+    return INTERFACES[interface].to_si(record, u)
+
+
+def test_effort_hold_is_a_damping_torque_and_a_spring_to_where_it_began():
+    """Hold with tau = -D qdot - K (q - q_hold), D from the model (1 N m s/rad): never zero."""
+    g = guard(hold_stiffness=50.0)
+    q0, qdot = np.array([[0.4, -1.2]]), np.array([[2.0, -4.0]])
+    np.testing.assert_allclose(to_si(g.hold(q0, qdot)), [[-2.0, 4.0]])    # no spring yet
+    np.testing.assert_allclose(to_si(g.hold_tick(q0, qdot)), [[-2.0, 4.0]])  # begins at q0
+    q1 = q0 + [[0.1, -0.2]]
+    np.testing.assert_allclose(to_si(g.hold_tick(q1, qdot)), [[-2.0 - 5.0, 4.0 + 10.0]])
+    # from a stale state: full up to state_timeout, to zero torque one timeout later
+    for age, share in ((0.25, 1.0), (0.375, 0.5), (0.5, 0.0), (np.nan, 0.0)):
+        np.testing.assert_allclose(to_si(g.hold_tick(q1, qdot, watchdog.hold_decay(age, 0.25))),
+                                   share * np.array([[-7.0, 14.0]]), atol=1e-12)
+    # clipped to the effort range; hold_damping given: the parameter, not the model
+    np.testing.assert_allclose(guard(hold_damping=100.0).hold(q0, qdot), [[-1.0, 1.0]])
+    np.testing.assert_allclose(to_si(guard(hold_damping=30.0).hold(q0, qdot)), [[-60, 120]])
+
+
+def test_position_hold_is_the_last_command_never_a_stale_measurement():
+    """Before any command the measured angles; after, the last command, whatever q says."""
+    p = guard(POSITION_SERVOS, 'position', max_change=1.0)
+    q, still = np.array([[0.4, -1.2], [3.5, 2.0]]), np.zeros((2, 2))
     # joint0 is continuous (its servo's range is [-3, 3] rad here): clipped to what it takes
-    np.testing.assert_allclose(INTERFACES['position'].to_si(POSITION_SERVOS, p.hold(q, 2)),
+    np.testing.assert_allclose(to_si(p.hold(q, still), POSITION_SERVOS, 'position'),
                                [[0.4, -1.2], [3.0, 2.0]])
+    p(np.array([[0.5, 0.2], [-0.1, 0.3]]), q, still, 0.0)     # 1.5, 0.6 and -0.3, 0.9 rad
+    for stale in (q + 1.0, q - 2.0):                          # what stale states say
+        held = p.hold_tick(stale, still)
+        np.testing.assert_allclose(to_si(held, POSITION_SERVOS, 'position'),
+                                   [[1.5, 0.6], [-0.3, 0.9]])
+    # an over-speed hold inside the guard holds the last command too
+    fast = guard(POSITION_SERVOS, 'position', max_change=1.0, max_velocity=1.0)
+    fast(np.array([[0.5, 0.2]]), q[:1], still[:1], 0.0)
+    u, acted = fast(np.array([[-0.9, 0.9]]), q[:1] + 1, np.array([[2.0, 0.0]]), 0.1)
+    assert acted[E.OVER_SPEED].tolist() == [True]
+    np.testing.assert_allclose(to_si(u, POSITION_SERVOS, 'position'), [[1.5, 0.6]])
+
+
+@pytest.mark.parametrize('interface,record', [('effort', REACHER2),
+                                              ('position', POSITION_SERVOS)])
+@pytest.mark.parametrize('kind', ['stale', 'estop_reset', 'deactivate_activate', 'over_speed',
+                                  'nonfinite'])
+def test_after_every_hold_the_command_ramps_in_from_the_hold(kind, interface, record):
+    """The output is continuous where a hold ends: it blends from the hold over ramp_time."""
+    g = guard(record, interface, ramp_time=0.5, max_change=1.0, max_velocity=5.0)
+    q, moving = np.array([[0.3, 0.2]]), np.array([[1.0, -2.0]])
+    a, b = np.array([[0.8, -0.6]]), np.array([[-0.4, 0.5]])
+    g.start_ramp(0.0)
+    g(a, q, moving, 0.0)
+    u, acted = g(a, q, moving, 0.75)                      # the first ramp is over
+    np.testing.assert_allclose(u, a)
+    assert not acted[E.RAMPED].any()
+    if kind == 'stale':
+        for age in (0.25, 0.3, 0.45):                      # the node's hold at every tick
+            g.hold_tick(q, moving, watchdog.hold_decay(age, 0.2))
+    elif kind == 'estop_reset':
+        g.hold_tick(q, moving)
+    elif kind == 'deactivate_activate':
+        g.hold_tick(q, moving, 0.0)                       # the one hold left in force
+        g.start_ramp(1.0)
+    elif kind == 'over_speed':
+        u, acted = g(a, q, np.array([[6.0, 0.0]]), 0.875)
+        assert acted[E.OVER_SPEED].all()
+    else:
+        u, acted = g(np.array([[np.nan, 0.0]]), q, moving, 0.875)
+        assert acted[E.NONFINITE].all()
+    # the hold it ramps from: the damping torque of the state now, or the last command (a)
+    hold = -moving / 200 if interface == 'effort' else a
+    steps = [g(b, q, moving, t) for t in (1.0, 1.125, 1.25, 1.375, 1.5)]
+    np.testing.assert_allclose([u[0] for u, _ in steps],
+                               [(hold + r * (b - hold))[0] for r in (0, 0.25, 0.5, 0.75, 1)],
+                               atol=1e-12)
+    assert [bool(e[E.RAMPED][0]) for _, e in steps] == [True] * 4 + [False]
+
+
+def drive_at_the_limit(max_change: float, ticks: int = 200, period: float = 0.02,
+                       limit_rule=None):
+    """Push joint1 of reacher2 (no damping here) at full torque towards its limit at 3 rad."""
+    g = CommandGuard(REACHER2, JOINTS, 'effort', GuardSettings(max_change=max_change), period)
+    if limit_rule is not None:
+        g.joint_limits = limit_rule.__get__(g)
+    q, qdot = np.zeros((1, 2)), np.zeros((1, 2))
+    cmds, angles = [], []
+    for k in range(ticks):
+        u, _ = g(np.array([[0.0, 1.0]]), q, qdot, k * period)
+        qdot = qdot + to_si(u) / REACHER2.inertia * period      # semi-implicit Euler
+        q = q + qdot * period
+        cmds.append(u[0, 1])
+        angles.append(q[0, 1])
+    return np.array(cmds), np.array(angles), qdot[0, 1]
+
+
+def reversals(x: np.ndarray) -> int:
+    step = np.sign(np.round(np.diff(x), 9))
+    step = step[step != 0]
+    return int(np.sum(step[1:] != step[:-1]))
+
+
+@pytest.mark.parametrize('max_change', [0.0, 1.0])       # from the model (0.25), none
+def test_braking_guard_stops_a_joint_at_its_limit_without_flip_flop(max_change):
+    """
+    Braked from its braking distance: stops inside the limit, the command never flip-flops.
+
+    At 200 rad/s^2 the joint gains 4 rad/s a tick: the fixed 0.05 rad margin of zero torque
+    it replaces let it coast 0.3 rad past the limit.
+    """
+    cmds, angles, speed = drive_at_the_limit(max_change)
+    assert angles.max() < 3.0, angles.max()                          # never past the limit
+    assert 3.0 - 0.1 < angles[-1] < 3.0 and abs(speed) < 1e-9        # at rest by it
+    assert np.all(cmds[:5] == 1.0) and cmds.min() < -0.3             # full, then a brake
+    # no flip between full command and hold: a few reversals while it settles, then still
+    assert reversals(cmds) <= 3 and np.all(cmds[-150:] == cmds[-1]), cmds[:30]
+
+
+def test_the_old_fixed_margin_let_the_joint_coast_past_its_limit():
+    """The rule the braking guard replaced (zero torque within 0.05 rad), for the record."""
+    def fixed_margin(self, u, q, qdot, acted):
+        torque = to_si(u)
+        outward = (((q >= self.q_high - 0.05) & (torque > 0))
+                   | ((q <= self.q_low + 0.05) & (torque < 0)))
+        return np.where(outward, 0.0, u)
+    _, angles, _ = drive_at_the_limit(1.0, limit_rule=fixed_margin)
+    assert angles.max() > 3.2, angles.max()
+
+
+def test_limits_from_the_model_unless_given_and_said_where_they_came_from():
+    """max_change, max_velocity, hold_damping and max_deceleration: 0 takes the model's."""
+    lim = model_limits(REACHER2, INTERFACES['effort'], GuardSettings(), 0.02)
+    # 200 N m: 200 rad/s against damping 1; half of 200 N m / inertia; a 100 N m step a tick
+    np.testing.assert_allclose(lim.max_velocity, [200.0, 200.0])
+    np.testing.assert_allclose(lim.max_deceleration, 100.0 / REACHER2.inertia)
+    np.testing.assert_allclose(lim.max_change, [0.25, 0.25])
+    np.testing.assert_allclose(lim.hold_damping, [1.0, 1.0])
+    assert set(lim.from_model) == {'max_change', 'max_velocity', 'hold_damping',
+                                   'max_deceleration'}
+    given = GuardSettings(max_change=0.1, max_velocity=3.0, hold_damping=2.0,
+                          max_deceleration=5.0)
+    lim = model_limits(REACHER2, INTERFACES['effort'], given, 0.02)
+    assert (lim.max_change.tolist(), lim.max_velocity.tolist(), lim.from_model) == \
+        ([0.1, 0.1], [3.0, 3.0], ())
+    # position: the target moves at most max_velocity x period (here none: no force limit)
+    servos = replace(POSITION_SERVOS, force_limit=np.array([50.0, 50.0]))
+    lim = model_limits(servos, INTERFACES['position'], GuardSettings(), 0.02)
+    np.testing.assert_allclose(lim.max_velocity, [50.0, 50.0])
+    np.testing.assert_allclose(lim.max_change, 50.0 * 0.02 / 6.0)
+    lim = model_limits(POSITION_SERVOS, INTERFACES['position'], GuardSettings(), 0.02)
+    assert np.isinf(lim.max_velocity).all() and lim.max_change.tolist() == [1.0, 1.0]
+    # no damping in the model: no speed limit from it (the check is off for that joint)
+    assert np.isinf(model_limits(replace(REACHER2, damping=np.zeros(2)), INTERFACES['effort'],
+                                 GuardSettings(), 0.02).max_velocity).all()
+    described = guard(max_velocity=3.0).describe()
+    assert described['max_velocity_taken'] == '3, 3 rad/s (parameter)'
+    assert described['max_change_taken'] == '0.25, 0.25 of the range per tick (from the model)'
 
 
 def test_the_joint_order_is_the_cards_and_every_actuated_joint_must_be_in_it():
@@ -108,7 +261,7 @@ def test_events_that_warn_and_the_diagnostics_level():
     assert [int(s) for s in Severity] == [0, 1, 2]       # diagnostic_msgs' OK, WARN, ERROR
 
 
-@pytest.mark.parametrize('module', [status])
+@pytest.mark.parametrize('module', [status, watchdog])
 def test_worked_examples(module):
     failures, tried = doctest.testmod(module)
     assert tried > 0 and failures == 0

@@ -3,7 +3,7 @@ from dataclasses import replace
 
 from control_records import POSITION_SERVOS, REACHER2
 import numpy as np
-from pg_node.control.interfaces import (card, check, HOLD_MEASURED, HOLD_ZERO_EFFORT,
+from pg_node.control.interfaces import (card, check, HOLD_DAMPING, HOLD_LAST_COMMAND,
                                         INTERFACES)
 import pytest
 
@@ -11,8 +11,8 @@ U = np.array([[0.5, -1.0], [0.0, 0.25]])
 
 
 @pytest.mark.parametrize('name,record,unit,si,hold,field', [
-    ('effort', REACHER2, 'N m', 200 * U, HOLD_ZERO_EFFORT, 'effort'),
-    ('position', POSITION_SERVOS, 'rad', 3 * U, HOLD_MEASURED, 'positions'),
+    ('effort', REACHER2, 'N m', 200 * U, HOLD_DAMPING, 'effort'),
+    ('position', POSITION_SERVOS, 'rad', 3 * U, HOLD_LAST_COMMAND, 'positions'),
 ])
 def test_each_interface_has_its_unit_map_hold_and_trajectory_field(name, record, unit, si,
                                                                    hold, field):

@@ -287,18 +287,44 @@ def test_real_time_return_equals_lock_step_evaluation(tmp_path, client, trained,
 PLAIN = ['joint0', 'joint1']
 
 
-def test_stale_joint_states_give_zero_effort_then_resume(tmp_path, client, trained):
-    """
-    States stop: zero effort within state_timeout + one control step, then at every tick.
+#: the joints' speed the hold tests feed (rad/s), and reacher2's joint damping (N m s/rad):
+#: the effort hold's damping taken from the model
+QD, DAMPING = np.array([0.5, -0.25]), 1.0
 
-    Never one message only: a forward command controller holds the last command it got,
-    so a single zero would leave the next real command, or a dropped zero the last torque,
-    in force. Diagnostics say ERROR while stale, WARN while waiting, OK commanding.
+
+def assert_ramps_in_from(ticks, first: int, hold_si: np.ndarray, ramp: float, rate: float):
     """
-    timeout, rate, record = 0.2, 50.0, tmp_path / 'ticks'
+    Ticks ``first``... blend from ``hold_si`` to the policy's command, linearly in time.
+
+    Each tick's command is ``hold + r (policy - hold)`` with one share ``r`` per tick: 0 at
+    the first tick after the hold, rising to 1 (the policy's own) within the ramp.
+    """
+    n = int(2 * ramp * rate) + 5
+    cmd = np.array([t['command_si'][0] for t in ticks[first:first + n]])
+    act = GEAR * np.clip([t['action'][0] for t in ticks[first:first + n]], -1, 1)
+    d = act - hold_si
+    shares = np.sum((cmd - hold_si) * d, axis=1) / np.sum(d * d, axis=1)
+    np.testing.assert_allclose(cmd, hold_si + shares[:, None] * d, atol=1e-6)
+    assert abs(shares[0]) < 1e-9 and np.all(np.diff(shares) >= -1e-9), shares
+    assert abs(shares[-1] - 1.0) < 1e-9 and np.sum(shares < 1 - 1e-9) >= 2, shares
+
+
+def test_stale_joint_states_hold_with_damping_then_resume_ramping(tmp_path, client, trained):
+    """
+    States stop: a damping hold at every tick, fading to zero torque; then a ramp from it.
+
+    The hold comes at the first tick past state_timeout: -damping x the last fresh speed,
+    its share falling from 1 to 0 over one more state_timeout (a stale speed is no
+    measure of the arm's), then zero torque at every tick. Never one message only: a
+    forward command controller holds the last command it got. Fresh states: the command
+    ramps in from the hold over ramp_time. Diagnostics say ERROR while stale, WARN while
+    waiting, OK commanding.
+    """
+    from pg_node.control.watchdog import hold_decay
+    timeout, rate, ramp, record = 0.2, 50.0, 0.2, tmp_path / 'ticks'
     pol = start_policy(tmp_path, f'policy:={trained["onnx"]}',
                        f'state_timeout:={timeout}', f'control_rate:={rate}',
-                       f'record:={record}')
+                       f'ramp_time:={ramp}', 'max_change:=1.0', f'record:={record}')
     try:
         client.wait(lambda: any(m.startswith('waiting') for m, _ in client.diagnostics),
                     what='policy_node to load its policy')
@@ -309,12 +335,12 @@ def test_stale_joint_states_give_zero_effort_then_resume(tmp_path, client, train
         gaps = []
         for _ in range(2):
             for _ in range(50):
-                client.send_state(PLAIN, rng.uniform(-1, 1, 2), rng.uniform(-1, 1, 2))
+                client.send_state(PLAIN, rng.uniform(-1, 1, 2), QD)
                 time.sleep(1 / rate)
             last_sent = time.monotonic()
             client.wait(lambda: client.commands and client.commands[-1][0] > last_sent
                         and not client.commands[-1][1].any(), timeout=5.0,
-                        what='a zero command')
+                        what='the hold faded to zero torque')
             with client.lock:
                 zeros = [t for t, c in client.commands if t > last_sent and not c.any()]
             gaps.append(zeros[0] - last_sent)
@@ -337,31 +363,45 @@ def test_stale_joint_states_give_zero_effort_then_resume(tmp_path, client, train
     # tick past the timeout. Exact, whatever the load.
     ticks = [fields for _, fields in recorded_ticks(record)]
     ages = np.array([t['state_age'].ravel()[0] for t in ticks])
-    held = np.array([not t['command'].any() for t in ticks])
+    held = np.array([np.isnan(t['observation']).all() for t in ticks])
     assert np.all(ages[~held] <= timeout) and np.all(ages[held & np.isfinite(ages)] > timeout)
     spells = np.flatnonzero(held[1:] & ~held[:-1]) + 1
     assert len(spells) == 2 and np.all(ages[spells] > timeout), ages[spells]
+    # the hold: the damping torque of the last fresh speed, its share fading with the age
+    stale = held & np.isfinite(ages)
+    si = np.array([t['command_si'][0] for t in ticks])
+    share = np.array([hold_decay(a, timeout) for a in ages[stale]])
+    np.testing.assert_allclose(si[stale], -DAMPING * share[:, None] * QD, atol=1e-9)
+    assert np.sum(share > 0) >= 4, share          # an active stop first, not zero torque
+    # fresh states after the first spell: the command ramps in from the hold
+    resumed = np.flatnonzero(held[:-1] & ~held[1:]) + 1
+    assert len(resumed) == 1, resumed
+    assert_ramps_in_from(ticks, resumed[0], -DAMPING * QD, ramp, rate)
     # end to end, through DDS both ways and the test's own clock, with what a loaded
     # machine adds (the node's tick or this process late by a scheduling slice or two)
-    assert max(gaps) <= timeout + 1 / rate + 0.25, gaps
+    assert max(gaps) <= 2 * timeout + 1 / rate + 0.25, gaps
     assert sum(1 for c in cmds if c.any()) > 60           # it resumed after the first stop
     assert 'joint states are' in log and 'commanding again' in log
     assert log.count('joint states are') == 2            # one warning per stale spell
     assert int(diag[1]['stale_events']) == 2 and diag[0].startswith('stale')
     assert diag[1]['level'] == 2 and waiting['level'] == 1          # ERROR, WARN
     assert all(np.all(np.isfinite(c)) and np.all(np.abs(c) <= GEAR) for c in cmds)
+    # the values taken from the model, shown
+    assert diag[1]['hold_damping_taken'] == '1, 1 N m s/rad (from the model)', diag[1]
+    assert diag[1]['max_change_taken'] == '1, 1 of the range per tick (parameter)'
 
 
-def test_estop_latches_zero_effort_until_reset(tmp_path, client, trained):
-    """An e-stop holds zero effort at every tick, fresh states or not, until ~/reset_estop."""
-    rate = 50.0
-    pol = start_policy(tmp_path, f'policy:={trained["onnx"]}',
-                       'state_timeout:=5.0', f'control_rate:={rate}')
+def test_estop_latches_a_damping_hold_until_reset_then_ramps_in(tmp_path, client, trained):
+    """An e-stop holds with damping at every tick until ~/reset_estop; then a ramp from it."""
+    rate, ramp, record = 50.0, 0.2, tmp_path / 'ticks'
+    pol = start_policy(tmp_path, f'policy:={trained["onnx"]}', 'state_timeout:=5.0',
+                       f'control_rate:={rate}', f'ramp_time:={ramp}', 'max_change:=1.0',
+                       f'record:={record}')
     rng = np.random.default_rng(1)
 
     def feed(seconds):
         for _ in range(int(seconds * rate)):
-            client.send_state(PLAIN, rng.uniform(-1, 1, 2), rng.uniform(-1, 1, 2))
+            client.send_state(PLAIN, rng.uniform(-1, 1, 2), QD)
             time.sleep(1 / rate)
 
     try:
@@ -391,11 +431,20 @@ def test_estop_latches_zero_effort_until_reset(tmp_path, client, trained):
     finally:
         code, log = processes.stop_logged(pol)
     assert code == 0, log[-2000:]
-    assert len(during) >= 20 and not any(c.any() for _, c in during), len(during)
+    # the hold from fresh states: -damping x their speed at every tick, never zero torque
+    assert len(during) >= 20, len(during)
+    np.testing.assert_allclose([c for _, c in during], [-DAMPING * QD] * len(during),
+                               atol=1e-9)
     assert diag[1]['level'] == 2 and diag[1]['estops'] == '1', diag
     assert future.result().success and 'cleared' in future.result().message
     assert len(after) >= 10 and all(c.any() for c in after)
     assert 'e-stop: latched' in log and 'e-stop cleared' in log
+    # in the record: after the reset the command ramps in from the hold
+    ticks = [fields for _, fields in recorded_ticks(record)]
+    held = np.array([np.isnan(t['observation']).all() for t in ticks])
+    resumed = np.flatnonzero(held[:-1] & ~held[1:]) + 1
+    assert len(resumed) == 1 and held[resumed[0] - 20:resumed[0]].all(), resumed
+    assert_ramps_in_from(ticks, resumed[0], -DAMPING * QD, ramp, rate)
 
 
 def test_joint_order_and_extra_joints_give_the_same_command(tmp_path, client, trained):
@@ -514,8 +563,9 @@ def test_state_age_is_read_from_header_stamp(tmp_path, client, trained):
     """
     Read the state's age from header.stamp too, not only from its arrival.
 
-    Fresh on arrival but stamped 1 s ago (or 1 s ahead): stale, zero effort at every tick;
-    a zero stamp is aged by arrival (commanding), as is a fresh stamp.
+    Fresh on arrival but stamped 1 s ago (or 1 s ahead): stale, the hold at every tick (its
+    damping faded to zero torque at that age, over twice state_timeout); a zero stamp is
+    aged by arrival (commanding), as is a fresh stamp.
     """
     rate = 50.0
     pol = start_policy(tmp_path, f'policy:={trained["onnx"]}', 'state_timeout:=0.3',
@@ -566,7 +616,8 @@ def test_position_interface_commands_angles_and_holds_where_the_arm_is(
     Command angles in rad with position servos, and hold where the arm is.
 
     Position servos: commands in rad (3 u), the target kept joint_limit_margin inside
-    joint1's [-3, 3]; stale states hold the measured angles; effort is refused in one line.
+    joint1's [-3, 3]; stale states hold the last commanded angles, not the measured ones;
+    effort is refused in one line.
     """
     from pg_node.rl.trained_policy import load_trained_policy
     policy = load_trained_policy(position_policy)
@@ -588,7 +639,8 @@ def test_position_interface_commands_angles_and_holds_where_the_arm_is(
     obs = ObservationBuilder(model)(q[None], qd[None], np.array([goal]))
     want = np.clip(3 * np.clip(policy.mean(obs), -1, 1)[0], [-np.inf, -2.9], [np.inf, 2.9])
     np.testing.assert_allclose(commanded, want, atol=1e-9)
-    np.testing.assert_allclose(held, q, atol=1e-9)          # position held, not zero torque
+    np.testing.assert_allclose(held, commanded, atol=1e-9)  # the last command held, not q
+    assert np.abs(held - q).max() > 0.01
     assert 'commands position in rad' in log
     res = subprocess.run([sys.executable, '-m', 'pg_node.ros.policy_node', '--ros-args', '-p',
                           'autostart:=true', '-p', f'policy:={position_policy}'],
@@ -739,9 +791,10 @@ def test_lifecycle_configure_checks_activate_ramps_deactivate_holds(tmp_path, cl
     """
     Run the lifecycle: configure checks, activate ramps in, deactivate holds once.
 
-    Managed: nothing is published until activate; activate ramps in from zero effort;
-    deactivate sends one zero and stops; configure refuses a robot_description of another
-    arm, in one line, and takes reacher2's own.
+    Managed: nothing is published until activate; activate ramps in from the damping hold
+    (-damping x the speed); deactivate sends one zero (the hold left in force) and stops;
+    configure refuses a robot_description of another arm, in one line, and takes reacher2's
+    own.
     """
     import hashlib
     from std_msgs.msg import String
@@ -802,10 +855,13 @@ def test_lifecycle_configure_checks_activate_ramps_deactivate_holds(tmp_path, cl
     assert ("configure failed: robot_description is not the policy's arm: joint joint1 is "
             '100.0 mm away') in log
     assert 'kinematics match robot_description' in log
-    # the ramp: a share of the policy's command rising from near 0 to 1, then 1 to the end
-    shares = np.array([c @ want / (want @ want) for c in cmds[:-1]])
-    np.testing.assert_allclose([c - s * want for c, s in zip(cmds[:-1], shares)], 0,
-                               atol=1e-3)       # N m: the ONNX policy here, torch's there
+    # the ramp: from the damping hold to the policy's command, the share rising from near 0
+    # to 1, then 1 to the end
+    hold = -DAMPING * qd
+    shares = np.array([(c - hold) @ (want - hold) / ((want - hold) @ (want - hold))
+                       for c in cmds[:-1]])
+    np.testing.assert_allclose([c - hold - s * (want - hold) for c, s in zip(cmds[:-1], shares)],
+                               0, atol=1e-3)    # N m: the ONNX policy here, torch's there
     assert shares[0] < 0.2 and np.all(np.diff(shares) >= -1e-6), shares
     assert abs(shares[-1] - 1.0) < 1e-6, shares
     # about ramp x rate ramped ticks; a loaded machine may run late ticks together
@@ -819,9 +875,11 @@ def test_guards_act_on_sim_node_and_every_tick_is_recorded(tmp_path, client, tra
     """
     Make the guards act on sim_node and record every tick.
 
-    Against sim_node (real time, N m): a rate limit bounds each change of command, an
-    over-speed limit below the arm's speeds holds it, each counted; SIGINT ends with one
-    zero; the record holds every command sent, with the policy's sha256.
+    Against sim_node (real time, N m): a rate limit bounds each change of command except
+    where the joint-limit brake or the over-speed hold acted (they act after it, at once),
+    an over-speed limit below the arm's speeds holds it, each counted; SIGINT ends with one
+    zero; the record holds every command sent, with the guards that acted and the policy's
+    sha256.
     """
     import hashlib
     from pg_node.bag.reader import read_metadata_yaml
@@ -850,18 +908,20 @@ def test_guards_act_on_sim_node_and_every_tick_is_recorded(tmp_path, client, tra
     finally:
         logs = [processes.stop_logged(p) for p in (pol, sim) if p is not None]
     assert code == 0 and all(c == 0 for c, _ in logs), log[-3000:]
-    # per arm: each change is within the rate limit, except into a hold (over-speed: at once)
-    per_arm = cmds.reshape(len(cmds), 4, 2)
+    # per arm, in the record: each change is within the rate limit, except where the
+    # joint-limit brake or the over-speed hold acted (after the rate limit: at once)
+    ticks = recorded_ticks(record)
+    per_arm = np.array([t['command_si'] for _, t in ticks[:-1]])
+    bits = np.array([t['guards'][:, 0] for _, t in ticks[:-1]]).astype(int)
     change = np.abs(np.diff(per_arm, axis=0)).max(axis=2)
-    into_hold = ~per_arm[1:].any(axis=2)
-    assert change[~into_hold].max() <= max_change * 2 * GEAR + 1e-6, change[~into_hold].max()
+    at_once = (bits[1:] & 0b110000) != 0                   # JOINT_LIMIT 16, OVER_SPEED 32
+    assert change[~at_once].max() <= max_change * 2 * GEAR + 1e-6, change[~at_once].max()
     # it acted (counted); the limited change itself may be cut further by the joint-limit
     # guard or replaced by an over-speed hold in the same tick, so no change need equal it
-    assert into_hold.any() and int(diag['guard_rate_limited']) > 0
+    assert ((bits & 32) != 0).any() and int(diag['guard_rate_limited']) > 0
     assert 'over-speed guard' in log and float(diag['commands_per_second']) > 0
     assert float(diag['load_seconds']) > 0 and diag['lifecycle'] == 'active'
     assert not cmds[-1].any()                               # SIGINT: one zero at the end
-    ticks = recorded_ticks(record)
     sha = hashlib.sha256(trained['onnx'].read_bytes()).hexdigest()
     assert read_metadata_yaml(record)['custom_data']['policy_sha256'] == sha
     # every command sent is a tick (the subscriber here may lose some at most)

@@ -93,3 +93,21 @@ def test_a_guard_fed_from_a_model_acts_as_on_the_hand_made_record():
 def test_kinematics_check_finds_another_arm(edit, words):
     got = compare_kinematics(REACHER, edit(URDF.read_text()))
     assert (got is None) if words is None else (words in got), got
+
+
+def test_the_guards_defaults_from_arm7_are_the_franka_urdfs_limits():
+    """
+    The Panda imported with --velocity-damping: its speed limits are the URDF's own.
+
+    The importer sets each joint's damping to effort / velocity limit (urdf_import.py), so
+    the over-speed guard's limit from the model, torque / damping, is the URDF's velocity
+    limit (panda.urdf: 2.175 rad/s on joints 1-4, 2.61 on 5-7); the hold's damping is the
+    model's; the braking deceleration is half the torque over the joint's largest inertia.
+    """
+    from pg_node.control.guards import model_limits
+    arm = actuators(mujoco.MjModel.from_xml_path(str(resolve_model('arm7'))))
+    lim = model_limits(arm, INTERFACES['effort'], GuardSettings(), 0.04)
+    np.testing.assert_allclose(lim.max_velocity, [2.175] * 4 + [2.61] * 3, rtol=1e-4)
+    np.testing.assert_allclose(lim.hold_damping, [40.0] * 4 + [4.5977] * 3)
+    np.testing.assert_allclose(lim.max_deceleration, 0.5 * arm.force_limit / arm.inertia)
+    assert np.all(arm.inertia > 0.1) and arm.force_limit.tolist() == [87.0] * 4 + [12.0] * 3

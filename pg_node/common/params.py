@@ -330,17 +330,46 @@ POLICY_PARAMS: Dict[str, Param] = {
     'command_interface': Param('effort', 'what the commands are: joint efforts in N m (motor '
                                          'actuators) or joint positions in rad (position '
                                          'actuators)', choices=('effort', 'position')),
-    'ramp_time': Param(0.5, 'seconds over which commands ramp in from hold after activation '
-                            '(0: at once)', low=0.0, live=True),
+    'ramp_time': Param(0.5, 'seconds over which commands ramp in from the hold command after '
+                            'every hold (activation, stale states, an e-stop reset, '
+                            'over-speed; 0: at once)', low=0.0, live=True),
     'smoothing': Param(0.0, 'low-pass filter: weight of the previous command, 0 (off) to 0.95',
                        low=0.0, high=0.95, live=True),
     'max_change': Param(0.0, 'largest change of a command per control tick, as a share of '
-                             "the actuator's range (0: no limit)", low=0.0, high=1.0,
+                             "the actuator's range; 0: from the model, per actuator (effort: "
+                             'max_deceleration x the joint inertia, a quarter of the range '
+                             'with the default deceleration, so a brake sets in within a few '
+                             'ticks; position: max_velocity x the control period, so the '
+                             'target never runs ahead of the joint); 1: no limit. The value '
+                             'taken is in /diagnostics (max_change_taken)', low=0.0, high=1.0,
                         live=True),
-    'joint_limit_margin': Param(0.05, 'rad: within this of a joint limit, no command drives '
-                                      'the joint further', low=0.0, live=True),
-    'max_velocity': Param(0.0, 'rad/s: an arm with a faster joint gets the hold command (0: '
-                               'no check)', low=0.0, live=True),
+    'joint_limit_margin': Param(0.05, 'rad: effort: the braking guard stops a joint this far '
+                                      'inside its limit (its braking distance at '
+                                      'max_deceleration added); position: targets are kept '
+                                      'this far inside the range', low=0.0, live=True),
+    'max_velocity': Param(0.0, 'rad/s: an arm with a faster joint gets the hold command; 0: '
+                               "each joint's limit from the model, its torque over its damping "
+                               '(the URDF velocity limit for an arm imported with '
+                               '--velocity-damping; no check where the model has no damping '
+                               'or torque bound). The value taken is in /diagnostics '
+                               '(max_velocity_taken)', low=0.0, live=True),
+    'hold_damping': Param(0.0, 'N m s/rad: the effort hold is the torque -hold_damping x qdot '
+                               '(- hold_stiffness x (q - q_hold)), from the newest state at '
+                               "every tick; 0: each joint's damping in the model, the damping "
+                               'the policy trained with and a torque-mode robot lacks. The '
+                               'value taken is in /diagnostics (hold_damping_taken)', low=0.0,
+                          live=True),
+    'hold_stiffness': Param(0.0, 'N m/rad: the effort hold also pulls each joint back to the '
+                                 'angle where the hold began (0: damping alone; a robot whose '
+                                 'gravity compensation is off by some N m sags that N m / '
+                                 'hold_stiffness)', low=0.0, live=True),
+    'max_deceleration': Param(0.0, 'rad/s^2: the deceleration the effort joint-limit guard '
+                                   'plans with: a joint whose stop distance qdot^2 / (2 '
+                                   'max_deceleration) reaches joint_limit_margin of a limit is '
+                                   "braked; 0: half of each joint's torque over its largest "
+                                   'inertia in the model (the other half is slack for the tick '
+                                   'and the pose). The value taken is in /diagnostics '
+                                   '(max_deceleration_taken)', low=0.0, live=True),
     'command_message': Param('forward', 'forward: std_msgs/Float64MultiArray on '
                                         'arm_controller/commands (forward command '
                                         'controllers); trajectory: one-point '

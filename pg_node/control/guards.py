@@ -8,59 +8,157 @@ its own, acting in this order, per arm:
 
 1. **range** (:meth:`CommandGuard.clip_range`): a non-finite action becomes the hold command; the
    rest is clipped to the actuators' control range;
-2. **ramp** (:meth:`CommandGuard.ramp`): for ``ramp_time`` s after activation the command is
-   blended from the hold command to the policy's, linearly (ros2_control controllers and
-   MoveIt Servo start from hold too, rather than jumping to the first command);
+2. **ramp** (:meth:`CommandGuard.ramp`): after every hold (activation, stale states, an
+   e-stop, a non-finite action, over-speed) the command is blended from the hold command to
+   the policy's over ``ramp_time`` s, linearly, so the output is continuous where the hold
+   ends (ros2_control controllers and MoveIt Servo start from hold too, rather than jumping
+   to the first command);
 3. **smoothing** (:meth:`CommandGuard.smooth`): a first-order low-pass filter,
    ``u = s * previous + (1 - s) * u`` with ``s = smoothing`` (0: off);
 4. **rate limit** (:meth:`CommandGuard.rate_limit`): each actuator changes by at most
-   ``max_change`` of its control range per tick (0: off);
-5. **joint limits** (:meth:`CommandGuard.joint_limits`): a limited joint within
-   ``joint_limit_margin`` rad of (or past) a limit gets no command that drives it further:
-   with the effort interface the torque towards the limit becomes zero; with the position
-   interface the target is kept ``margin`` inside the range;
-6. **over-speed** (:meth:`CommandGuard.over_speed`): an arm with a joint faster than
-   ``max_velocity`` rad/s (0: off) gets the hold command for this tick.
+   ``max_change`` of its control range per tick;
+5. **joint limits** (:meth:`CommandGuard.joint_limits`): with the effort interface a joint
+   whose braking distance at its speed reaches a limit is braked; with the position
+   interface the target is kept ``joint_limit_margin`` inside the range;
+6. **over-speed** (:meth:`CommandGuard.over_speed`): an arm with a joint faster than its
+   velocity limit gets the hold command.
 
-The **hold** command is the interface's (:data:`pg_node.control.interfaces.INTERFACES`):
-zero effort (the robot's gravity compensation holds the arm, if it has any), or the measured
-joint angles (the robot's position loop holds them). Steps 3 and 4 act on the sequence of
-published commands, holds included, so a command resuming after a hold is smoothed and
-rate-limited from the hold.
+Steps 5 and 6 act after the rate limit, so a brake or a hold is never delayed by it (with the
+rate limit after the brake, reacher2 driven at full torque at its limit overshoots it by
+0.28 rad: ``test_control_guards``). They still never make the output flip between the
+policy's full command and a hold tick after tick: the brake is a continuous function of the
+joint's state (it grows as the braking distance reaches the limit, it does not switch), and
+an over-speed hold is followed by the ramp of step 2 from the hold, whose end the rate limit
+smooths.
+
+The **hold** (:meth:`CommandGuard.hold`) is an active stop for the interface it speaks
+(:data:`pg_node.control.interfaces.INTERFACES`), never zero torque: an arm whose driver
+compensates gravity floats and coasts on zero torque.
+
+* effort: a damping torque ``tau = -D qdot - K (q - q_hold)`` from the measured state,
+  computed at every tick, clipped to the actuators' effort range; ``D`` is ``hold_damping``
+  (from the model: its joint damping, the damping the policy trained with and a torque-mode
+  robot lacks), ``K`` ``hold_stiffness`` (0 by default: pure damping), ``q_hold`` the
+  angles where the hold began. A stale state's velocity is no measure of the arm's: the
+  damping computed from it is scaled by ``decay`` (:func:`pg_node.control.watchdog.hold_decay`:
+  full while the state is fresh, down to zero torque one more ``state_timeout`` later), since
+  a brake from a velocity that has long stopped pushes the arm back. A hold sent once and
+  then left in force (deactivate, shutdown: a forward controller keeps it forever,
+  ros2_controllers (jazzy ed360c97d) forward_command_controller/src/
+  forward_controllers_base.cpp:154-158) is zero torque, for the same reason; the joint
+  trajectory controller's own hold after ``cmd_timeout`` is zero effort as well
+  (ros2_controllers (jazzy ed360c97d)
+  joint_trajectory_controller/src/joint_trajectory_controller.cpp:2063-2086).
+* position: the last commanded angles, which the guard remembers (what it sent), never the
+  measured angles of a stale state; before any command, the measured angles.
+
+Defaults from the model (:func:`model_limits`): a parameter at 0 takes its value from the
+actuators' record, per actuator, and :meth:`CommandGuard.describe` says which was taken.
 """
 from dataclasses import dataclass
 from typing import Dict, Optional, Sequence, Tuple
 
 import numpy as np
-from pg_node.control.interfaces import Actuators, HOLD_MEASURED, INTERFACES, LIMIT_INSIDE
+from pg_node.control.interfaces import (Actuators, CommandInterface, HOLD_LAST_COMMAND,
+                                        INTERFACES, LIMIT_INSIDE)
 from pg_node.control.status import GuardEvent
+
+#: the share of the actuator's torque the braking guard plans with (the rest is slack for
+#: the tick's delay, the rate limit and the inertia's pose dependence)
+BRAKING_SHARE = 0.5
 
 
 @dataclass
 class GuardSettings:
-    """The guard's parameters (policy_node's of the same names)."""
+    """The guard's parameters (policy_node's of the same names; 0: from the model)."""
 
     smoothing: float = 0.0
     max_change: float = 0.0
     joint_limit_margin: float = 0.05
     max_velocity: float = 0.0
     ramp_time: float = 0.0
+    hold_damping: float = 0.0
+    hold_stiffness: float = 0.0
+    max_deceleration: float = 0.0
+
+
+@dataclass(frozen=True)
+class Limits:
+    """The numbers the guards act with, per actuator, and which came from the model."""
+
+    max_change: np.ndarray          # share of the control range per tick
+    max_velocity: np.ndarray        # rad/s (inf: no check)
+    hold_damping: np.ndarray        # N m s/rad
+    max_deceleration: np.ndarray    # rad/s^2
+    from_model: Tuple[str, ...]     # the names taken from the model
+
+
+def effort_limit(act: Actuators, interface: CommandInterface) -> np.ndarray:
+    """Return the largest joint torque each actuator may apply (N m; inf where unbounded)."""
+    if interface.name != 'effort':
+        return act.force_limit
+    low, high = interface.si_range(act)
+    return np.minimum(act.force_limit, np.maximum(np.abs(low), np.abs(high)))
+
+
+def model_limits(act: Actuators, interface: CommandInterface, settings: GuardSettings,
+                 period: float) -> Limits:
+    """
+    Return the guards' numbers: each parameter's value, or at 0 the model's.
+
+    From the model, per actuator (``tau`` its torque bound, :func:`effort_limit`):
+
+    * ``hold_damping``: the joint's damping in the model;
+    * ``max_velocity``: ``tau / damping``, the speed at which the full torque is spent on
+      the model's damping (``arm import --velocity-damping`` sets the damping so that this
+      is the URDF's velocity limit); infinite (no check) without damping or torque bound;
+    * ``max_deceleration``: :data:`BRAKING_SHARE` of ``tau / inertia`` (the largest
+      inertia over the model's poses);
+    * ``max_change``: effort: ``inertia * max_deceleration`` as a share of the range (a
+      step of the braking torque per tick: a switch to braking in a few ticks); position:
+      ``max_velocity * period`` as a share of the range (the target never runs ahead of
+      what the joint can follow); at most 1.
+    """
+    tau = effort_limit(act, interface)
+    taken = []
+
+    def pick(name, model_value):
+        given = getattr(settings, name)
+        if given > 0:
+            return np.full(len(act.names), float(given))
+        taken.append(name)
+        return np.asarray(model_value, dtype=float)
+
+    with np.errstate(divide='ignore', invalid='ignore'):
+        damping = pick('hold_damping', act.damping)
+        velocity = pick('max_velocity', np.where(act.damping > 0, tau / act.damping, np.inf))
+        decel = pick('max_deceleration', BRAKING_SHARE * tau / act.inertia)
+        low, high = interface.si_range(act)
+        span = high - low
+        if interface.limit == LIMIT_INSIDE:
+            share = velocity * period / span
+        else:
+            share = act.inertia * decel / span
+        change = pick('max_change', np.minimum(np.nan_to_num(share, nan=1.0, posinf=1.0), 1.0))
+    return Limits(change, velocity, damping, decel, tuple(taken))
 
 
 class CommandGuard:
     """Shape and guard a policy's actions for one arm's actuators, tick by tick."""
 
     def __init__(self, act: Actuators, joint_names: Sequence[str], interface: str,
-                 settings: Optional[GuardSettings] = None):
+                 settings: Optional[GuardSettings] = None, period: float = 0.02):
         """
         Take the actuators, the limits of their joints and the interface that commands them.
 
         ``joint_names``: the order of the joint angles given to :meth:`__call__` (the
-        policy card's); each actuator's joint must be among them.
+        policy card's); each actuator's joint must be among them. ``period``: the control
+        period in s (the braking guard's and the position rate limit's tick).
         """
         self.act = act
         self.interface = INTERFACES[interface]
         self.settings = settings or GuardSettings()
+        self.period = period
         index = {n: i for i, n in enumerate(joint_names)}
         missing = [n for n in act.joints if n not in index]
         if missing:
@@ -71,24 +169,91 @@ class CommandGuard:
         self.low, self.high = act.ctrl_low, act.ctrl_high
         span = self.high - self.low
         self.span = np.where(np.isfinite(span), span, 2.0)
-        self.zero = act.zero_effort
-        self.previous: Optional[np.ndarray] = None
-        self.ramp_start: Optional[float] = None
+        self.previous: Optional[np.ndarray] = None      # the last command sent
+        self.pending_ramp: Optional[float] = None        # start_ramp's time, until a tick
+        self.held = np.zeros(0, dtype=bool)              # per arm: its last command a hold
+        self.ramp_start = np.zeros(0)                    # per arm: NaN when not ramping
+        self.anchor_q = self.anchor_u = np.zeros((0, len(act.names)))
 
-    def hold(self, q: Optional[np.ndarray], arms: int) -> np.ndarray:
-        """Return the hold command ``(arms, nu)``: zero effort, or the angles ``q`` held."""
-        if self.interface.hold == HOLD_MEASURED and q is not None:
-            target = np.clip(q[:, self.cols], self.q_low, self.q_high)
-            return np.clip(self.interface.from_si(self.act, target), self.low, self.high)
-        return np.tile(self.zero, (arms, 1))
+    def limits(self) -> Limits:
+        """Return the numbers the guards act with now (the settings may change live)."""
+        return model_limits(self.act, self.interface, self.settings, self.period)
+
+    def describe(self) -> Dict[str, str]:
+        """Return the values taken, per actuator, each saying whether from the model."""
+        lim = self.limits()
+        out = {}
+        for name, unit in (('max_change', 'of the range per tick'), ('max_velocity', 'rad/s'),
+                           ('hold_damping', 'N m s/rad'), ('max_deceleration', 'rad/s^2')):
+            values = ', '.join(f'{v:.4g}' for v in getattr(lim, name))
+            how = 'from the model' if name in lim.from_model else 'parameter'
+            out[f'{name}_taken'] = f'{values} {unit} ({how})'
+        return out
+
+    def _arms(self, arms: int):
+        """Size the per-arm state for ``arms`` arms (a new count starts afresh)."""
+        if len(self.held) != arms:
+            nu = len(self.act.names)
+            self.held = np.zeros(arms, dtype=bool)
+            self.ramp_start = np.full(arms, np.nan)
+            self.anchor_q = np.full((arms, nu), np.nan)
+            self.anchor_u = np.full((arms, nu), np.nan)
+            if self.previous is not None and len(self.previous) != arms:
+                self.previous = None
+
+    def _measured(self, q: np.ndarray) -> np.ndarray:
+        """Return the controls that hold the measured angles ``q`` (position interface)."""
+        target = np.clip(q[:, self.cols], self.q_low, self.q_high)
+        return np.clip(self.interface.from_si(self.act, target), self.low, self.high)
+
+    def hold(self, q: np.ndarray, qdot: np.ndarray, decay: float = 1.0) -> np.ndarray:
+        """
+        Return the hold command ``(arms, nu)``: a damping torque, or the last commanded angles.
+
+        Effort: ``-(D qdot + K (q - q_hold)) * decay`` N m, clipped to the effort range
+        (``decay``: 1 from a fresh state, less from a stale one, 0 for a hold left in force);
+        ``q_hold`` the angles where this arm's hold began (no spring before one began).
+        Position: the angles this arm's hold began with, else the last command sent, else
+        (before any) the measured ``q``.
+        """
+        self._arms(len(q))
+        if self.interface.hold == HOLD_LAST_COMMAND:
+            last = self.previous if self.previous is not None else self._measured(q)
+            return np.where(np.isnan(self.anchor_u), last, self.anchor_u)
+        qa = q[:, self.cols]
+        spring = np.where(np.isnan(self.anchor_q), 0.0, qa - self.anchor_q)
+        torque = -(self.limits().hold_damping * qdot[:, self.cols]
+                   + self.settings.hold_stiffness * spring) * decay
+        low, high = self.interface.si_range(self.act)
+        return np.clip(self.interface.from_si(self.act, np.clip(torque, low, high)),
+                       self.low, self.high)
+
+    def _begin_hold(self, q: np.ndarray, arms: np.ndarray):
+        """Note that ``arms`` (bool per arm) hold from now: anchor a hold that begins."""
+        new = arms & ~self.held
+        if new.any():
+            self.anchor_q[new] = q[new][:, self.cols]
+            last = self.previous if self.previous is not None else self._measured(q)
+            self.anchor_u[new] = last[new]
+        self.held |= arms
+
+    def hold_tick(self, q: np.ndarray, qdot: np.ndarray, decay: float = 1.0) -> np.ndarray:
+        """
+        Return the hold command the node sends for every arm (stale, e-stop, stop); note it.
+
+        The next :meth:`__call__` ramps from the hold again (step 2), and steps 3 and 4 run
+        from it.
+        """
+        self._arms(len(q))
+        self._begin_hold(q, np.ones(len(q), dtype=bool))
+        self.ramp_start[:] = np.nan
+        u = self.hold(q, qdot, decay)
+        self.previous = u.copy()
+        return u
 
     def start_ramp(self, now: float):
-        """Begin the ramp from hold at time ``now`` (s), as on activation."""
-        self.ramp_start = now
-
-    def sent(self, command: np.ndarray):
-        """Note a command published without :meth:`__call__` (a hold), for steps 3 and 4."""
-        self.previous = np.array(command, dtype=float)
+        """Ramp every arm in from hold, from time ``now`` (s), as on activation."""
+        self.pending_ramp = now
 
     def __call__(self, action: np.ndarray, q: np.ndarray, qdot: np.ndarray,
                  now: float) -> Tuple[np.ndarray, Dict[GuardEvent, np.ndarray]]:
@@ -98,16 +263,25 @@ class CommandGuard:
         ``action`` ``(arms, nu)`` in control units; ``q``, ``qdot`` ``(arms, joints)`` in the
         card's joint order; ``now`` in seconds (for the ramp).
         """
-        hold = self.hold(q, len(action))
-        acted = {e: np.zeros(len(action), dtype=bool) for e in GuardEvent}
+        arms = len(action)
+        self._arms(arms)
+        if self.pending_ramp is not None:
+            self._begin_hold(q, np.ones(arms, dtype=bool))
+            self.ramp_start[:] = self.pending_ramp
+            self.held[:] = False
+            self.pending_ramp = None
+        self.ramp_start[self.held] = now        # a hold ended: ramp in from it
+        self.held[:] = False
+        hold = self.hold(q, qdot)
+        acted = {e: np.zeros(arms, dtype=bool) for e in GuardEvent}
         u = self.clip_range(action, hold, acted)
         u = self.ramp(u, hold, now, acted)
-        previous = self.previous if self.previous is not None and \
-            self.previous.shape == u.shape else None
+        previous = self.previous
         u = self.smooth(u, previous)
         u = self.rate_limit(u, previous, acted)
-        u = self.joint_limits(u, q[:, self.cols], acted)
-        u = self.over_speed(u, qdot, hold, acted)
+        u = self.joint_limits(u, q[:, self.cols], qdot[:, self.cols], acted)
+        u = self.over_speed(u, qdot[:, self.cols], hold, acted)
+        self._begin_hold(q, acted[GuardEvent.NONFINITE] | acted[GuardEvent.OVER_SPEED])
         self.previous = u.copy()
         return u, acted
 
@@ -122,16 +296,21 @@ class CommandGuard:
         return clipped
 
     def ramp(self, u: np.ndarray, hold: np.ndarray, now: float, acted) -> np.ndarray:
-        """Step 2: blend from the hold command over ``ramp_time`` s after :meth:`start_ramp`."""
-        if self.ramp_start is None:
+        """Step 2: blend from the hold command over ``ramp_time`` s since the hold ended."""
+        ramping = ~np.isnan(self.ramp_start)
+        if not ramping.any():
             return u
         ramp_time = self.settings.ramp_time
-        ratio = 1.0 if ramp_time <= 0 else (now - self.ramp_start) / ramp_time
-        if ratio >= 1.0:
-            self.ramp_start = None
-            return u
-        acted[GuardEvent.RAMPED][:] = True
-        return hold + max(ratio, 0.0) * (u - hold)
+        with np.errstate(invalid='ignore'):
+            ratio = np.ones(len(u)) if ramp_time <= 0 else (now - self.ramp_start) / ramp_time
+            done = ramping & (ratio >= 1.0)
+        self.ramp_start[done] = np.nan          # the hold is over: no anchors kept
+        self.anchor_q[done] = np.nan
+        self.anchor_u[done] = np.nan
+        active = ramping & ~done
+        acted[GuardEvent.RAMPED] = active
+        share = np.clip(np.nan_to_num(ratio), 0.0, 1.0)[:, None]
+        return np.where(active[:, None], hold + share * (u - hold), u)
 
     def smooth(self, u: np.ndarray, previous: Optional[np.ndarray]) -> np.ndarray:
         """Step 3: the low-pass filter on the published commands (``smoothing`` 0: off)."""
@@ -140,17 +319,22 @@ class CommandGuard:
             return u
         return s * previous + (1.0 - s) * u
 
-    def rate_limit(self, u: np.ndarray, previous: Optional[np.ndarray], acted) -> np.ndarray:
-        """Step 4: at most ``max_change`` of the control range per tick (0: off)."""
-        if previous is None or self.settings.max_change <= 0:
-            return u
-        step = self.settings.max_change * self.span
-        limited = np.clip(u, previous - step, previous + step)
-        acted[GuardEvent.RATE_LIMITED] = np.any(limited != u, axis=1)
-        return limited
+    def joint_limits(self, u: np.ndarray, q: np.ndarray, qdot: np.ndarray,
+                     acted) -> np.ndarray:
+        """
+        Step 5: brake a joint whose braking distance reaches a limit; keep targets inside.
 
-    def joint_limits(self, u: np.ndarray, q: np.ndarray, acted) -> np.ndarray:
-        """Step 5: no command that drives a joint further past its limit (with the margin)."""
+        Effort: with ``a`` the deceleration bound and ``m`` ``joint_limit_margin``, a joint
+        ``s`` rad from ``limit - m`` may move towards it at ``v_allowed = sqrt(2 a s)`` at
+        most (its stop distance ``qdot^2 / (2 a)`` is then ``s``). The torque towards the
+        limit is capped at ``I (v_allowed - qdot) / period``, the torque that brings the
+        joint to ``v_allowed`` in one tick (``I`` its inertia): far from the limit the cap
+        is out of reach, on the braking curve it is zero, past it a brake, at rest within
+        the margin it is zero (no push outward). The cap is a continuous function of the
+        state, so the command follows it smoothly instead of switching between the policy's
+        command and a hold. Position: the target is kept ``m`` inside the range (the robot's
+        position loop brakes).
+        """
         margin = self.settings.joint_limit_margin
         if self.interface.limit == LIMIT_INSIDE:
             inside_low, inside_high = self.q_low + margin, self.q_high - margin
@@ -163,17 +347,34 @@ class CommandGuard:
             acted[GuardEvent.JOINT_LIMIT] = np.any(kept != target, axis=1)
             return np.where(kept != target, self.interface.from_si(self.act, kept), u)
         torque = self.interface.to_si(self.act, u)
-        outward = (((q >= self.q_high - margin) & (torque > 0))
-                   | ((q <= self.q_low + margin) & (torque < 0)))
-        acted[GuardEvent.JOINT_LIMIT] = np.any(outward, axis=1)
-        return np.where(outward, self.zero, u)
+        lim = self.limits()
+        inertia, tau = self.act.inertia, effort_limit(self.act, self.interface)
+        with np.errstate(invalid='ignore'):
+            up = np.sqrt(2 * lim.max_deceleration * np.maximum(self.q_high - margin - q, 0.0))
+            down = np.sqrt(2 * lim.max_deceleration * np.maximum(q - self.q_low - margin, 0.0))
+            cap_high = np.clip(np.nan_to_num(inertia * (up - qdot) / self.period, nan=np.inf),
+                               -tau, np.inf)
+            cap_low = np.clip(np.nan_to_num(inertia * (-down - qdot) / self.period,
+                                            nan=-np.inf), -np.inf, tau)
+        kept = np.minimum(np.maximum(torque, cap_low), cap_high)
+        changed = kept != torque
+        acted[GuardEvent.JOINT_LIMIT] = np.any(changed, axis=1)
+        return np.where(changed, np.clip(self.interface.from_si(self.act, kept), self.low,
+                                         self.high), u)
 
     def over_speed(self, u: np.ndarray, qdot: np.ndarray, hold: np.ndarray,
                    acted) -> np.ndarray:
-        """Step 6: the hold command for an arm with a joint faster than ``max_velocity``."""
-        if self.settings.max_velocity <= 0:
-            return u
-        fast = np.any(np.abs(qdot) > self.settings.max_velocity, axis=1)
-        u[fast] = hold[fast]
+        """Step 6: the hold command for an arm with a joint faster than its velocity limit."""
+        fast = np.any(np.abs(qdot) > self.limits().max_velocity, axis=1)
+        u = np.where(fast[:, None], hold, u)
         acted[GuardEvent.OVER_SPEED] = fast
         return u
+
+    def rate_limit(self, u: np.ndarray, previous: Optional[np.ndarray], acted) -> np.ndarray:
+        """Step 4: at most ``max_change`` of the control range per tick (holds included)."""
+        if previous is None:
+            return u
+        step = self.limits().max_change * self.span
+        limited = np.clip(u, previous - step, previous + step)
+        acted[GuardEvent.RATE_LIMITED] = np.any(limited != u, axis=1)
+        return limited

@@ -36,7 +36,10 @@ class Actuators:
 
     ``affine``: the actuator follows the law above (fixed gain, no activation dynamics, one
     joint, non-zero gain and gear); ``ctrl_low``/``ctrl_high`` and ``joint_low``/
-    ``joint_high`` are infinite where unlimited.
+    ``joint_high`` are infinite where unlimited. What the guards take their defaults from,
+    per actuator's joint: ``damping`` (N m s/rad, the model's joint damping), ``force_limit``
+    (N m, the largest torque the model lets the actuator apply; infinite where none) and
+    ``inertia`` (kg m^2, the joint's largest over the model's poses, armature included).
     """
 
     names: Tuple[str, ...]
@@ -51,6 +54,9 @@ class Actuators:
     joint_low: np.ndarray
     joint_high: np.ndarray
     affine: np.ndarray
+    damping: np.ndarray
+    force_limit: np.ndarray
+    inertia: np.ndarray
 
     @property
     def kind(self) -> np.ndarray:
@@ -65,12 +71,16 @@ class Actuators:
         return -self.b0 / self.gain
 
 
-#: the hold of an interface: zero effort, or the measured joint angles kept
-HOLD_ZERO_EFFORT = 'zero effort'
-HOLD_MEASURED = 'measured angles'
-#: what the joint-limit guard does near a limit: stop a command driving the joint outward
-#: (zero effort there), or keep a target angle inside the range
-LIMIT_NO_OUTWARD = 'no command outward'
+#: the hold of an interface (:meth:`pg_node.control.guards.CommandGuard.hold`): a damping
+#: torque against the measured velocity (and a spring to the angle where the hold began), or
+#: the last commanded angle kept. Not zero effort: on an arm whose driver compensates gravity
+#: (libfranka (main 155ddac) include/franka/control_types.h:43: torques "without gravity and
+#: friction") zero torque lets it float and coast.
+HOLD_DAMPING = 'damping'
+HOLD_LAST_COMMAND = 'last commanded angles'
+#: what the joint-limit guard does near a limit: brake a joint whose braking distance
+#: reaches the limit, or keep a target angle inside the range
+LIMIT_BRAKING = 'braking distance'
 LIMIT_INSIDE = 'target kept inside'
 
 
@@ -79,9 +89,9 @@ class CommandInterface:
     """
     One command interface: what a controller of that name takes, and how controls map to it.
 
-    ``actuator``: the actuator kind that has it; ``hold``: the command that keeps the arm
-    where it is (:data:`HOLD_ZERO_EFFORT` or :data:`HOLD_MEASURED`); ``limit``: the
-    joint-limit guard's rule (:data:`LIMIT_NO_OUTWARD` or :data:`LIMIT_INSIDE`);
+    ``actuator``: the actuator kind that has it; ``hold``: the command that stops the arm
+    where it is (:data:`HOLD_DAMPING` or :data:`HOLD_LAST_COMMAND`); ``limit``: the
+    joint-limit guard's rule (:data:`LIMIT_BRAKING` or :data:`LIMIT_INSIDE`);
     ``trajectory_field``: the ``trajectory_msgs/JointTrajectoryPoint`` field that carries
     it; ``to_si`` and ``from_si``: the maps between controls ``(..., nu)`` and SI commands,
     inverse to each other.
@@ -120,10 +130,11 @@ def _position_from_si(act: Actuators, command) -> np.ndarray:
 
 #: the SI command interfaces by name (a new one is one entry here)
 INTERFACES: Dict[str, CommandInterface] = {
-    'effort': CommandInterface('effort', 'N m', 'motor', HOLD_ZERO_EFFORT, LIMIT_NO_OUTWARD,
+    'effort': CommandInterface('effort', 'N m', 'motor', HOLD_DAMPING, LIMIT_BRAKING,
                                'effort', _effort_to_si, _effort_from_si),
-    'position': CommandInterface('position', 'rad', 'position', HOLD_MEASURED, LIMIT_INSIDE,
-                                 'positions', _position_to_si, _position_from_si),
+    'position': CommandInterface('position', 'rad', 'position', HOLD_LAST_COMMAND,
+                                 LIMIT_INSIDE, 'positions', _position_to_si,
+                                 _position_from_si),
 }
 
 

@@ -38,7 +38,8 @@ class GuardEvent(Enum):
     RAMPED = ('ramped', Severity.OK, '')
     RATE_LIMITED = ('rate_limited', Severity.OK, '')
     JOINT_LIMIT = ('joint_limit', Severity.WARN,
-                   'joint limit guard: a command towards a joint limit was held back')
+                   'joint limit guard: a joint braked (its braking distance reaches a limit), '
+                   'or a target kept inside the range')
     OVER_SPEED = ('over_speed', Severity.WARN,
                   'over-speed guard: a joint is faster than max_velocity, hold command')
 

@@ -51,3 +51,19 @@ class Watchdog:
         """Note a commanding tick; return True when it ends a spell."""
         ended, self.stale = self.stale, False
         return ended
+
+
+def hold_decay(age: float, timeout: float) -> float:
+    """
+    Return the share of the effort hold's damping torque a state of age ``age`` s earns.
+
+    1 while the state is fresh (``age <= timeout``), then linearly down to 0 at ``2 timeout``:
+    a velocity that old says nothing about how the arm moves now, and a brake computed from
+    a motion that has since stopped would push the arm back. A NaN age (no state) gives 0.
+
+    >>> [hold_decay(a, 0.25) for a in (0.1, 0.25, 0.375, 0.5, 9.0)]
+    [1.0, 1.0, 0.5, 0.0, 0.0]
+    """
+    if not age == age:
+        return 0.0
+    return min(max(2.0 - age / timeout, 0.0), 1.0)

@@ -14,7 +14,8 @@ An exported policy runs on onnxruntime: torch is then never imported.
   (:mod:`pg_node.sim.kinematics_check`) against the policy's model; it opens the ``record``;
   a failure is logged in one line and the node stays unconfigured;
 * ``activate`` starts commanding, ramping in from the hold command over ``ramp_time`` s;
-* ``deactivate`` sends one hold command and stops publishing;
+* ``deactivate`` sends one hold command (zero effort, or the last commanded angles) and stops
+  publishing;
 * ``cleanup`` unloads the policy; ``shutdown`` (and SIGINT/SIGTERM) holds once if active.
 
 ``autostart:=true`` configures and activates at start (what ``play`` does; a failure is then
@@ -52,7 +53,9 @@ Published:
   (``deterministic``; else a sample) for the observation built as training builds it
   (:class:`pg_node.sim.observation.ObservationBuilder`), through the guards of
   :class:`pg_node.control.guards.CommandGuard`: control range, ramp, low-pass ``smoothing``,
-  ``max_change`` per tick, ``joint_limit_margin``, ``max_velocity``. No command is ever
+  ``max_change`` per tick, the braking joint-limit guard (``joint_limit_margin``,
+  ``max_deceleration``), ``max_velocity`` (at 0 from the model: the values taken are in
+  ``/diagnostics``). No command is ever
   non-finite or out of range. ``command_message:=trajectory`` sends each command instead as
   a one-point ``trajectory_msgs/JointTrajectory`` on ``arm_controller/joint_trajectory``
   (reached one control period ahead; with the effort interface as the point's efforts, its
@@ -63,14 +66,20 @@ Published:
   events, e-stops, each guard's acting, dropped states, CPU share, the policy's source and
   sha256.
 
-Safety: the **hold** command is zero effort, or with the position interface the newest
-measured angles. When the newest joint state is older than ``state_timeout`` s, since it
-arrived or by its ``header.stamp`` (the node's clock: give ``use_sim_time:=true`` with a
-simulator; :mod:`pg_node.control.watchdog`), the hold command is published at every control
-tick (never one message only:
-a forward command controller holds the last command it got) and a warning logged once per
-stale spell; commanding resumes with the next fresh joint state. A latched e-stop holds at
-every tick too. Before the first joint state and target nothing is published.
+Safety: the **hold** command is an active stop (:mod:`pg_node.control.guards`): with the
+effort interface a damping torque ``-hold_damping x qdot`` (and ``hold_stiffness`` back to
+where the hold began) from the newest joint state at every tick, with the position interface
+the last commanded angles (never a stale measured one). When the newest joint state is older
+than ``state_timeout`` s, since it arrived or by its ``header.stamp`` (the node's clock: give
+``use_sim_time:=true`` with a simulator; :mod:`pg_node.control.watchdog`), the hold command
+is published at every control tick (never one message only: a forward command controller
+holds the last command it got), its damping fading to zero torque over one more
+``state_timeout`` (a stale velocity is no measure of the arm's), and a warning logged once
+per stale spell; commanding resumes with the next fresh joint state, ramping in from the hold
+over ``ramp_time``. A latched e-stop holds at every tick too, and its reset ramps in the
+same way. The one hold left in force on deactivate or a stop is zero torque (a damping
+torque from one velocity, kept forever by a forward controller, would push the arm) or the
+last commanded angles. Before the first joint state and target nothing is published.
 Diagnostics levels follow diagnostic_updater's habits (:mod:`pg_node.control.status`):
 commanding OK; unconfigured, inactive or waiting WARN; stale states or a latched e-stop ERROR.
 
@@ -102,7 +111,7 @@ from pg_node.control.guards import CommandGuard, GuardSettings
 from pg_node.control.joint_map import arm_joint_names, joint_columns
 from pg_node.control.status import diagnostic_level, Fault, GuardEvent, NodeState, Severity
 from pg_node.control.targets import BASE, clamp_to_reach, frame_key, target_array
-from pg_node.control.watchdog import state_age, Watchdog
+from pg_node.control.watchdog import hold_decay, state_age, Watchdog
 from pg_node.rl.trained_policy import load_trained_policy, PolicySourceError
 from pg_node.ros import command
 from pg_node.ros import table_msg
@@ -122,7 +131,8 @@ from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 #: the parameters of :class:`pg_node.control.guards.GuardSettings`
-GUARD_PARAMS = ('smoothing', 'max_change', 'joint_limit_margin', 'max_velocity', 'ramp_time')
+GUARD_PARAMS = ('smoothing', 'max_change', 'joint_limit_margin', 'max_velocity', 'ramp_time',
+                'hold_damping', 'hold_stiffness', 'max_deceleration')
 #: /diagnostics levels of the control layer's severities
 LEVELS = {Severity.OK: DiagnosticStatus.OK, Severity.WARN: DiagnosticStatus.WARN,
           Severity.ERROR: DiagnosticStatus.ERROR}
@@ -131,7 +141,8 @@ WARM_UP = 5
 #: the record's topic: one message per control tick
 TICKS_TOPIC = '/policy_node/ticks'
 #: its table's columns, one row per arm
-TICK_FIELDS = ('arm', 'state_age', 'observation', 'mean', 'action', 'command', 'command_si')
+TICK_FIELDS = ('arm', 'state_age', 'observation', 'mean', 'action', 'command', 'command_si',
+               'guards')
 #: commands whose state ages the diagnostics summarise
 AGE_WINDOW = 1000
 
@@ -218,6 +229,8 @@ class PolicyNode(LifecycleNode):
             return
         if name == 'control_rate':
             period = 1.0 / self.control_rate()
+            if self.guard is not None:
+                self.guard.period = period      # the braking guard's tick
         elif name == 'diagnostics_rate':
             period = 1.0 / value
         else:
@@ -283,7 +296,8 @@ class PolicyNode(LifecycleNode):
                 return f"parameter 'policy_node.record': {exc}"
             self.records_opened += 1
         self.policy, self.builder, self.actuators = policy, builder, arm
-        self.guard = CommandGuard(arm, joints, interface, self.settings)
+        self.guard = CommandGuard(arm, joints, interface, self.settings,
+                                  1.0 / self.control_rate())
         self.joints, self.digest = joints, digest
         self.load_seconds, self.warm_up_ms = load_seconds, warm_ms
         self.policy_id = int(digest[:12], 16)
@@ -356,8 +370,9 @@ class PolicyNode(LifecycleNode):
         self._close_record()
 
     def _hold_once(self):
-        if self.guard is not None and self._index is not None:
-            self.publish_hold()
+        """Send the one hold left in force (deactivate, stop): zero torque or the angles."""
+        if self.guard is not None and self.q is not None:     # a state was taken
+            self.publish_hold(decay=0.0)
 
     def _close_record(self):
         if self.recorder is not None:
@@ -511,17 +526,22 @@ class PolicyNode(LifecycleNode):
         if self.lifecycle != 'active':
             return
         now = time.monotonic()
+        timeout = self.params['state_timeout']
+        age, how = np.nan, ''
+        if self.state_time is not None:
+            age, how = state_age(now, self.state_time,
+                                 self.get_clock().now().nanoseconds * 1e-9, self.state_stamp,
+                                 timeout)
         if self.estop.latched:
             self.set_status(NodeState.ESTOP,
                             'e-stop latched: hold command (clear with ~/reset_estop)')
-            self._hold_once()
+            if self.guard is not None and self.q is not None:
+                # the active hold from the newest state (a stale one's damping decays)
+                self.publish_hold(decay=hold_decay(age, timeout))
             return
         if self.state_time is None:
             self.set_status(NodeState.WAITING, 'waiting: no joint_states yet')
             return
-        timeout = self.params['state_timeout']
-        age, how = state_age(now, self.state_time, self.get_clock().now().nanoseconds * 1e-9,
-                             self.state_stamp, timeout)
         if age > timeout:
             if self.watchdog.begin():
                 self.counters['stale_events'] += 1
@@ -531,7 +551,7 @@ class PolicyNode(LifecycleNode):
                     f'joint states are {age:.3f} s old {how} (state_timeout {timeout:g} s): '
                     f'hold command at every tick until fresh joint states come{hint}')
             # every tick, not once: a forward command controller holds its last command
-            self.publish_hold(age)
+            self.publish_hold(age, hold_decay(age, timeout))
             self.set_status(NodeState.STALE, f'stale: joint states {age:.2f} s old {how}, '
                                              'hold command, waiting for fresh ones')
             return
@@ -556,7 +576,7 @@ class PolicyNode(LifecycleNode):
                 self.counters[f'guard_{event.key}'] += 1
                 if event.severity >= Severity.WARN:
                     self.get_logger().warning(event.warning, throttle_duration_sec=1.0)
-        self.record(cmd, self.publish(cmd), age, obs, mean, act)
+        self.record(cmd, self.publish(cmd), age, obs, mean, act, acted)
         self.ages.append(time.monotonic() - self.state_time)
         self.set_status(NodeState.COMMANDING, 'commanding')
 
@@ -564,15 +584,17 @@ class PolicyNode(LifecycleNode):
         """Note what the node is doing: the state (its level) and the text saying why."""
         self.state, self.status = state, text
 
-    def publish_hold(self, age: float = np.nan):
+    def publish_hold(self, age: float = np.nan, decay: float = 0.0):
         """
-        Publish the hold command: zero effort, or the newest measured angles held.
+        Publish the hold command (:meth:`pg_node.control.guards.CommandGuard.hold`).
 
+        Effort: the damping torque from the newest state, scaled by ``decay``
+        (:func:`pg_node.control.watchdog.hold_decay`; 0, zero torque, for the one hold left
+        in force on deactivate or a stop); position: the last commanded angles.
         ``age``: the joint state's age that made it a hold (stale), recorded with it; NaN for
-        an e-stop or a stop.
+        an e-stop or a stop. The next command ramps in from this hold.
         """
-        hold = self.guard.hold(self.q, self.num_arms)
-        self.guard.sent(hold)
+        hold = self.guard.hold_tick(self.q, self.qdot, decay)
         self.record(hold, self.publish(hold, hold=True), age)
 
     def publish(self, ctrl: np.ndarray, hold: bool = False) -> np.ndarray:
@@ -597,12 +619,14 @@ class PolicyNode(LifecycleNode):
         point.time_from_start.sec, point.time_from_start.nanosec = composed.time_from_start
         return JointTrajectory(joint_names=composed.joint_names, points=[point])
 
-    def record(self, cmd, si, age, obs=None, mean=None, action=None):
+    def record(self, cmd, si, age, obs=None, mean=None, action=None, acted=None):
         """
         Write one tick into the record: per arm what came in, what the guards made of it.
 
         ``cmd`` and ``si``: the command sent, in controls and in SI units; a hold has no
-        observation, mean or action (NaN in the record).
+        observation, mean or action (NaN in the record). ``acted``: the guards' events per
+        arm, recorded as ``guards``, bit ``i`` for the ``i``-th
+        :class:`pg_node.control.status.GuardEvent` (0 on a hold tick).
         """
         if self.recorder is None:
             return
@@ -610,8 +634,12 @@ class PolicyNode(LifecycleNode):
         if obs is None:
             obs = np.full((arms, self.policy.obs_dim), np.nan)
             mean = action = np.full((arms, self.policy.act_dim), np.nan)
+        guards = np.zeros(arms)
+        for bit, event in enumerate(GuardEvent):
+            if acted is not None:
+                guards += (1 << bit) * acted[event]
         fields = dict(zip(TICK_FIELDS, (np.arange(arms), np.full(arms, age), obs, mean, action,
-                                        cmd, si)))
+                                        cmd, si, guards)))
         stamp = self.get_clock().now().nanoseconds
         msg = table_msg.to_msg(*table_msg.pack([stamp * 1e-9, self.policy_id], fields))
         self.recorder.write(TICKS_TOPIC, msg, time.time_ns())
@@ -637,6 +665,7 @@ class PolicyNode(LifecycleNode):
             warm_up_ms_per_call=(round(self.warm_up_ms, 3) if self.policy is not None
                                  else 'n/a'),
             robot_description=self.description_digest,
+            **(self.guard.describe() if self.guard is not None else {}),
             **self.counters)
         # diagnostic_updater's habits: idle WARN, stale or stopped ERROR
         faults = [f for f, on in ((Fault.STALE_STATE, self.watchdog.stale),

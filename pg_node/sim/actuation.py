@@ -5,6 +5,8 @@ An arm model's actuators as :mod:`pg_node.control.interfaces` takes them: read f
 range out of an ``MjModel`` into a plain :class:`pg_node.control.interfaces.Actuators`
 record, and says which actuators follow MuJoCo's affine law (fixed gain, no activation
 dynamics, a joint transmission); the command interfaces, their units and maps live there.
+It reads too what the guards take their defaults from: each joint's damping, the largest
+joint torque its actuator may apply, and its largest inertia (:func:`joint_inertia`).
 """
 import mujoco
 import numpy as np
@@ -30,7 +32,60 @@ def actuators(model: mujoco.MjModel) -> Actuators:
         b0=model.actuator_biasprm[:, 0].copy(), b1=model.actuator_biasprm[:, 1].copy(),
         b2=model.actuator_biasprm[:, 2].copy(), gear=gear, ctrl_low=ctrl_low,
         ctrl_high=ctrl_high, joint_low=np.where(limited, rng[:, 0], -np.inf),
-        joint_high=np.where(limited, rng[:, 1], np.inf), affine=affine)
+        joint_high=np.where(limited, rng[:, 1], np.inf), affine=affine,
+        damping=np.where(on_joint, model.dof_damping[model.jnt_dofadr[joint]], 0.0),
+        force_limit=force_limit(model, joint, on_joint),
+        inertia=np.where(on_joint, joint_inertia(model)[model.jnt_dofadr[joint]], np.inf))
+
+
+def force_limit(model: mujoco.MjModel, joint: np.ndarray, on_joint: np.ndarray) -> np.ndarray:
+    """
+    Return the largest joint torque each actuator may apply (N m), infinite where unlimited.
+
+    The tighter of the actuator's ``forcerange`` (times its gear) and the joint's
+    ``actuatorfrcrange``; a motor's control range bounds it further (the guards take that
+    from the record's maps, not from here).
+    """
+    gear = np.abs(model.actuator_gear[:, 0])
+    by_actuator = np.where(model.actuator_forcelimited.astype(bool),
+                           np.abs(model.actuator_forcerange).max(axis=1) * gear, np.inf)
+    frc = model.jnt_actfrcrange[joint]
+    by_joint = np.where(model.jnt_actfrclimited[joint].astype(bool) & on_joint,
+                        np.abs(frc).max(axis=1), np.inf)
+    return np.minimum(by_actuator, by_joint)
+
+
+#: poses, besides the reference pose, over which :func:`joint_inertia` takes the largest
+POSES = 32
+
+
+def joint_inertia(model: mujoco.MjModel) -> np.ndarray:
+    """
+    Return each degree of freedom's largest inertia (kg m^2, armature included).
+
+    The diagonal of the joint-space inertia matrix depends on the pose (a shoulder carries
+    an outstretched arm's inertia, not a folded one's): the largest over the reference pose
+    and :data:`POSES` poses drawn, with a fixed seed, within the joint ranges (+-pi where
+    unlimited). Deterministic, and an upper bound in practice: a braking distance computed
+    with it is the longer one.
+    """
+    data = mujoco.MjData(model)
+    rng = np.random.default_rng(0)
+    low = np.where(model.jnt_limited.astype(bool), model.jnt_range[:, 0], -np.pi)
+    high = np.where(model.jnt_limited.astype(bool), model.jnt_range[:, 1], np.pi)
+    hinge = np.isin(model.jnt_type, (mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_SLIDE))
+    largest = np.zeros(model.nv)
+    for k in range(POSES + 1):
+        data.qpos[:] = model.qpos0
+        if k:
+            for j in np.flatnonzero(hinge):
+                data.qpos[model.jnt_qposadr[j]] = rng.uniform(low[j], high[j])
+        mujoco.mj_forward(model, data)
+        full = np.zeros((model.nv, model.nv))
+        mujoco.mj_fullM(model, data, full)
+        diag = np.diag(full)
+        largest = np.maximum(largest, diag)
+    return largest
 
 
 def ctrl_range(model: mujoco.MjModel):
