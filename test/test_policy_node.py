@@ -9,6 +9,7 @@ episode, lock-step runs of the very episodes the simulator drew (same seed, same
 the policy's mean action, and with zero torque. Other tests feed policy_node joint states
 and targets from this process: stale states, joint order, missing joints.
 """
+import collections
 from pathlib import Path
 import subprocess
 import sys
@@ -955,8 +956,8 @@ def test_when_policy_node_is_killed_the_trajectory_path_holds_the_forward_keeps_
         client.wait(lambda: any(m.startswith('waiting') for m, _ in client.diagnostics),
                     what='policy_node to load its policy')
         sim = start(tmp_path, 'pg_node.ros.sim_node', 'mode:=real_time', f'seed:={SIM_SEED}',
-                    'jtc_cmd_timeout:=0.2', 'command_timeout:=1000.0', *SIM_AS_ROBOT,
-                    remap=AS_ROBOT)
+                    'num_envs:=1', 'jtc_cmd_timeout:=0.2', 'command_timeout:=1000.0',
+                    *SIM_AS_ROBOT, remap=AS_ROBOT)
         client.wait(lambda: len(client.commands) > 25, what='commands')
         client.wait(lambda: efforts and efforts[-1][1].any(), what='a torque in joint_states')
         pol.kill()                                      # SIGKILL: no hold, no goodbye
@@ -980,9 +981,12 @@ def test_when_policy_node_is_killed_the_trajectory_path_holds_the_forward_keeps_
         assert 'aborted due to command timeout' in sim_log, sim_log[-3000:]
         assert 'rejected a trajectory' not in sim_log
     else:
-        # (a command in flight at the kill may still land in the first few ticks)
-        kept = [e for t, e in after if t > 0.3]
-        assert all(np.array_equal(e, kept[0]) for e in kept) and kept[0].any()  # last torque
+        # the last torque, at every tick from 0.3 s on (a command in flight at the kill may
+        # land in the first ticks) but the one at an episode's reset, which reports the
+        # reset state's effort
+        kept = [tuple(e) for t, e in after if t > 0.3]
+        torque, count = collections.Counter(kept).most_common(1)[0]
+        assert count >= len(kept) - 1 and any(torque), kept
         assert 'aborted due to command timeout' not in sim_log
 
 

@@ -361,7 +361,7 @@ class PolicyNode(LifecycleNode):
         self._close_record()
 
     def _hold_once(self):
-        if self.guard is not None and self._index is not None:
+        if self.guard is not None and self.q is not None:     # a state came: there is an arm
             self.publish_hold()
 
     def _close_record(self):
