@@ -7,7 +7,7 @@ import pytest
 MODULES = ['pg_node.rl.rollout', 'pg_node.rl.returns', 'pg_node.rl.baselines', 'pg_node.rl.gae',
            'pg_node.ros.command', 'pg_node.rl.natural_gradient',
            'pg_node.ros.policy_node', 'pg_node.tools.bench_tax', 'pg_node.tools.hosts',
-           'pg_node.tools.train', 'pg_node.ros.actor_node']
+           'pg_node.tools.train', 'pg_node.ros.actor_node', 'pg_node.ros.replay_node']
 
 
 @pytest.mark.parametrize('name', MODULES)
