@@ -81,7 +81,7 @@ class Feeder:
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
         from sensor_msgs.msg import JointState
-        from std_msgs.msg import Float64MultiArray
+        from trajectory_msgs.msg import JointTrajectory
         self.rclpy, self.JointState, self.PointStamped = rclpy, JointState, PointStamped
         self.context = rclpy.Context()
         rclpy.init(context=self.context, domain_id=DOMAIN_ID)
@@ -91,8 +91,8 @@ class Feeder:
         self.commands = 0
         self.diag = None
         self.diag_time = None
-        self.node.create_subscription(Float64MultiArray, '/arm_controller/commands',
-                                      self._on_command, 100)
+        self.node.create_subscription(JointTrajectory, '/arm_controller/joint_trajectory',
+                                      self._on_command, 100)    # the default command_message
         self.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, 10)
         self.pub_js = self.node.create_publisher(JointState, '/joint_states', 10)
         self.pub_target = self.node.create_publisher(

@@ -4,13 +4,12 @@ import doctest
 from control_records import POSITION_SERVOS, REACHER2
 import numpy as np
 from pg_node.control import composers
-from pg_node.control.composers import trajectory_point
+from pg_node.control.composers import COMMAND, command_trajectory, POINT_FIELDS
 from pg_node.control.interfaces import INTERFACES
 from pg_node.control.joint_map import arm_joint_names
 
 SI = np.array([[10.0, -20.0], [30.0, 40.0]])
 Q = np.array([[0.1, 0.2], [0.3, 0.4]])
-QDOT = np.array([[1.0, 2.0], [3.0, 4.0]])
 
 
 def test_worked_examples():
@@ -18,17 +17,24 @@ def test_worked_examples():
     assert tried > 0 and failures == 0
 
 
-def test_effort_goes_in_the_efforts_with_the_measured_state_arm_major():
+def test_every_interface_has_a_row_whose_command_field_is_the_interfaces():
+    assert set(POINT_FIELDS) == set(INTERFACES)
+    for name, row in POINT_FIELDS.items():
+        assert [f for f, what in row if what == COMMAND] == [INTERFACES[name].trajectory_field]
+
+
+def test_effort_goes_in_the_efforts_with_the_measured_angles_no_velocities_arm_major():
     names = arm_joint_names(REACHER2.joints, 2, plain=False)
-    p = trajectory_point(INTERFACES['effort'], SI, Q, QDOT, names, 50.0)
-    assert p.joint_names == ['arm0/joint0', 'arm0/joint1', 'arm1/joint0', 'arm1/joint1']
-    assert p.fields == {'effort': [10.0, -20.0, 30.0, 40.0], 'positions': [0.1, 0.2, 0.3, 0.4],
-                        'velocities': [1.0, 2.0, 3.0, 4.0]}
-    assert p.time_from_start == (0, 20_000_000)
+    t = command_trajectory(INTERFACES['effort'], SI, Q, names)
+    assert t.joint_names == ['arm0/joint0', 'arm0/joint1', 'arm1/joint0', 'arm1/joint1']
+    assert t.stamp == 0.0 and len(t.points) == 1           # start now, one point
+    (point,) = t.points
+    assert point.fields == {'effort': [10.0, -20.0, 30.0, 40.0],
+                            'positions': [0.1, 0.2, 0.3, 0.4]}
+    assert point.time_from_start == 0.0                    # applied at once, no ramp
 
 
 def test_position_goes_in_the_positions_alone():
-    p = trajectory_point(INTERFACES['position'], SI[:1], Q[:1], QDOT[:1],
-                         list(POSITION_SERVOS.joints), 0.5)
-    assert p.fields == {'positions': [10.0, -20.0]}
-    assert p.joint_names == ['joint0', 'joint1'] and p.time_from_start == (2, 0)
+    t = command_trajectory(INTERFACES['position'], SI[:1], Q[:1], list(POSITION_SERVOS.joints))
+    assert t.points[0].fields == {'positions': [10.0, -20.0]}
+    assert t.joint_names == ['joint0', 'joint1'] and t.points[0].time_from_start == 0.0

@@ -156,13 +156,16 @@ def test_deploy_launch_remaps_to_the_robots_controllers(monkeypatch):
 
 def test_deploy_launch_remaps_topics_policy_node_has():
     """The names the launch remaps are policy_node's own (a renamed topic breaks this)."""
+    from pg_node.common.run import CONTROLLER_COMMANDS, CONTROLLER_TRAJECTORY
     source = (REPO / 'pg_node' / 'ros' / 'policy_node.py').read_text()
     text = (REPO / 'launch' / 'deploy.launch.py').read_text()
     remapped = re.search(r'REMAPS = \{(.*?)\}', text, re.S).group(1)
     topics = re.findall(r":\s*'([^']+)'", remapped)
-    assert len(topics) == 3
-    for topic in topics:
-        assert f"'{topic}'" in source, topic
+    # the controller topics policy_node publishes on (pg_node.common.run), the states it takes
+    assert 'create_publisher(Float64MultiArray, CONTROLLER_COMMANDS' in source
+    assert 'create_publisher(JointTrajectory, CONTROLLER_TRAJECTORY' in source
+    assert "'joint_states'" in source
+    assert sorted(topics) == sorted([CONTROLLER_COMMANDS, CONTROLLER_TRAJECTORY, 'joint_states'])
 
 
 def test_deploy_launch_takes_the_policy_from_the_file_or_stops(monkeypatch, tmp_path):

@@ -9,6 +9,7 @@ episode, lock-step runs of the very episodes the simulator drew (same seed, same
 the policy's mean action, and with zero torque. Other tests feed policy_node joint states
 and targets from this process: stale states, joint order, missing joints.
 """
+import collections
 from pathlib import Path
 import subprocess
 import sys
@@ -34,6 +35,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, Float64MultiArray
 from std_srvs.srv import Trigger
+from trajectory_msgs.msg import JointTrajectory
 
 pytestmark = pytest.mark.e2e
 DOMAIN_ID = ros_domain(base=0, spread=20)
@@ -110,8 +112,13 @@ class Client:
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
         self.node.create_subscription(Float64MultiArray, '/pg_node/transition',
                                       self._on_transition, qos)
+        # the commands on either path: forward (arm_controller/commands), or the one
+        # trajectory point's efforts or angles (arm_controller/joint_trajectory, the default)
+        self.forward, self.trajectories = [], []
         self.node.create_subscription(Float64MultiArray, '/arm_controller/commands',
                                       self._on_command, 100)
+        self.node.create_subscription(JointTrajectory, '/arm_controller/joint_trajectory',
+                                      self._on_trajectory, 100)
         self.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, 10)
         self.pub_joints = self.node.create_publisher(JointState, '/joint_states', 10)
         self.pub_target = self.node.create_publisher(PointStamped, '/target', TARGETS_QOS)
@@ -132,7 +139,15 @@ class Client:
 
     def _on_command(self, msg):
         with self.lock:
+            self.forward.append(msg)
             self.commands.append((time.monotonic(), np.array(msg.data)))
+
+    def _on_trajectory(self, msg):
+        point = msg.points[0]
+        with self.lock:
+            self.trajectories.append(msg)
+            self.commands.append((time.monotonic(), np.array(point.effort if len(point.effort)
+                                                             else point.positions)))
 
     def _on_diag(self, msg):
         for status in msg.status:
@@ -934,36 +949,105 @@ def test_guards_act_on_sim_node_and_every_tick_is_recorded(tmp_path, client, tra
     assert last['observation'].shape == (4, 10) and np.all(last['state_age'] < 1.0)
 
 
-def test_trajectory_message_carries_efforts_for_a_trajectory_controller(
+def test_the_default_message_is_one_jazzys_trajectory_controller_accepts_and_applies_now(
         tmp_path, client, trained):
-    """command_message:=trajectory: one point one period ahead, efforts in N m, measured q."""
-    from trajectory_msgs.msg import JointTrajectory
-    got = []
-    client.node.create_subscription(JointTrajectory, '/arm_controller/joint_trajectory',
-                                    got.append, 10)
+    """
+    The default trajectory: stamp 0, one point at 0, efforts in N m, measured q, no velocities.
+
+    It passes the JTC acceptance rules (pg_node.control.jtc, ros2_controllers jazzy
+    ed360c97d joint_trajectory_controller.cpp:1671-1816) for config/controllers/jtc_effort.yaml;
+    the old one, with the measured velocities, failed rule 5 (jtc.cpp:1717-1730).
+    """
+    import yaml
+    from pg_node.control.jtc import jtc_rejects, Point, Trajectory
     q, qd, goal = np.array([0.3, -1.2]), np.array([0.5, -0.25]), [0.12, -0.05, 0.01]
     pol = start_policy(tmp_path, f'policy:={trained["onnx"]}', 'state_timeout:=5.0',
-                       'command_message:=trajectory', 'control_rate:=25.0')
+                       'control_rate:=25.0')
     try:
         client.wait(lambda: any(m.startswith('waiting') for m, _ in client.diagnostics),
                     what='policy_node to load its policy')
         client.send_target('base_link', goal)
         client.send_state(PLAIN, q, qd)
-        client.wait(lambda: got, what='a trajectory')
+        client.wait(lambda: client.trajectories, what='a trajectory')
     finally:
         code, log = processes.stop_logged(pol)
     assert code == 0, log[-2000:]
-    assert not client.commands                          # nothing on the forward topic
+    assert not client.forward                           # nothing on the forward topic
     model = mujoco.MjModel.from_xml_string(trained['policy'].card['model_xml'])
     obs = ObservationBuilder(model)(q[None], qd[None], np.array([goal]))
     want = GEAR * np.clip(trained['policy'].mean(obs), -1, 1)[0]
-    msg = got[0]
+    msg = client.trajectories[0]
     (point,) = msg.points
     assert list(msg.joint_names) == PLAIN
+    assert (msg.header.stamp.sec, msg.header.stamp.nanosec) == (0, 0)          # start now
+    assert (point.time_from_start.sec, point.time_from_start.nanosec) == (0, 0)  # at once
     np.testing.assert_allclose(point.effort, want, atol=1e-3)
     np.testing.assert_array_equal(point.positions, q)
-    np.testing.assert_array_equal(point.velocities, qd)
-    assert (point.time_from_start.sec, point.time_from_start.nanosec) == (0, 40_000_000)
+    assert not len(point.velocities) and not len(point.accelerations)
+    controller = yaml.safe_load((Path(__file__).resolve().parents[1] / 'config' / 'controllers'
+                                 / 'jtc_effort.yaml').read_text())['arm_controller']
+    section = controller['ros__parameters']
+    received = Trajectory(list(msg.joint_names), [Point(
+        {k: list(getattr(point, k)) for k in ('positions', 'velocities', 'effort')})])
+    assert jtc_rejects(received, section['joints'], section['command_interfaces']) is None
+
+
+@pytest.mark.parametrize('command_message', ['trajectory', 'forward'])
+def test_when_policy_node_is_killed_the_trajectory_path_holds_the_forward_keeps_torque(
+        tmp_path, client, trained, command_message):
+    """
+    SIGKILL policy_node while it drives sim_node, the robot's stand-in.
+
+    Trajectory (the default): jtc_cmd_timeout (0.2 s) after the last point the stand-in's
+    JTC holds as Jazzy's does with zero gains: 0 N m (joint_trajectory_controller.cpp:350-369,
+    2063-2086). Forward: the stand-in with an endless command_timeout, as a forward command
+    controller has none (forward_controllers_base.cpp:154-158, 178-187), keeps the last torque.
+    """
+    from rclpy.qos import qos_profile_sensor_data
+    efforts = []
+    client.node.create_subscription(
+        JointState, '/joint_states',
+        lambda m: efforts.append((time.monotonic(), np.array(m.effort))),
+        qos_profile_sensor_data)
+    pol = start_policy(tmp_path, f'policy:={trained["onnx"]}', 'use_sim_time:=true',
+                       f'command_message:={command_message}')
+    sim = None
+    try:
+        client.wait(lambda: any(m.startswith('waiting') for m, _ in client.diagnostics),
+                    what='policy_node to load its policy')
+        sim = start(tmp_path, 'pg_node.ros.sim_node', 'mode:=real_time', f'seed:={SIM_SEED}',
+                    'num_envs:=1', 'jtc_cmd_timeout:=0.2', 'command_timeout:=1000.0',
+                    *SIM_AS_ROBOT, remap=AS_ROBOT)
+        client.wait(lambda: len(client.commands) > 25, what='commands')
+        client.wait(lambda: efforts and efforts[-1][1].any(), what='a torque in joint_states')
+        pol.kill()                                      # SIGKILL: no hold, no goodbye
+        pol.wait(10)
+        killed = time.monotonic()
+        # 0.2 s cmd_timeout, then the next 20 ms tick; 1.5 s leaves room for a loaded machine
+        time.sleep(1.5)
+        with client.lock:
+            after = [(t - killed, e) for t, e in efforts if t > killed]
+    finally:
+        logs = [processes.stop_logged(p) for p in (pol, sim) if p is not None]
+    sim_log = logs[-1][1]
+    assert logs[-1][0] == 0, sim_log[-3000:]
+    assert after[-1][0] > 1.0, 'joint_states stopped'
+    late = [e for t, e in after if t > 1.0]
+    if command_message == 'trajectory':
+        assert all(not e.any() for e in late), late[:3]
+        zero_at = next(t for t, e in after if not e.any())
+        assert zero_at < 1.0
+        assert all(not e.any() for t, e in after if t >= zero_at)      # and stays held
+        assert 'aborted due to command timeout' in sim_log, sim_log[-3000:]
+        assert 'rejected a trajectory' not in sim_log
+    else:
+        # the last torque, at every tick from 0.3 s on (a command in flight at the kill may
+        # land in the first ticks) but the one at an episode's reset, which reports the
+        # reset state's effort
+        kept = [tuple(e) for t, e in after if t > 0.3]
+        torque, count = collections.Counter(kept).most_common(1)[0]
+        assert count >= len(kept) - 1 and any(torque), kept
+        assert 'aborted due to command timeout' not in sim_log
 
 
 #: a stand-in for tf2_ros (not on PyPI): the API policy_node uses, one transform known

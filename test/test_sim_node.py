@@ -565,6 +565,50 @@ def test_real_time_mode_runs_on_its_own_and_drops_to_zero_torque(tmp_path, clien
     assert rc == 0, log
 
 
+@pytest.mark.e2e
+def test_real_time_takes_trajectories_as_jazzys_jtc_and_holds_after_its_cmd_timeout(
+        tmp_path, client):
+    """
+    The stand-in's arm_controller/joint_trajectory: JTC's acceptance rules, then its hold.
+
+    Rules and hold: ros2_controllers (jazzy ed360c97d)
+    joint_trajectory_controller.cpp:1717-1730 (rule 5), 350-369 and 2063-2086 (cmd_timeout:
+    zero effort with zero gains); pg_node.control.jtc encodes them.
+    """
+    from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+    pub = client.node.create_publisher(JointTrajectory, '/arm_controller/joint_trajectory', 10)
+
+    def send(effort, velocities=(), names=('arm0/joint1', 'arm0/joint0')):
+        # names in another order than the controller's: JTC sorts them (jtc.cpp:1603-1650)
+        point = JointTrajectoryPoint(positions=[0.0, 0.0], effort=list(effort),
+                                     velocities=list(velocities))
+        pub.publish(JointTrajectory(joint_names=list(names), points=[point]))
+
+    proc = start_node(tmp_path, 'mode:=real_time', 'command_interface:=effort',
+                      'jtc_cmd_timeout:=0.5', 'diagnostics_rate:=10.0')
+    try:
+        client.spin_until(lambda: len(client.clocks) > 10 and pub.get_subscription_count())
+        send([-50.0, 120.0])                    # joint1 -50, joint0 120 N m, applied at once
+        client.spin_until(lambda: list(client.joint_states[-1].effort) == [120.0, -50.0])
+        # the old policy_node message (measured velocities) is rejected by rule 5: no change
+        send([0.0, 0.0], velocities=[0.5, 0.0])
+        client.spin_until(lambda: client.diagnostics and
+                          client.counters()['trajectories_rejected'] == '1')
+        assert list(client.joint_states[-1].effort) == [120.0, -50.0]
+        # silence: 0.5 s after the point, JTC's hold with zero gains, 0 N m
+        client.spin_until(lambda: list(client.joint_states[-1].effort) == [0.0, 0.0],
+                          timeout=5.0)
+        client.spin_until(lambda: client.counters()['trajectory_timeouts'] == '1')
+        assert client.counters()['trajectories_received'] == '2'
+    finally:
+        rc, log = stop_node(proc)
+    assert rc == 0, log
+    assert ('rejected a trajectory on arm_controller/joint_trajectory as a joint trajectory '
+            'controller would: rule 5: velocity of the last trajectory point of joint '
+            'arm0/joint1 is not zero') in log
+    assert log.count('aborted due to command timeout') == 1
+
+
 def _sim_and_actor(tmp_path, *params):
     return start_node(tmp_path, 'num_envs:=2', *params, module='pg_node.ros.sim_and_actor')
 

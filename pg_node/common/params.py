@@ -286,6 +286,11 @@ SIM_PARAMS: Dict[str, Param] = {
                                     'is re-sent (lock_step)', **POSITIVE, live=True),
     'command_timeout': Param(0.5, 'seconds after which a held command drops to zero torque '
                                   '(real_time)', **POSITIVE, live=True),
+    'jtc_cmd_timeout': Param(0.2, 'real_time, command_interface effort or position: the '
+                                  'cmd_timeout of the joint trajectory controller the node '
+                                  'stands in for on arm_controller/joint_trajectory (s after '
+                                  'the last point before its hold: zero effort, or the '
+                                  'positions measured then)', **POSITIVE),
     'real_time_factor': Param(1.0, 'simulated seconds per wall second (real_time)', **POSITIVE,
                               live=True),
     'start_paused': Param(False, 'start paused (step with ~/step_simulation)'),
@@ -370,13 +375,17 @@ POLICY_PARAMS: Dict[str, Param] = {
                                    'inertia in the model (the other half is slack for the tick '
                                    'and the pose). The value taken is in /diagnostics '
                                    '(max_deceleration_taken)', low=0.0, live=True),
-    'command_message': Param('forward', 'forward: std_msgs/Float64MultiArray on '
-                                        'arm_controller/commands (forward command '
-                                        'controllers); trajectory: one-point '
-                                        'trajectory_msgs/JointTrajectory on '
-                                        'arm_controller/joint_trajectory (the joint '
-                                        'trajectory controller, whose cmd_timeout then acts)',
-                             choices=('forward', 'trajectory')),
+    'command_message': Param('trajectory', 'trajectory: each command as a one-point '
+                                           'trajectory_msgs/JointTrajectory on '
+                                           'arm_controller/joint_trajectory (a joint '
+                                           'trajectory controller, whose cmd_timeout holds '
+                                           'the arm when the commands stop: '
+                                           'config/controllers/jtc_*.yaml); forward: '
+                                           'std_msgs/Float64MultiArray on '
+                                           'arm_controller/commands (forward command '
+                                           'controllers, which keep the last command forever '
+                                           'when the commands stop)',
+                             choices=('trajectory', 'forward')),
     'base_frame': Param('base_link', "frame_id of targets in the arm's base frame (an empty "
                                      'frame_id is taken as this one too)'),
     'record': Param('', 'bag directory to record every control tick into (MCAP; empty: none)'),

@@ -35,6 +35,8 @@ MAX_RUN_ID = 64
 COMMANDS = 'pg_node/commands'
 #: the topic of a real arm's forward command controller: only policy_node publishes on it
 CONTROLLER_COMMANDS = 'arm_controller/commands'
+#: the topic of a real arm's joint trajectory controller: only policy_node publishes on it
+CONTROLLER_TRAJECTORY = 'arm_controller/joint_trajectory'
 
 
 def check_run_id(run_id: str) -> str:

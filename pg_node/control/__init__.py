@@ -13,7 +13,8 @@ hold, joint-limit rule, trajectory field, the SI maps over a plain ``Actuators``
 one named step each), ``status`` (guard events, node states and faults with a severity: the
 diagnostics level comes from it), ``joint_map`` (joint states to the model's joints),
 ``targets`` (goal frames and the reach clamp), ``watchdog`` (stale joint states), ``estop``
-(the latched emergency stop), ``composers`` (the joint trajectory point a controller gets) and
+(the latched emergency stop), ``composers`` (the joint trajectory point a controller gets),
+``jtc`` (Jazzy's joint trajectory controller: its acceptance rules, parameters and hold) and
 ``obs_layout`` (the observation's one layout). ``pg_node.sim.actuation`` reads the
 ``Actuators`` record out of a MuJoCo model; ``pg_node.ros.policy_node`` is the ROS glue.
 """

@@ -1,50 +1,62 @@
 """
-A command as a joint trajectory controller takes it: a one-point trajectory, ROS-free.
+A command as Jazzy's joint trajectory controller takes it: "apply this now, hold it", ROS-free.
 
-ros2_controllers' joint trajectory controller (JTC) takes ``trajectory_msgs/JointTrajectory``;
-``policy_node`` sends each command as one point reached one control period ahead, so that
-JTC's ``cmd_timeout`` holds the arm if the commands stop. The point carries the SI command in
-its interface's field (:data:`pg_node.control.interfaces.INTERFACES`); when that is not the
-positions (effort), its positions and velocities are the measured ones, so that the
-controller's PID (on the effort interface) sees no error and passes the efforts through as
-its feed-forward (ros2_controllers' JTC documentation: "it adds trajectory's effort as
-feedforward effort to the PID output"). The ROS side fills the message from
-:class:`TrajectoryPoint`; the forward controllers' ``Float64MultiArray`` (arms x actuators,
-arm-major) is :func:`pg_node.ros.command.to_msg`.
+ros2_controllers' joint trajectory controller (JTC, :mod:`pg_node.control.jtc` for its rules)
+takes ``trajectory_msgs/JointTrajectory``. ``policy_node`` sends each command as the message
+that JTC accepts under its Jazzy defaults and applies at once: ``header.stamp`` 0 (start
+now), every joint's name, **one point** at ``time_from_start`` 0. JTC applies such a point
+on its first cycle, without interpolating from the current state (trajectory.cpp:148,
+208-253), holds it past its end until the next message (trajectory.cpp:208-253), and
+``cmd_timeout`` s after it came, with no new one, holds the arm its own way
+(jtc.cpp:350-369): the stop that holds when ``policy_node`` dies.
+
+The point's fields per command interface are :data:`POINT_FIELDS`, one row per interface:
+
+* ``effort``: ``effort`` = the torques, ``positions`` = the measured angles, no
+  ``velocities``. Positions are required (rule 8: ``allow_integration_in_goal_trajectories``
+  is false); with the zero gains of ``config/controllers/jtc_effort.yaml`` the PID adds
+  nothing and the efforts pass through (jtc.cpp:416-426), so the positions are unused;
+  should someone set gains, measured angles give the P term no error to fight, where NaN
+  would make the command NaN. Velocities stay empty: Jazzy rejects a last point with a
+  non-zero velocity (rule 5, ``allow_nonzero_velocity_at_trajectory_end`` false,
+  jtc.cpp:1717-1730), and an empty field is a desired velocity of 0;
+* ``position``: ``positions`` = the commanded angles, nothing else.
+
+A velocity interface would be one more row, ``(('positions', MEASURED), ('velocities',
+COMMAND))``, with ``allow_nonzero_velocity_at_trajectory_end: true`` and
+``ff_velocity_scale: 1.0`` in its controller (without the latter JTC sends 0 velocity).
+The forward controllers' ``Float64MultiArray`` is :func:`pg_node.ros.command.to_msg`.
 """
-from dataclasses import dataclass
 from typing import Dict, List, Tuple
 
 import numpy as np
 from pg_node.control.interfaces import CommandInterface
+from pg_node.control.jtc import Point, Trajectory
+
+#: where a point's field comes from: the SI command, or the measured joint positions
+COMMAND, MEASURED = 'command', 'measured'
+#: per command interface, the point's fields and their sources (the table above)
+POINT_FIELDS: Dict[str, Tuple[Tuple[str, str], ...]] = {
+    'effort': (('positions', MEASURED), ('effort', COMMAND)),
+    'position': (('positions', COMMAND),),
+}
 
 
-@dataclass
-class TrajectoryPoint:
-    """A one-point trajectory: joint names, the point's fields, and when it is to be reached."""
-
-    joint_names: List[str]
-    fields: Dict[str, List[float]]      # JointTrajectoryPoint field -> values, arm-major
-    time_from_start: Tuple[int, int]    # (sec, nanosec)
-
-
-def trajectory_point(interface: CommandInterface, si: np.ndarray, q: np.ndarray,
-                     qdot: np.ndarray, joint_names: List[str], rate: float) -> TrajectoryPoint:
+def command_trajectory(interface: CommandInterface, si: np.ndarray, q: np.ndarray,
+                       joint_names: List[str]) -> Trajectory:
     """
-    Return SI commands ``si`` ``(arms, nu)`` as a point reached one period of ``rate`` Hz on.
+    Return SI commands ``si`` ``(arms, nu)`` as the one-point trajectory JTC applies at once.
 
-    ``q``, ``qdot``: the measured angles and velocities of the actuated joints ``(arms, nu)``;
-    ``joint_names``: their names, arm-major.
+    ``q``: the measured angles of the actuated joints ``(arms, nu)``; ``joint_names``: their
+    names, arm-major.
 
     >>> from pg_node.control.interfaces import INTERFACES
-    >>> p = trajectory_point(INTERFACES['effort'], np.array([[2.0, -1.0]]),
-    ...                      np.array([[0.1, 0.2]]), np.array([[0.0, 0.5]]), ['a', 'b'], 25.0)
-    >>> p.fields, p.time_from_start
-    ({'effort': [2.0, -1.0], 'positions': [0.1, 0.2], 'velocities': [0.0, 0.5]}, (0, 40000000))
+    >>> t = command_trajectory(INTERFACES['effort'], np.array([[2.0, -1.0]]),
+    ...                        np.array([[0.1, 0.2]]), ['a', 'b'])
+    >>> t.stamp, t.points[0].fields, t.points[0].time_from_start
+    (0.0, {'positions': [0.1, 0.2], 'effort': [2.0, -1.0]}, 0.0)
     """
-    fields = {interface.trajectory_field: si.ravel().tolist()}
-    if interface.trajectory_field != 'positions':
-        fields['positions'] = q.ravel().tolist()
-        fields['velocities'] = qdot.ravel().tolist()
-    period = int(1e9 / rate)
-    return TrajectoryPoint(list(joint_names), fields, divmod(period, 1_000_000_000))
+    source = {COMMAND: si, MEASURED: q}
+    fields = {name: np.asarray(source[what], dtype=float).ravel().tolist()
+              for name, what in POINT_FIELDS[interface.name]}
+    return Trajectory(list(joint_names), [Point(fields, 0.0)], 0.0)

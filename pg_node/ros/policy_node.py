@@ -44,23 +44,27 @@ Subscribed:
 
 Published:
 
-* ``arm_controller/commands`` (``std_msgs/Float64MultiArray``, arms x actuators, arm-major,
-  untagged: what ros2_control's forward command controllers take), from a timer at
-  ``control_rate`` Hz of steady time (0: one per control step of the policy), in SI units
-  (REP-103), ``command_interface`` ``effort`` (N m, from the model's gear: motor
-  actuators) or ``position`` (rad, from the joint range: position actuators),
-  :mod:`pg_node.control.interfaces`. Each command is the policy's mean action
+* ``arm_controller/joint_trajectory`` (``trajectory_msgs/JointTrajectory``, the default
+  ``command_message:=trajectory``), from a timer at ``control_rate`` Hz of steady time (0:
+  one per control step of the policy), in SI units (REP-103), ``command_interface``
+  ``effort`` (N m, from the model's gear: motor actuators) or ``position`` (rad, from the
+  joint range: position actuators), :mod:`pg_node.control.interfaces`: each command as the
+  message Jazzy's joint trajectory controller accepts and applies at once (stamp 0, one
+  point at ``time_from_start`` 0; effort: the torques with the measured angles as
+  positions and no velocities; position: the angles alone; :mod:`pg_node.control.composers`,
+  the controller's rules :mod:`pg_node.control.jtc`). The controller holds each point until
+  the next, and ``cmd_timeout`` after the last one its own hold (zero effort, or the angles
+  measured then): the stop that holds if this node dies. ``command_message:=forward`` sends
+  ``std_msgs/Float64MultiArray`` on ``arm_controller/commands`` instead (arms x actuators,
+  arm-major, untagged: what ros2_control's forward command controllers take), which a
+  forward controller applies until the next one, **forever** if this node dies. Each
+  command is the policy's mean action
   (``deterministic``; else a sample) for the observation built as training builds it
   (:class:`pg_node.sim.observation.ObservationBuilder`), through the guards of
   :class:`pg_node.control.guards.CommandGuard`: control range, ramp, low-pass ``smoothing``,
   ``max_change`` per tick, the braking joint-limit guard (``joint_limit_margin``,
   ``max_deceleration``), ``max_velocity`` (at 0 from the model: the values taken are in
-  ``/diagnostics``). No command is ever
-  non-finite or out of range. ``command_message:=trajectory`` sends each command instead as
-  a one-point ``trajectory_msgs/JointTrajectory`` on ``arm_controller/joint_trajectory``
-  (reached one control period ahead; with the effort interface as the point's efforts, its
-  positions and velocities the measured ones: :mod:`pg_node.control.composers`), for a
-  joint trajectory controller whose ``cmd_timeout`` then holds the arm if this node falls silent;
+  ``/diagnostics``). No command is ever non-finite or out of range;
 * ``/diagnostics``: lifecycle and state (commanding, or why not), achieved command rate,
   the age of the joint state each command was computed from (median and p99), stale
   events, e-stops, each guard's acting, dropped states, CPU share, the policy's source and
@@ -104,8 +108,9 @@ import mujoco
 import numpy as np
 from pg_node.bag.writer import BagWriter
 from pg_node.common.params import ConfigError, POLICY_PARAMS
+from pg_node.common.run import CONTROLLER_COMMANDS, CONTROLLER_TRAJECTORY
 from pg_node.control import interfaces
-from pg_node.control.composers import trajectory_point
+from pg_node.control.composers import command_trajectory
 from pg_node.control.estop import EStop
 from pg_node.control.guards import CommandGuard, GuardSettings
 from pg_node.control.joint_map import arm_joint_names, joint_columns
@@ -186,10 +191,9 @@ class PolicyNode(LifecycleNode):
         self._cpu = (time.process_time(), time.monotonic())
 
         if p['command_message'] == 'trajectory':
-            self.pub = self.create_publisher(JointTrajectory, 'arm_controller/joint_trajectory',
-                                             10)
+            self.pub = self.create_publisher(JointTrajectory, CONTROLLER_TRAJECTORY, 10)
         else:
-            self.pub = self.create_publisher(Float64MultiArray, 'arm_controller/commands', 10)
+            self.pub = self.create_publisher(Float64MultiArray, CONTROLLER_COMMANDS, 10)
         self.create_subscription(JointState, 'joint_states', self.on_joint_state,
                                  qos_profile_sensor_data)
         latched = QoSProfile(depth=256, reliability=ReliabilityPolicy.RELIABLE,
@@ -610,14 +614,13 @@ class PolicyNode(LifecycleNode):
         return si
 
     def trajectory(self, si: np.ndarray) -> JointTrajectory:
-        """Return ``si`` as a one-point trajectory, reached one control period from now."""
+        """Return ``si`` as JTC's "apply now, hold": stamp 0, one point at time 0."""
         cols = self.guard.cols
         names = arm_joint_names([self.joints[c] for c in cols], self.num_arms, self.plain)
-        composed = trajectory_point(self.guard.interface, si, self.q[:, cols],
-                                    self.qdot[:, cols], names, self.control_rate())
-        point = JointTrajectoryPoint(**composed.fields)
-        point.time_from_start.sec, point.time_from_start.nanosec = composed.time_from_start
-        return JointTrajectory(joint_names=composed.joint_names, points=[point])
+        composed = command_trajectory(self.guard.interface, si, self.q[:, cols], names)
+        (point,) = composed.points          # time_from_start 0, header.stamp 0: the defaults
+        return JointTrajectory(joint_names=composed.joint_names,
+                               points=[JointTrajectoryPoint(**point.fields)])
 
     def record(self, cmd, si, age, obs=None, mean=None, action=None, acted=None):
         """

@@ -41,7 +41,8 @@ acknowledged in time, or best effort (not confirmed).
 
 Topics: ``topics`` limits playback to those names; ``remap`` takes ``from:=to`` pairs.
 Command topics (a name ending in ``/commands``: ``/pg_node/commands`` in pg_node's bags,
-``/arm_controller/commands`` in older ones, what a ros2_control controller takes) are left
+``/arm_controller/commands`` in older ones, what a ros2_control controller takes; or in
+``/joint_trajectory``, a joint trajectory controller's, ``policy_node``'s default) are left
 out, with a warning, unless ``commands`` is true or ``topics`` names them: a bag played on a
 network with a real arm must not drive it.
 Topics whose type is not installed, or whose messages are not CDR, are skipped and listed
@@ -95,7 +96,8 @@ PARAMETERS = (
     ('remap', [], ParameterType.PARAMETER_STRING_ARRAY,
      'topic remappings, each "from:=to"'),
     ('commands', False, ParameterType.PARAMETER_BOOL,
-     'also play command topics (names ending in /commands), which a controller would obey'),
+     'also play command topics (names ending in /commands or /joint_trajectory), which a '
+     'controller would obey'),
     ('loop', False, ParameterType.PARAMETER_BOOL, 'start over at the end of the bag'),
     ('clock', 'auto', ParameterType.PARAMETER_STRING,
      'auto: replay a recorded /clock, else publish log time; log_time; off'),
@@ -530,12 +532,15 @@ def is_command_topic(name: str) -> bool:
     """
     Return whether a topic carries commands a controller would act on.
 
+    A forward command controller's ``commands``, or a joint trajectory controller's
+    ``joint_trajectory`` (what ``policy_node`` sends by default).
+
     >>> is_command_topic('/pg_node/commands'), is_command_topic('/arm_controller/commands')
     (True, True)
-    >>> is_command_topic('/joint_states')
-    False
+    >>> is_command_topic('/arm_controller/joint_trajectory'), is_command_topic('/joint_states')
+    (True, False)
     """
-    return name.rstrip('/').rsplit('/', 1)[-1] == 'commands'
+    return name.rstrip('/').rsplit('/', 1)[-1] in ('commands', 'joint_trajectory')
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -49,11 +49,24 @@ that answers the current transition is accepted (its layout's tag, :mod:`pg_node
 another publisher's, an untagged one or a late duplicate is ignored and counted
 (``commands_ignored``). In real-time mode any valid command is held, tag or not.
 
+In real-time mode with ``command_interface`` ``effort`` or ``position`` (the robot's
+stand-in) it also subscribes ``arm_controller/joint_trajectory``
+(``trajectory_msgs/JointTrajectory``, what ``policy_node`` sends by default) and follows it
+as Jazzy's joint trajectory controller with zero gains would
+(:class:`pg_node.control.jtc.JtcFollower`): joints ``arm<i>/<joint>`` of each arm's
+actuated joints, in N m or rad; a message JTC rejects is dropped with an error naming the
+rule (counted ``trajectories_rejected``); an accepted point is applied at its
+``time_from_start`` and held, and ``jtc_cmd_timeout`` s after the last point the controller's
+hold: zero effort, or the positions measured then (counted ``trajectory_timeouts``), until the
+next accepted message. Once a trajectory was accepted it sets the command, and
+``command_timeout`` no longer applies.
+
 No node subscribes ``joint_states``: it is an output for tools (RViz, Foxglove, the bag);
 the simulator takes input only on ``pg_node/commands`` (training's own name, never a real
-controller's ``arm_controller/commands``; ``play`` remaps it there, as the robot's stand-in)
-and its services. A command tagged with another run's token (:mod:`pg_node.ros.command`) is
-dropped and counted (``foreign_messages``).
+controller's ``arm_controller/commands``; ``play`` remaps it there, as the robot's stand-in),
+on ``arm_controller/joint_trajectory`` as above, and on its services. A command tagged with
+another run's token (:mod:`pg_node.ros.command`) is dropped and counted
+(``foreign_messages``).
 
 Modes (parameter ``mode``):
 
@@ -99,8 +112,9 @@ from pg_node.bag.ros_types import float64_field
 from pg_node.common.params import ConfigError, params_for
 from pg_node.common.paths import resolve_model
 from pg_node.common.perturbations import from_params
-from pg_node.common.run import COMMANDS
+from pg_node.common.run import COMMANDS, CONTROLLER_TRAJECTORY
 from pg_node.control import interfaces
+from pg_node.control import jtc
 from pg_node.ros import command
 from pg_node.ros import table_msg
 from pg_node.ros import transition
@@ -116,6 +130,7 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import SetBool, Trigger
+from trajectory_msgs.msg import JointTrajectory
 from visualization_msgs.msg import Marker, MarkerArray
 
 #: A command value beyond this (N m before gear) is not a torque but a bug: dropped, not
@@ -180,7 +195,9 @@ class SimNode(Node):
         self.counters = {'steps': 0, 'commands_received': 0, 'commands_dropped_size': 0,
                          'commands_dropped_nonfinite': 0, 'commands_dropped_absurd': 0,
                          'commands_clipped': 0, 'commands_ignored': 0,
-                         'lock_step_timeouts': 0, 'transitions_resent': 0}
+                         'lock_step_timeouts': 0, 'transitions_resent': 0,
+                         'trajectories_received': 0, 'trajectories_rejected': 0,
+                         'trajectory_timeouts': 0}
         self.paused = bool(p['start_paused'])
         self.held = np.zeros((n, self.task.act_dim))
         self.held_time = -math.inf
@@ -219,6 +236,16 @@ class SimNode(Node):
                 QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
         self.pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self.create_subscription(Float64MultiArray, COMMANDS, self.on_command, 10, raw=True)
+        self.follower = None
+        if self.mode == 'real_time' and self.interface in ('effort', 'position'):
+            # the robot's joint trajectory controller (pg_node.control.jtc): its joints are
+            # each arm's actuated joints, in actuator order
+            self.actuated = [spec.joint_names.index(j) for j in self.actuators.joints]
+            self.follower = jtc.JtcFollower(
+                [f'arm{i}/{j}' for i in range(n) for j in self.actuators.joints],
+                self.interface, p['jtc_cmd_timeout'])
+            self.create_subscription(JointTrajectory, CONTROLLER_TRAJECTORY,
+                                     self.on_trajectory, 10)
         self.create_service(Trigger, '~/reset_world', self.on_reset_world)
         self.create_service(SetBool, '~/set_pause', self.on_set_pause)
         self.create_service(Trigger, '~/step_simulation', self.on_step_simulation)
@@ -353,13 +380,58 @@ class SimNode(Node):
         if self.mode == 'lock_step' and not self.paused:
             self.step_group(g)
 
+    def on_trajectory(self, msg: JointTrajectory):
+        """Take a trajectory as the joint trajectory controller would, or log its rejection."""
+        self.counters['trajectories_received'] += 1
+        stamp = msg.header.stamp
+        trajectory = jtc.Trajectory(
+            list(msg.joint_names),
+            [jtc.Point({k: list(getattr(p, k)) for k in jtc.POINT_FIELDS},
+                       p.time_from_start.sec + 1e-9 * p.time_from_start.nanosec)
+             for p in msg.points],
+            stamp.sec + 1e-9 * stamp.nanosec)
+        reason = self.follower.receive(trajectory, self.clock_seconds())
+        if reason is not None:
+            self.counters['trajectories_rejected'] += 1
+            self.get_logger().error(f'rejected a trajectory on {CONTROLLER_TRAJECTORY} as a '
+                                    f'joint trajectory controller would: {reason}',
+                                    throttle_duration_sec=1.0)
+
+    def clock_seconds(self) -> float:
+        """Return the node's clock in s: the trajectory controller's time."""
+        return self.get_clock().now().nanoseconds * 1e-9
+
     def on_real_time_tick(self):
-        """Take one control step with the held command, or zero torque if it is stale."""
+        """
+        Take one control step with the held command, or zero torque if it is stale.
+
+        Once the trajectory input took a message, its controller sets the command instead
+        (held, and JTC's hold after ``jtc_cmd_timeout``).
+        """
         if self.paused:
             return
-        if time.monotonic() - self.held_time > self.params['command_timeout']:
+        if self.follower is not None and self.follower.points is not None:
+            self.follow_trajectory()
+        elif time.monotonic() - self.held_time > self.params['command_timeout']:
             self.held = np.zeros_like(self.held)
         self.control_step(self.held)
+
+    def follow_trajectory(self):
+        """Hold the trajectory controller's command (SI, joint order) as controls."""
+        timeouts = self.follower.timeouts
+        measured = self.task.joint_state()[0].reshape(self.task.num_envs, -1)
+        si = self.follower.command(self.clock_seconds(), measured[:, self.actuated].ravel())
+        if self.follower.timeouts != timeouts:
+            self.counters['trajectory_timeouts'] += 1
+            self.get_logger().warning(
+                f'{CONTROLLER_TRAJECTORY}: aborted due to command timeout (no '
+                f"trajectory for jtc_cmd_timeout {self.params['jtc_cmd_timeout']:g} s): "
+                + ('zero effort' if self.interface == 'effort' else
+                   'holding the positions measured now'))
+        if si is not None:
+            ctrl = interfaces.INTERFACES[self.interface].from_si(
+                self.actuators, si.reshape(self.task.num_envs, -1))
+            self.held = np.clip(ctrl, self.task.spec.ctrl_low, self.task.spec.ctrl_high)
 
     def on_lock_step_watch(self):
         """Re-send the last transition when no command came for ``lock_step_timeout``."""

@@ -10,9 +10,11 @@ never trains: no torch optimiser runs beside the OpenGL context), from the obser
 simulator published: the angles from ``cos q``/``sin q``, the goal from the target field.
 
 The two nodes run in a namespace of their own (``/play_<pid>``), where ``policy_node``
-publishes ``arm_controller/commands`` as on a robot (efforts in N m, ramped in from zero
-over its ``ramp_time``; ``autostart``, on simulated time) and the simulator, the robot's
-stand-in, takes them there (``command_interface:=effort``); and on this machine only
+publishes ``arm_controller/joint_trajectory`` as on a robot (efforts in N m, ramped in from
+zero over its ``ramp_time``; ``autostart``, on simulated time) and the simulator, the robot's
+stand-in, takes them there as a joint trajectory controller would
+(``command_interface:=effort``; ``arm_controller/commands`` too, for
+``command_message:=forward``); and on this machine only
 (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` unless the environment sets it): a real
 controller on the lab network never hears them.
 
@@ -188,7 +190,8 @@ def main(argv=None) -> int:
     import rclpy
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
     from std_msgs.msg import Float64MultiArray
-    from pg_node.common.run import COMMANDS, CONTROLLER_COMMANDS
+    from pg_node.common.run import COMMANDS, CONTROLLER_COMMANDS, CONTROLLER_TRAJECTORY
+    from trajectory_msgs.msg import JointTrajectory
     from pg_node.tools.train import discovery_env
     os.environ.update(discovery_env(network=False)[0])
     env = processes.child_env()
@@ -197,7 +200,7 @@ def main(argv=None) -> int:
     rclpy.init()
     node = rclpy.create_node('pg_node_play', namespace=namespace)
     commands, ready = [], []
-    node.create_subscription(Float64MultiArray, CONTROLLER_COMMANDS,
+    node.create_subscription(JointTrajectory, CONTROLLER_TRAJECTORY,
                              lambda m: commands.append(1), 10)
     node.create_subscription(
         DiagnosticArray, '/diagnostics',
