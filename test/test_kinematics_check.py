@@ -30,4 +30,3 @@ def test_a_larger_tolerance_takes_a_calibrated_description(tolerance, taken):
     assert (got is None) == taken, got
     if not taken:
         assert '20.0 mm away' in got and f'kinematics_tolerance {1000 * tolerance:g} mm' in got
-
