@@ -112,7 +112,7 @@ class Feeder:
 
     def _on_diag(self, msg):
         for status in msg.status:
-            if status.name.startswith('policy_node'):
+            if status.name.endswith('policy_node: trained policy'):
                 self.diag = (status.message, {kv.key: kv.value for kv in status.values})
                 if self.diag_time is None:
                     self.diag_time = time.monotonic()

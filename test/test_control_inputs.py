@@ -12,8 +12,9 @@ import numpy as np
 from pg_node.common.params import ConfigError
 from pg_node.control import joint_map, targets, watchdog
 from pg_node.control.estop import EStop
-from pg_node.control.joint_map import arm_joint_names, joint_columns
-from pg_node.control.targets import clamp_to_reach, frame_key, REACH_MARGIN, target_array
+from pg_node.control.joint_map import arm_joint_names, controller_mismatch, joint_columns
+from pg_node.control.targets import (clamp_to_reach, frame_key, REACH_MARGIN, target_array,
+                                     TWIN_WINDOW, Twins)
 from pg_node.control.watchdog import state_age, Watchdog
 import pytest
 
@@ -39,6 +40,41 @@ def test_joint_columns_plain_prefixed_and_missing():
     with pytest.raises(ConfigError, match=r'names \[j0, j1, j2, j3, j4, j5, j6, j7, \.\.\.\]'):
         joint_columns([f'j{i}' for i in range(9)], ['joint0'])
     assert arm_joint_names(['a'], 1, plain=True) == ['a']
+
+
+@pytest.mark.parametrize('served,ordered,words', [
+    (['j0', 'j1', 'j2'], True, None),
+    # forward command controllers: element i of the array goes to joints[i]
+    # (ros2_controllers (jazzy ed360c97d) forward_command_controller.cpp:48-52)
+    (['j2', 'j1', 'j0'], True, 'has joints [j2, j1, j0], the commands are for [j0, j1, j2]: '
+                               'the same joints in another order'),
+    # JTC: names in any order (joint_trajectory_controller.cpp:1702-1713, sorted 1603-1650)
+    (['j2', 'j1', 'j0'], False, None),
+    # ... but all of them, and only its own (jtc.cpp:1676-1685, 1702-1713)
+    (['j0', 'j1'], False, ': missing j2'),
+    (['j0', 'j1', 'j2', 'gripper'], True, ': extra gripper'),
+    (['j0', 'x', 'j2'], False, ': missing j1; extra x'),
+    (['j0', 'j1', 'j1'], True, ': missing j2'),
+    (['j0', 'j1', 'j2', 'j2'], False, ': a joint named twice'),
+])
+def test_the_controllers_joints_against_the_commanded(served, ordered, words):
+    got = controller_mismatch(['j0', 'j1', 'j2'], served, '/left/arm', ordered=ordered)
+    if words is None:
+        assert got is None
+    else:
+        assert got.startswith('controller /left/arm has joints [') and words in got, got
+
+
+def test_a_latched_targets_twin_through_the_other_subscription_is_dropped():
+    t = Twins()
+    assert not t.twin('latched', 'a', 0.0) and t.twin('volatile', 'a', 0.001)
+    # the same goal again from the same subscription is a new message (a user's repeat)
+    assert not t.twin('volatile', 'a', 0.1) and not t.twin('volatile', 'a', 0.2)
+    # each copy has one twin: the latched copies of those two
+    assert t.twin('latched', 'a', 0.2) and t.twin('latched', 'a', 0.2)
+    assert not t.twin('latched', 'a', 0.2)
+    # a copy later than the window is a message of its own
+    assert not t.twin('volatile', 'b', 1.0) and not t.twin('latched', 'b', 1.0 + TWIN_WINDOW)
 
 
 def test_frames_and_the_reach_clamp():

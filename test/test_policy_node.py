@@ -10,6 +10,7 @@ the policy's mean action, and with zero torque. Other tests feed policy_node joi
 and targets from this process: stale states, joint order, missing joints.
 """
 import collections
+import contextlib
 from pathlib import Path
 import subprocess
 import sys
@@ -83,9 +84,15 @@ def start(tmp_path, module, *params, remap=()):
 
 
 def start_policy(tmp_path, *params, remap=()):
-    """Start policy_node configured and active at once, without a ramp (play's way)."""
+    """
+    Start policy_node configured and active at once, without a ramp (play's way).
+
+    Its configure waits for the first joint state (:meth:`Client.feed_while_loading`); no
+    controller serves its ``joints`` here unless a test starts one, so the check is off
+    unless ``params`` turn it on (``controller_timeout``).
+    """
     return start(tmp_path, 'pg_node.ros.policy_node', 'autostart:=true', 'ramp_time:=0.0',
-                 *params, remap=remap)
+                 'controller_timeout:=0.0', *params, remap=remap)
 
 
 def recorded_ticks(record: Path):
@@ -94,6 +101,9 @@ def recorded_ticks(record: Path):
     from pg_node.ros.policy_node import tick_from_msg
     return [tick_from_msg(m.ros_msg) for m in read_ros2_messages(
         str(next(record.glob('*.mcap'))))]
+
+
+PLAIN = ['joint0', 'joint1']
 
 
 class Client:
@@ -151,13 +161,13 @@ class Client:
 
     def _on_diag(self, msg):
         for status in msg.status:
-            if status.name.startswith('policy_node'):
+            if status.name.endswith('policy_node: trained policy'):
                 with self.lock:
                     level = status.level
                     level = level[0] if isinstance(level, bytes) else int(level)
                     self.diagnostics.append(
                         (status.message, {**{kv.key: kv.value for kv in status.values},
-                                          'level': level}))
+                                          'level': level, 'name': status.name}))
 
     def wait(self, condition, timeout=30.0, what='the nodes'):
         """Wait until ``condition()`` holds; fail after ``timeout`` s."""
@@ -174,6 +184,14 @@ class Client:
             now = self.node.get_clock().now().nanoseconds + int(stamp_offset * 1e9)
             msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(now, 1_000_000_000)
         self.pub_joints.publish(msg)
+
+    def feed_while_loading(self, names=PLAIN, q=(0.0, 0.0), qd=(0.0, 0.0), timeout=30.0):
+        """Send joint states until policy_node says 'waiting' (configure waits for one)."""
+        deadline = time.monotonic() + timeout
+        while not any(m.startswith('waiting') for m, _ in self.diagnostics):
+            assert time.monotonic() < deadline, 'timed out waiting for policy_node to load'
+            self.send_state(names, q, qd)
+            time.sleep(0.02)
 
     def send_target(self, frame, xyz):
         """Publish one target."""
@@ -241,13 +259,18 @@ def lock_step_returns(policy, num_envs, rounds, seed):
     return out
 
 
+def wait_configuring(client):
+    """Wait until policy_node has loaded its policy and waits for the first joint state."""
+    client.wait(lambda: any(m.startswith('configuring') for m, _ in client.diagnostics),
+                what='policy_node to load its policy')
+
+
 def run_real_time(tmp_path, client, trained, num_envs, min_episodes, policy_path):
     """Run sim_node (real time) and policy_node until ``min_episodes`` counted ones."""
     pol = start_policy(tmp_path, f'policy:={policy_path}', 'use_sim_time:=true')
     sim = None
     try:
-        client.wait(lambda: any(m.startswith('waiting') for m, _ in client.diagnostics),
-                    what='policy_node to load its policy')
+        wait_configuring(client)
         sim = start(tmp_path, 'pg_node.ros.sim_node', 'mode:=real_time',
                     f'num_envs:={num_envs}', f'seed:={SIM_SEED}', *SIM_AS_ROBOT,
                     remap=AS_ROBOT)
@@ -299,9 +322,6 @@ def test_real_time_return_equals_lock_step_evaluation(tmp_path, client, trained,
     assert all(np.isfinite(d) for _, d in got.values())
 
 
-PLAIN = ['joint0', 'joint1']
-
-
 #: the joints' speed the hold tests feed (rad/s), and reacher2's joint damping (N m s/rad):
 #: the effort hold's damping taken from the model
 QD, DAMPING = np.array([0.5, -0.25]), 1.0
@@ -341,8 +361,7 @@ def test_stale_joint_states_hold_with_damping_then_resume_ramping(tmp_path, clie
                        f'state_timeout:={timeout}', f'control_rate:={rate}',
                        f'ramp_time:={ramp}', 'max_change:=1.0', f'record:={record}')
     try:
-        client.wait(lambda: any(m.startswith('waiting') for m, _ in client.diagnostics),
-                    what='policy_node to load its policy')
+        client.feed_while_loading()
         with client.lock:
             waiting = [d for m, d in client.diagnostics if m.startswith('waiting')][0]
         client.send_target('base_link', [0.1, 0.1, 0.01])
@@ -420,8 +439,7 @@ def test_estop_latches_a_damping_hold_until_reset_then_ramps_in(tmp_path, client
             time.sleep(1 / rate)
 
     try:
-        client.wait(lambda: any(m.startswith('waiting') for m, _ in client.diagnostics),
-                    what='policy_node to load its policy')
+        client.feed_while_loading()
         client.send_target('base_link', [0.1, 0.1, 0.01])
         feed(0.5)
         client.wait(lambda: client.commands and client.commands[-1][1].any(),
@@ -468,8 +486,7 @@ def test_joint_order_and_extra_joints_give_the_same_command(tmp_path, client, tr
                        'state_timeout:=5.0')
     q, qd = np.array([0.3, -1.2]), np.array([0.5, -0.25])
     try:
-        client.wait(lambda: any(m.startswith('waiting') for m, _ in client.diagnostics),
-                    what='policy_node to load its policy')
+        client.feed_while_loading()
         client.send_target('base_link', [0.12, -0.05, 0.01])
 
         def command_for(names, pos, vel):
@@ -505,8 +522,6 @@ def test_a_missing_joint_stops_the_node_with_one_line(tmp_path, client, trained,
     """Exit code 2 and one line; before, a FATAL callback error and a traceback came first."""
     pol = start_policy(tmp_path, f'policy:={trained["onnx"]}')
     try:
-        client.wait(lambda: any(m.startswith('waiting') for m, _ in client.diagnostics),
-                    what='policy_node to load its policy')
         deadline = time.monotonic() + 20
         while pol.poll() is None and time.monotonic() < deadline:
             client.send_state(names, [0.0] * len(names), [0.0] * velocities)
@@ -531,8 +546,7 @@ def test_targets_out_of_reach_are_clamped_and_other_frames_refused(
     pol = start_policy(tmp_path, f'policy:={trained["onnx"]}', 'state_timeout:=5.0')
     q, qd = np.array([0.3, -1.2]), np.array([0.5, -0.25])
     try:
-        client.wait(lambda: any(m.startswith('waiting') for m, _ in client.diagnostics),
-                    what='policy_node to load its policy')
+        client.feed_while_loading(q=q, qd=qd)
         for _ in range(3):
             client.send_target('odom', [0.1, 0.1, 0.01])
             client.send_target('base_link', [float('nan'), 0.1, 0.01])
@@ -541,6 +555,8 @@ def test_targets_out_of_reach_are_clamped_and_other_frames_refused(
         client.wait(lambda: client.diagnostics[-1][1]['targets_out_of_reach'] == '3'
                     and client.diagnostics[-1][1]['targets_ignored'] == '6',
                     what='the targets counted in /diagnostics')
+        with client.lock:
+            client.commands.clear()         # those for the goals before the last
         cmd = feed_until_commanded(client, q, qd)
     finally:
         code, log = processes.stop_logged(pol)
@@ -596,8 +612,7 @@ def test_state_age_is_read_from_header_stamp(tmp_path, client, trained):
             return [c for t, c in client.commands if t > start + 0.2]
 
     try:
-        client.wait(lambda: any(m.startswith('waiting') for m, _ in client.diagnostics),
-                    what='policy_node to load its policy')
+        client.feed_while_loading(q=q, qd=qd)
         client.send_target('', [0.1, 0.1, 0.01])
         feed_until_commanded(client, q, qd)
         fresh, old, _, ahead, unstamped = run(0.0), run(-1.0), run(0.0), run(1.0), run(None)
@@ -640,8 +655,7 @@ def test_position_interface_commands_angles_and_holds_where_the_arm_is(
     pol = start_policy(tmp_path, f'policy:={position_policy}', 'command_interface:=position',
                        'state_timeout:=0.3', 'joint_limit_margin:=0.1', 'control_rate:=50.0')
     try:
-        client.wait(lambda: any(m.startswith('waiting') for m, _ in client.diagnostics),
-                    what='policy_node to load its policy')
+        client.feed_while_loading(q=q, qd=qd)
         client.send_target('', goal)
         commanded = feed_until_commanded(client, q, qd)
         sent = time.monotonic()
@@ -681,11 +695,19 @@ def test_bad_policy_parameter_is_one_line(tmp_path):
 
 
 def test_an_exported_policy_runs_without_torch(trained):
-    code = ('import sys, rclpy\n'
+    # configure waits for a joint state: a thread of this process publishes them
+    code = ('import sys, threading, time, rclpy\n'
+            'from sensor_msgs.msg import JointState\n'
             'from pg_node.ros.policy_node import PolicyNode\n'
             f'rclpy.init(args=["x", "--ros-args", "-p", "policy:={trained["onnx"]}", '
-            '"-p", "autostart:=true"],'
+            '"-p", "autostart:=true", "-p", "controller_timeout:=0.0"],'
             f' domain_id={DOMAIN_ID})\n'
+            'feeder = rclpy.create_node("feeder")\n'
+            'pub = feeder.create_publisher(JointState, "joint_states", 10)\n'
+            'state = JointState(name=["joint0", "joint1"], position=[0.0, 0.0], '
+            'velocity=[0.0, 0.0])\n'
+            'threading.Thread(target=lambda: [(pub.publish(state), time.sleep(0.05)) '
+            'for _ in range(600)], daemon=True).start()\n'
             'node = PolicyNode()\n'
             'print(node.policy.kind, "torch" in sys.modules)\n'
             'node.destroy_node(); rclpy.shutdown()\n')
@@ -826,45 +848,36 @@ def test_lifecycle_configure_checks_activate_ramps_deactivate_holds(tmp_path, cl
     pol = start(tmp_path, 'pg_node.ros.policy_node', f'policy:={trained["onnx"]}',
                 'state_timeout:=5.0', f'control_rate:={rate}', f'ramp_time:={ramp}',
                 f'record:={tmp_path / "rec"}')
-    stop = threading.Event()
-
-    def feed():
-        while not stop.is_set():
-            client.send_state(PLAIN, q, qd)
-            time.sleep(1 / rate)
-
-    feeder = threading.Thread(target=feed, daemon=True)
     try:
         client.wait(lambda: any(m.startswith('unconfigured') for m, _ in client.diagnostics),
                     what='policy_node to start unconfigured')
         assert lifecycle_state(client) == 'unconfigured'
         client.send_target('', goal)
-        feeder.start()
-        for text in (urdf.replace('xyz="0.1 0 0"', 'xyz="0.2 0 0"'), urdf):
-            pub_description.publish(String(data=text))
-            # the event itself: the node's diagnostics name the description it holds
-            digest = hashlib.sha256(text.encode()).hexdigest()[:12]
-            client.wait(lambda: client.diagnostics[-1][1].get('robot_description') == digest,
-                        what='policy_node to hold the robot_description')
-            if text != urdf:
-                assert not transition_to(client, 'configure')
-        assert transition_to(client, 'configure')
-        assert lifecycle_state(client) == 'inactive'
-        time.sleep(0.5)
-        assert not client.commands                      # configured is not commanding
-        assert transition_to(client, 'activate')
-        client.wait(lambda: len(client.commands) > rate * (ramp + 0.4), what='commands')
-        assert transition_to(client, 'deactivate')
-        deactivated = time.monotonic()
-        time.sleep(0.6)
-        with client.lock:
-            cmds = [c for _, c in client.commands]
-            after = [c for t, c in client.commands if t > deactivated + 0.1]
-        assert transition_to(client, 'cleanup')
-        assert lifecycle_state(client) == 'unconfigured'
-        assert transition_to(client, 'configure')           # a new record, not the old one
+        with feeding(client, q=q, qd=qd, rate=rate):
+            for text in (urdf.replace('xyz="0.1 0 0"', 'xyz="0.2 0 0"'), urdf):
+                pub_description.publish(String(data=text))
+                # the event itself: the node's diagnostics name the description it holds
+                digest = hashlib.sha256(text.encode()).hexdigest()[:12]
+                client.wait(lambda: client.diagnostics[-1][1].get('robot_description') == digest,
+                            what='policy_node to hold the robot_description')
+                if text != urdf:
+                    assert not transition_to(client, 'configure')
+            assert transition_to(client, 'configure')
+            assert lifecycle_state(client) == 'inactive'
+            time.sleep(0.5)
+            assert not client.commands                      # configured is not commanding
+            assert transition_to(client, 'activate')
+            client.wait(lambda: len(client.commands) > rate * (ramp + 0.4), what='commands')
+            assert transition_to(client, 'deactivate')
+            deactivated = time.monotonic()
+            time.sleep(0.6)
+            with client.lock:
+                cmds = [c for _, c in client.commands]
+                after = [c for t, c in client.commands if t > deactivated + 0.1]
+            assert transition_to(client, 'cleanup')
+            assert lifecycle_state(client) == 'unconfigured'
+            assert transition_to(client, 'configure')           # a new record, not the old one
     finally:
-        stop.set()
         code, log = processes.stop_logged(pol)
     assert code == 0, log[-3000:]
     assert ("configure failed: robot_description is not the policy's arm: joint joint1 is "
@@ -904,8 +917,7 @@ def test_guards_act_on_sim_node_and_every_tick_is_recorded(tmp_path, client, tra
                        f'record:={record}')
     sim = None
     try:
-        client.wait(lambda: any(m.startswith('waiting') for m, _ in client.diagnostics),
-                    what='policy_node to load its policy')
+        wait_configuring(client)
         sim = start(tmp_path, 'pg_node.ros.sim_node', 'mode:=real_time', 'num_envs:=4',
                     f'seed:={SIM_SEED}', *SIM_AS_ROBOT, remap=AS_ROBOT)
         client.wait(lambda: len(client.commands) > 150, what='commands')
@@ -964,8 +976,7 @@ def test_the_default_message_is_one_jazzys_trajectory_controller_accepts_and_app
     pol = start_policy(tmp_path, f'policy:={trained["onnx"]}', 'state_timeout:=5.0',
                        'control_rate:=25.0')
     try:
-        client.wait(lambda: any(m.startswith('waiting') for m, _ in client.diagnostics),
-                    what='policy_node to load its policy')
+        client.feed_while_loading()
         client.send_target('base_link', goal)
         client.send_state(PLAIN, q, qd)
         client.wait(lambda: client.trajectories, what='a trajectory')
@@ -1080,11 +1091,11 @@ def test_another_frame_goes_through_tf2_where_it_is_installed(tmp_path, client, 
     q, qd = np.array([0.3, -1.2]), np.array([0.5, -0.25])
     pol = processes.start_logged(
         [sys.executable, '-m', 'pg_node.ros.policy_node', '--ros-args', '-p',
-         f'policy:={trained["onnx"]}', '-p', 'autostart:=true', '-p', 'state_timeout:=5.0'],
+         f'policy:={trained["onnx"]}', '-p', 'autostart:=true', '-p', 'state_timeout:=5.0',
+         '-p', 'ramp_time:=0.0', '-p', 'controller_timeout:=0.0'],   # as start_policy
         tmp_path / 'policy_node.log', env)
     try:
-        client.wait(lambda: any(m.startswith('waiting') for m, _ in client.diagnostics),
-                    what='policy_node to load its policy')
+        client.feed_while_loading(q=q, qd=qd)
         client.send_target('nowhere', [0.1, 0.0, 0.01])
         client.send_target('camera', [0.1, 0.0, 0.01])
         cmd = feed_until_commanded(client, q, qd)
@@ -1097,3 +1108,292 @@ def test_another_frame_goes_through_tf2_where_it_is_installed(tmp_path, client, 
     want = GEAR * np.clip(trained['policy'].mean(
         ObservationBuilder(model)(q[None], qd[None], goal)), -1, 1)[0]
     np.testing.assert_allclose(cmd, want, atol=1e-3)
+
+
+# --- issue 44: configure's checks, targets from any publisher, diagnostics per robot -----
+
+
+def fake_controller(client, joints, name='arm_controller', namespace=None):
+    """
+    Serve ``joints`` as a ros2_control controller does: a node named as the controller.
+
+    A controller is a node of its own name in the controller manager's namespace, its
+    parameter services on, ``joints`` declared from load on (ros2_control (jazzy 9ffbf97fd)
+    controller_manager/src/controller_manager.cpp:2474-2479,
+    controller_interface/src/controller_interface_base.cpp:77-79).
+    """
+    node = rclpy.create_node(name, namespace=namespace, context=client.context)
+    node.declare_parameter('joints', list(joints))
+    client.executor.add_node(node)
+    return node
+
+
+@contextlib.contextmanager
+def feeding(client, names=PLAIN, q=(0.3, -1.2), qd=(0.0, 0.0), rate=20.0):
+    """Publish joint states at ``rate`` Hz in a thread while the block runs."""
+    stop = threading.Event()
+
+    def feed():
+        while not stop.is_set():
+            client.send_state(names, q, qd)
+            time.sleep(1 / rate)
+
+    thread = threading.Thread(target=feed, daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        thread.join(5)
+
+
+def feed_until_exit(client, pol, names=PLAIN, seconds=30.0):
+    """Send joint states until policy_node ends or is active; return whether it ended."""
+    deadline = time.monotonic() + seconds
+    while pol.poll() is None and not any(d['lifecycle'] == 'active'
+                                         for _, d in client.diagnostics):
+        assert time.monotonic() < deadline, 'policy_node neither ended nor configured'
+        client.send_state(names, [0.0] * len(names), [0.0] * len(names))
+        time.sleep(0.05)
+    return pol.poll() is not None
+
+
+@pytest.mark.parametrize('served,params,refusal', [
+    # a Float64MultiArray carries no names: element i goes to joints[i]
+    # (ros2_controllers (jazzy ed360c97d) forward_command_controller.cpp:48-52)
+    (['joint1', 'joint0'], (), 'controller /arm_controller has joints [joint1, joint0], the '
+     'commands are for [joint0, joint1]: the same joints in another order'),
+    (['joint0', 'wrist'], (), 'controller /arm_controller has joints [joint0, wrist], the '
+     'commands are for [joint0, joint1]: missing joint1; extra wrist'),
+    (['joint0', 'joint1'], (), None),
+    # a trajectory names its joints: JTC takes any order of its own joints
+    # (joint_trajectory_controller.cpp:1702-1713, sorted at 1603-1650)
+    (['joint1', 'joint0'], ('command_message:=trajectory',), None),
+])
+def test_configure_refuses_a_controller_with_other_joints(
+        tmp_path, client, trained, served, params, refusal):
+    """Configure reads the controller's joints parameter and refuses another order or set."""
+    controller = fake_controller(client, served)
+    pol = start_policy(tmp_path, f'policy:={trained["onnx"]}', 'controller_timeout:=5.0',
+                       *params)
+    try:
+        ended = feed_until_exit(client, pol)
+    finally:
+        code, log = processes.stop_logged(pol)
+        client.executor.remove_node(controller)
+        controller.destroy_node()
+    if refusal is None:
+        assert not ended and code == 0, log[-2000:]
+        assert 'controller joints match /arm_controller' in log, log
+    else:
+        assert code == 2 and 'Traceback' not in log, log
+        errors = [line for line in log.splitlines() if 'error' in line.lower()]
+        assert len(errors) == 1 and refusal in errors[0], log
+
+
+#: policy_node in /left, its topics at the root where the test's node has them
+IN_LEFT = ('__ns:=/left', 'joint_states:=/joint_states', 'target:=/target',
+           'arm_controller/commands:=/arm_controller/commands')
+
+
+def test_an_unreadable_controller_is_said_once_and_warns_in_diagnostics(tmp_path, client,
+                                                                        trained):
+    """
+    No controller parameter service: one warning, WARN in /diagnostics, and no hang.
+
+    In a namespace, ``controller_name`` resolves there as the command topic does; an
+    absolute one reaches a controller manager at the root.
+    """
+    pol = start_policy(tmp_path, f'policy:={trained["onnx"]}', 'controller_timeout:=1.0',
+                       remap=IN_LEFT)
+    try:
+        with feeding(client):
+            client.send_target('', [0.1, 0.1, 0.01])
+            client.wait(lambda: client.diagnostics and client.diagnostics[-1][0].startswith(
+                'commanding'), what='commanding')
+            message, diag = client.diagnostics[-1]
+    finally:
+        code, log = processes.stop_logged(pol)
+    assert code == 0, log[-2000:]
+    said = 'could not read /left/arm_controller/get_parameters: joint order not checked'
+    assert log.count(said) == 1, log
+    assert diag['level'] == 1 and said.split(': ')[0] in message, (message, diag)
+    assert diag['name'] == '/left/policy_node: trained policy'
+    # the same node told where the controller is: its joints are read and match
+    controller = fake_controller(client, PLAIN)
+    pol = start_policy(tmp_path, f'policy:={trained["onnx"]}', 'controller_timeout:=5.0',
+                       'controller_name:=/arm_controller', remap=IN_LEFT)
+    try:
+        client.diagnostics.clear()
+        ended = feed_until_exit(client, pol)
+    finally:
+        code, log = processes.stop_logged(pol)
+        client.executor.remove_node(controller)
+        controller.destroy_node()
+    assert not ended and code == 0, log[-2000:]
+    assert 'controller joints match /arm_controller' in log, log
+
+
+def test_autostart_waits_for_late_joint_states_and_description(tmp_path, client, trained):
+    """
+    Autostart's configure waits for joint states and robot_description that come late.
+
+    Before, configure ran before anything was received and skipped both checks: a
+    description of another arm published after start was never checked.
+    """
+    from std_msgs.msg import String
+    urdf = (Path(__file__).parent / 'fixtures' / 'reacher2.urdf').read_text()
+    other = urdf.replace('xyz="0.1 0 0"', 'xyz="0.12 0 0"')           # joint1 20 mm out
+    pub = client.node.create_publisher(String, '/robot_description', TARGETS_QOS)
+    results = {}
+    for tolerance in (0.001, 0.03):
+        pol = start_policy(tmp_path, f'policy:={trained["onnx"]}',
+                           'require_robot_description:=true',
+                           f'kinematics_tolerance:={tolerance}')
+        try:
+            client.diagnostics.clear()
+            wait_configuring(client)        # loaded, waiting: nothing was published yet
+            time.sleep(0.5)                 # late: a while after configure began
+            pub.publish(String(data=other))
+            ended = feed_until_exit(client, pol)
+        finally:
+            results[tolerance] = (ended,) + processes.stop_logged(pol)
+    ended, code, log = results[0.001]
+    assert ended and code == 2 and 'Traceback' not in log, log
+    errors = [line for line in log.splitlines() if 'error' in line.lower()]
+    assert len(errors) == 1 and ("robot_description is not the policy's arm: joint joint1 is "
+                                 '20.0 mm away') in errors[0], log
+    assert 'kinematics_tolerance 1 mm' in errors[0] and 'active' not in log, log
+    ended, code, log = results[0.03]
+    assert not ended and code == 0, log[-2000:]
+    assert 'kinematics match robot_description within 30 mm' in log, log
+
+
+@pytest.mark.parametrize('params,missing', [
+    ((), '/joint_states'),
+    (('require_robot_description:=true',), '/robot_description'),
+])
+def test_configure_without_inputs_is_refused_in_one_line(tmp_path, client, trained, params,
+                                                         missing):
+    """Nothing within configure_timeout: one line, exit 2 (autostart), in bounded time."""
+    pol = start_policy(tmp_path, f'policy:={trained["onnx"]}', 'configure_timeout:=1.5',
+                       *params)
+    try:
+        if params:
+            feed_until_exit(client, pol)    # states come, the description does not
+        pol.wait(60)
+    finally:
+        code, log = processes.stop_logged(pol)
+    assert code == 2 and 'Traceback' not in log, log
+    errors = [line for line in log.splitlines() if 'error' in line.lower()]
+    assert len(errors) == 1 and f'no {missing} within 1.5 s (configure_timeout)' in errors[0]
+
+
+def test_lifecycle_configure_waits_for_the_first_joint_state(tmp_path, client, trained):
+    """A lifecycle configure waits (bounded) for joint states, and reads the controller too."""
+    controller = fake_controller(client, PLAIN)
+    pol = start(tmp_path, 'pg_node.ros.policy_node', f'policy:={trained["onnx"]}',
+                'configure_timeout:=1.0')
+    try:
+        client.wait(lambda: any(m.startswith('unconfigured') for m, _ in client.diagnostics),
+                    what='policy_node to start unconfigured')
+        t = time.monotonic()
+        assert not transition_to(client, 'configure')          # nothing: refused
+        assert time.monotonic() - t < 15
+        with feeding(client):
+            assert transition_to(client, 'configure')
+    finally:
+        code, log = processes.stop_logged(pol)
+        client.executor.remove_node(controller)
+        controller.destroy_node()
+    assert code == 0, log[-2000:]
+    assert 'configure failed: no /joint_states within 1 s (configure_timeout)' in log, log
+    assert 'controller joints match /arm_controller' in log, log
+
+
+def test_a_volatile_target_reaches_the_node_and_a_latched_one_too(tmp_path, client, trained):
+    """
+    ``ros2 topic pub`` and RViz publish volatile; sim_node latched: both reach the goal.
+
+    A latched publisher's message, which both subscriptions get, counts once.
+    """
+    volatile = client.node.create_publisher(PointStamped, '/target', 10)
+    q, qd = np.array([0.3, -1.2]), np.array([0.5, -0.25])
+    latched_goal, volatile_goal = [0.1, 0.1, 0.01], [-0.1, 0.12, 0.01]
+    client.send_target('', latched_goal)             # before the node: only a latch delivers
+    pol = start_policy(tmp_path, f'policy:={trained["onnx"]}', 'state_timeout:=5.0')
+    try:
+        first = feed_until_commanded(client, q, qd)
+        msg = PointStamped()
+        msg.point.x, msg.point.y, msg.point.z = volatile_goal
+        client.wait(lambda: volatile.get_subscription_count() > 0, what='the volatile match')
+        t = time.monotonic()
+        volatile.publish(msg)
+        client.send_target('', [5.0, 5.0, 0.01])     # latched, out of reach: counted once
+        client.wait(lambda: client.diagnostics
+                    and client.diagnostics[-1][1]['targets_out_of_reach'] == '1'
+                    and client.diagnostics[-1][0].startswith('commanding'), what='the count')
+        volatile.publish(msg)
+        client.wait(lambda: client.commands[-1][0] > t + 0.1, what='a command')
+        client.send_state(PLAIN, q, qd)
+        time.sleep(0.2)
+        client.send_state(PLAIN, q, qd)
+        client.wait(lambda: client.commands[-1][0] > time.monotonic() - 0.05, what='a command')
+        last = client.commands[-1][1]
+        diag = client.diagnostics[-1][1]
+    finally:
+        code, log = processes.stop_logged(pol)
+    assert code == 0, log[-2000:]
+    assert 'incompatible' not in log.lower(), log
+    assert diag['targets_out_of_reach'] == '1', diag
+    model = mujoco.MjModel.from_xml_string(trained['policy'].card['model_xml'])
+    builder = ObservationBuilder(model)
+
+    def want(goal):
+        return GEAR * np.clip(trained['policy'].mean(
+            builder(q[None], qd[None], np.array([goal]))), -1, 1)[0]
+
+    np.testing.assert_allclose(first, want(latched_goal), atol=1e-3)
+    np.testing.assert_allclose(last, want(volatile_goal), atol=1e-3)
+
+
+def test_two_namespaces_publish_two_status_names(tmp_path, client, trained):
+    """Two robots' policy_nodes in /left and /right: two statuses, named by full name."""
+    nodes = [start(tmp_path, 'pg_node.ros.policy_node', f'policy:={trained["onnx"]}',
+                   remap=(f'__ns:=/{side}',)) for side in ('left', 'right')]
+    try:
+        client.wait(lambda: {d['name'] for _, d in client.diagnostics} >= {
+            '/left/policy_node: trained policy', '/right/policy_node: trained policy'},
+            what='both statuses')
+    finally:
+        logs = [processes.stop_logged(p) for p in nodes]
+    assert all(code == 0 for code, _ in logs), logs
+
+
+def test_no_subscriber_on_the_command_topic_warns(tmp_path, client, trained):
+    """Commanding with nobody on the command topic is WARN, naming it; a subscriber: OK."""
+    pol = start_policy(tmp_path, f'policy:={trained["onnx"]}', 'state_timeout:=5.0',
+                       remap=('arm_controller/commands:=/nobody/commands',))
+    try:
+        with feeding(client):
+            heard, alone = listened(client)
+    finally:
+        code, log = processes.stop_logged(pol)
+    assert code == 0, log[-2000:]
+    assert alone[1]['level'] == 1 and alone[1]['command_subscribers'] == '0', alone
+    assert 'no subscriber on /nobody/commands: no controller is listening' in alone[0], alone
+    assert heard[1]['level'] == 0 and heard[0] == 'commanding', heard
+
+
+def listened(client):
+    """Return the status commanding alone, then with a subscriber on /nobody/commands."""
+    client.send_target('', [0.1, 0.1, 0.01])
+    client.wait(lambda: client.diagnostics and client.diagnostics[-1][0].startswith(
+        'commanding'), what='commanding')
+    alone = client.diagnostics[-1]
+    got = []
+    client.node.create_subscription(Float64MultiArray, '/nobody/commands', got.append, 10)
+    client.wait(lambda: got, what='a command on /nobody/commands')
+    n = len(client.diagnostics)
+    client.wait(lambda: len(client.diagnostics) > n + 1, what='two more statuses')
+    return client.diagnostics[-1], alone

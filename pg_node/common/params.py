@@ -389,6 +389,25 @@ POLICY_PARAMS: Dict[str, Param] = {
     'base_frame': Param('base_link', "frame_id of targets in the arm's base frame (an empty "
                                      'frame_id is taken as this one too)'),
     'record': Param('', 'bag directory to record every control tick into (MCAP; empty: none)'),
+    'configure_timeout': Param(10.0, 'seconds configure waits for the first joint_states (and '
+                                     'robot_description when require_robot_description), '
+                                     'then refuses; with autostart too', **POSITIVE),
+    'require_robot_description': Param(False, 'configure refuses without a robot_description '
+                                              '(else it checks the kinematics only when one '
+                                              'was received)'),
+    'kinematics_tolerance': Param(0.001, 'm (and unit-vector components of the axes): largest '
+                                         "deviation of robot_description's joints from the "
+                                         "policy's model that configure accepts (calibrated "
+                                         'arms differ by millimetres to centimetres)',
+                                  **POSITIVE),
+    'controller_name': Param('arm_controller', 'the controller the commands go to: configure '
+                                               'reads its joints parameter (service '
+                                               '<controller_name>/get_parameters, resolved '
+                                               'as the command topic is) and refuses another '
+                                               'set or order'),
+    'controller_timeout': Param(2.0, "seconds configure waits for the controller's parameter "
+                                     'service; then it warns once that the joint order was '
+                                     'not checked (0: do not check)', low=0.0),
 }
 
 SCHEMA: Dict[str, Dict[str, Param]] = {

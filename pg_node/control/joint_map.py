@@ -4,9 +4,19 @@ Where a policy's joints are in a robot's joint states: one arm by plain name, or
 A ``sensor_msgs/JointState`` names its joints in any order and may carry others; a policy's
 card names the arm's joints. One arm is matched by the plain names (``joint0``), several arms
 by ``arm<i>/<joint>``, as ``sim_node`` publishes them.
+
+A controller names its joints in its ``joints`` parameter: a forward command controller
+takes ``Float64MultiArray`` index ``i`` as ``joints[i]``, with no name on the wire
+(ros2_controllers (jazzy ed360c97d)
+forward_command_controller/src/forward_command_controller.cpp:48-52), so its order must be
+the command's; a joint trajectory controller takes names in any order, but every name must
+be one of its ``joints`` and all of them must be there
+(joint_trajectory_controller/src/joint_trajectory_controller.cpp:1676-1685, 1702-1713).
+:func:`controller_mismatch` says how the two differ.
 """
+from collections import Counter
 import re
-from typing import List, Sequence
+from typing import List, Optional, Sequence
 
 import numpy as np
 from pg_node.common.params import ConfigError
@@ -67,3 +77,37 @@ def _missing(joint: str, joints: Sequence[str], names: Sequence[str]) -> str:
     return (f"joint_states has no joint {joint!r}: the policy's arm has joints "
             f"{', '.join(joints)} (plain, or as arm<i>/<joint> for several arms); the message "
             f'names [{shown}] (remap joint_states, or give a model with these joint names)')
+
+
+def controller_mismatch(commanded: Sequence[str], served: Sequence[str], controller: str,
+                        ordered: bool = True) -> Optional[str]:
+    """
+    Return how a controller's ``joints`` (``served``) differ from the commanded ones, or None.
+
+    ``ordered``: the order counts (a forward command controller's ``Float64MultiArray``);
+    False: only the set does (a joint trajectory controller, whose messages carry names).
+
+    >>> controller_mismatch(['a', 'b'], ['a', 'b'], '/arm_controller') is None
+    True
+    >>> controller_mismatch(['a', 'b'], ['b', 'a'], '/arm_controller', ordered=False) is None
+    True
+    >>> print(controller_mismatch(['a', 'b'], ['b', 'a'], '/c'))
+    controller /c has joints [b, a], the commands are for [a, b]: the same joints in another \
+order (a Float64MultiArray carries no names: element i goes to joints[i])
+    >>> print(controller_mismatch(['a', 'b'], ['a', 'c'], '/c', ordered=False))
+    controller /c has joints [a, c], the commands are for [a, b]: missing b; extra c
+    """
+    if list(commanded) == list(served):
+        return None
+    said = (f"controller {controller} has joints [{', '.join(served)}], the commands are "
+            f"for [{', '.join(commanded)}]")
+    if Counter(commanded) == Counter(served):
+        if not ordered:
+            return None
+        return (f'{said}: the same joints in another order (a Float64MultiArray carries no '
+                'names: element i goes to joints[i])')
+    missing = [j for j in commanded if j not in served]
+    extra = [j for j in served if j not in commanded]
+    parts = ([f"missing {', '.join(missing)}"] if missing else []) + \
+        ([f"extra {', '.join(extra)}"] if extra else [])
+    return f"{said}: {'; '.join(parts) or 'a joint named twice'}"

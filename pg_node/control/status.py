@@ -67,6 +67,11 @@ class Fault(Enum):
 
     STALE_STATE = ('stale joint states', Severity.ERROR)     # a watchdog spell
     ESTOP = ('e-stop latched', Severity.ERROR)
+    #: nobody subscribes to the command topic while commanding: no controller can be
+    #: listening (a subscriber proves less: a configured, inactive controller subscribes too)
+    NO_LISTENER = ('no subscriber on the command topic', Severity.WARN)
+    #: the controller's ``joints`` could not be read: the joint order was not checked
+    JOINTS_UNCHECKED = ('joint order not checked', Severity.WARN)
 
     def __init__(self, text: str, severity: Severity):
         self.text, self.severity = text, severity
@@ -74,16 +79,16 @@ class Fault(Enum):
 
 def diagnostic_level(state: NodeState, faults: Iterable[Fault] = ()) -> Severity:
     """
-    Return the /diagnostics level: OK while commanding, else the worst of state and faults.
+    Return the /diagnostics level: the worst of the state's and the faults'.
 
     A fault outlives the tick that found it: a node deactivated during a stale spell, or
-    with an e-stop latched, still reports ERROR.
+    with an e-stop latched, still reports ERROR. Commanding is OK unless a fault degrades it.
 
     >>> diagnostic_level(NodeState.COMMANDING).name, diagnostic_level(NodeState.WAITING).name
     ('OK', 'WARN')
     >>> diagnostic_level(NodeState.INACTIVE, [Fault.ESTOP]).name
     'ERROR'
+    >>> diagnostic_level(NodeState.COMMANDING, [Fault.NO_LISTENER]).name
+    'WARN'
     """
-    if state is NodeState.COMMANDING:
-        return Severity.OK
     return max([state.severity] + [f.severity for f in faults])

@@ -5,9 +5,16 @@ A target comes in the arm's base frame (``frame_id`` the base frame, or empty: e
 in ``arm<i>``, ``sim_node``'s frame of arm ``i``'s base; another frame is the ROS side's to
 transform (tf2). A goal beyond the arm's reach is moved onto the sphere of the reach, along
 the line from the base, so the policy never sees a goal it was not trained on.
+
+A target comes from two subscriptions, as no one subscription takes every publisher: a
+transient-local one gets a latched publisher's last sample (``sim_node``'s), which a volatile
+one never does; a volatile one matches the volatile publishers of ``ros2 topic pub`` and
+RViz's Publish Point, which a transient-local one does not (DDS refuses the pair: durability
+incompatible). A latched publisher's messages reach both; :class:`Twins` drops the second copy.
 """
 import re
-from typing import Dict, Optional, Tuple, Union
+import time
+from typing import Dict, Hashable, List, Optional, Tuple, Union
 
 import numpy as np
 
@@ -72,3 +79,39 @@ def target_array(targets: Dict[object, np.ndarray], num_arms: int, plain: bool
             return 'the arm' if plain else f'arm{i}'
         out[i] = point
     return out
+
+
+#: s: the second copy of a message, through the other subscription, comes within this
+TWIN_WINDOW = 0.5
+
+
+class Twins:
+    """
+    Drop the copy of a message that came through the other of two subscriptions.
+
+    A message is a twin when the other subscription delivered an equal one (same key: here
+    stamp, frame and point) less than :data:`TWIN_WINDOW` s ago that has no twin yet. An
+    equal message through the *same* subscription is new (a user publishing the same goal
+    twice); so is one after the window.
+
+    >>> t = Twins()
+    >>> [t.twin('latched', 'a', 0.0), t.twin('volatile', 'a', 0.01), t.twin('volatile', 'a', 0.02)]
+    [False, True, False]
+    >>> t.twin('latched', 'b', 0.03), t.twin('volatile', 'b', 0.03 + TWIN_WINDOW)
+    (False, False)
+    """
+
+    def __init__(self):
+        """Remember nothing yet."""
+        self._pending: List[Tuple[float, str, Hashable]] = []   # (arrival, source, key)
+
+    def twin(self, source: str, key: Hashable, now: Optional[float] = None) -> bool:
+        """Return whether ``key`` from ``source`` is the copy of one the other source gave."""
+        now = time.monotonic() if now is None else now
+        self._pending = [p for p in self._pending if now - p[0] < TWIN_WINDOW]
+        for i, (_, other, seen) in enumerate(self._pending):
+            if other != source and seen == key:
+                del self._pending[i]
+                return True
+        self._pending.append((now, source, key))
+        return False

@@ -8,18 +8,21 @@ An exported policy runs on onnxruntime: torch is then never imported.
 
 **Lifecycle** (a managed node, as Nav2's and ros2_control's): it starts *unconfigured*.
 
-* ``configure`` loads the policy, warms it up, checks the joints of any joint state already
-  received and, when ``robot_description`` (``std_msgs/String``, transient local, as
-  robot_state_publisher offers it) was received, the kinematics
-  (:mod:`pg_node.sim.kinematics_check`) against the policy's model; it opens the ``record``;
-  a failure is logged in one line and the node stays unconfigured;
+* ``configure`` loads the policy, warms it up, waits up to ``configure_timeout`` s for the
+  first joint state (and ``robot_description`` with ``require_robot_description``), checks
+  its joint names, the kinematics (:mod:`pg_node.sim.kinematics_check`, within
+  ``kinematics_tolerance``) when ``robot_description`` (``std_msgs/String``, transient
+  local, as robot_state_publisher offers it) was received, and the controller's ``joints``
+  parameter against the commanded joints (:mod:`pg_node.control.joint_map`; read from
+  ``<controller_name>/get_parameters`` within ``controller_timeout``, else one warning); it
+  opens the ``record``; a failure is logged in one line and the node stays unconfigured;
 * ``activate`` starts commanding, ramping in from the hold command over ``ramp_time`` s;
 * ``deactivate`` sends one hold command (zero effort, or the last commanded angles) and stops
   publishing;
 * ``cleanup`` unloads the policy; ``shutdown`` (and SIGINT/SIGTERM) holds once if active.
 
 ``autostart:=true`` configures and activates at start (what ``play`` does; a failure is then
-one line and exit code 2).
+one line and exit code 2): the same configure, with the same waits and checks.
 
 Subscribed:
 
@@ -30,8 +33,10 @@ Subscribed:
   :mod:`pg_node.control.joint_map`). Position
   and velocity are needed; a message with a non-finite one is dropped and counted. A model
   joint missing from the message is an error that stops the node (exit code 2, one line);
-* ``target`` (``geometry_msgs/PointStamped``, reliable + transient-local as ``sim_node``
-  publishes it): the goal, in the arm's base frame: ``frame_id`` ``base_frame`` or empty
+* ``target`` (``geometry_msgs/PointStamped``, reliable; two subscriptions, transient local
+  for a latched publisher such as ``sim_node`` and volatile for ``ros2 topic pub`` and
+  RViz, a message through both counted once, :class:`pg_node.control.targets.Twins`): the
+  goal, in the arm's base frame: ``frame_id`` ``base_frame`` or empty
   (every arm), or ``arm<i>`` (``sim_node``'s frame of arm ``i``'s base). Choose among
   robots by namespace (``-r __ns:=/left``), not by frame. Another frame goes through tf2
   where ``tf2_ros`` can be imported (a full ROS install; it is not on PyPI); otherwise it
@@ -65,7 +70,8 @@ Published:
   ``max_change`` per tick, the braking joint-limit guard (``joint_limit_margin``,
   ``max_deceleration``), ``max_velocity`` (at 0 from the model: the values taken are in
   ``/diagnostics``). No command is ever non-finite or out of range;
-* ``/diagnostics``: lifecycle and state (commanding, or why not), achieved command rate,
+* ``/diagnostics`` (status ``<full node name>: trained policy``, one per robot's namespace):
+  lifecycle and state (commanding, or why not), achieved command rate,
   the age of the joint state each command was computed from (median and p99), stale
   events, e-stops, each guard's acting, dropped states, CPU share, the policy's source and
   sha256.
@@ -85,7 +91,9 @@ same way. The one hold left in force on deactivate or a stop is zero torque (a d
 torque from one velocity, kept forever by a forward controller, would push the arm) or the
 last commanded angles. Before the first joint state and target nothing is published.
 Diagnostics levels follow diagnostic_updater's habits (:mod:`pg_node.control.status`):
-commanding OK; unconfigured, inactive or waiting WARN; stale states or a latched e-stop ERROR.
+commanding OK; unconfigured, inactive or waiting WARN; commanding with no subscriber on the
+command topic (no controller can listen; a subscriber does not prove an active one) or with
+the controller's joints unread WARN; stale states or a latched e-stop ERROR.
 
 ``record`` (a bag directory) keeps every tick on ``/policy_node/ticks`` (a table per tick,
 :mod:`pg_node.ros.table_msg`: header stamp and policy id, the first 48 bits of the policy's
@@ -113,9 +121,9 @@ from pg_node.control import interfaces
 from pg_node.control.composers import command_trajectory
 from pg_node.control.estop import EStop
 from pg_node.control.guards import CommandGuard, GuardSettings
-from pg_node.control.joint_map import arm_joint_names, joint_columns
+from pg_node.control.joint_map import arm_joint_names, controller_mismatch, joint_columns
 from pg_node.control.status import diagnostic_level, Fault, GuardEvent, NodeState, Severity
-from pg_node.control.targets import BASE, clamp_to_reach, frame_key, target_array
+from pg_node.control.targets import BASE, clamp_to_reach, frame_key, target_array, Twins
 from pg_node.control.watchdog import hold_decay, state_age, Watchdog
 from pg_node.rl.trained_policy import load_trained_policy, PolicySourceError
 from pg_node.ros import command
@@ -126,10 +134,16 @@ from pg_node.ros.runtime import run
 from pg_node.sim.actuation import actuators
 from pg_node.sim.kinematics_check import compare_kinematics
 from pg_node.sim.observation import ObservationBuilder
+from rcl_interfaces.msg import ParameterType
+from rcl_interfaces.srv import GetParameters
+import rclpy
 from rclpy.clock import Clock, ClockType
+from rclpy.event_handler import SubscriptionEventCallbacks
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, qos_profile_sensor_data, QoSProfile,
                        ReliabilityPolicy)
+from rclpy.wait_for_message import wait_for_message
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, Float64MultiArray, String
 from std_srvs.srv import Trigger
@@ -150,6 +164,12 @@ TICK_FIELDS = ('arm', 'state_age', 'observation', 'mean', 'action', 'command', '
                'guards')
 #: commands whose state ages the diagnostics summarise
 AGE_WINDOW = 1000
+#: how the ``target`` subscriptions and ``robot_description`` take a latched publisher's sample
+LATCHED = QoSProfile(depth=256, reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.TRANSIENT_LOCAL, history=HistoryPolicy.KEEP_LAST)
+#: ... and ``target`` a volatile one's (``ros2 topic pub``, RViz's Publish Point)
+VOLATILE = QoSProfile(depth=256, reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.VOLATILE, history=HistoryPolicy.KEEP_LAST)
 
 
 class PolicyNode(LifecycleNode):
@@ -178,6 +198,10 @@ class PolicyNode(LifecycleNode):
         self.targets: Dict[object, np.ndarray] = {}     # 'base' or arm index -> goal
         self.description = None             # robot_description, when published
         self.description_digest = 'none'    # its sha256's first 12 digits, for diagnostics
+        self.kinematics = 'not checked'     # what configure found of robot_description
+        self.controller_joints = 'not checked'  # what configure found of the controller
+        self.joints_unchecked = False       # the controller's joints could not be read
+        self.twins = Twins()                # a latched target comes through both subscriptions
         self.records_opened = 0
         self.watchdog = Watchdog()
         self.estop = EStop()                # latched until ~/reset_estop
@@ -196,15 +220,23 @@ class PolicyNode(LifecycleNode):
             self.pub = self.create_publisher(Float64MultiArray, CONTROLLER_COMMANDS, 10)
         self.create_subscription(JointState, 'joint_states', self.on_joint_state,
                                  qos_profile_sensor_data)
-        latched = QoSProfile(depth=256, reliability=ReliabilityPolicy.RELIABLE,
-                             durability=DurabilityPolicy.TRANSIENT_LOCAL,
-                             history=HistoryPolicy.KEEP_LAST)
-        self.create_subscription(PointStamped, 'target', self.on_target, latched)
-        self.create_subscription(String, 'robot_description', self.on_description, latched)
+        # a target from any reliable publisher: DDS matches a transient-local subscription
+        # only with transient-local publishers (sim_node's), whose last sample it gets on
+        # joining; the volatile one matches every reliable publisher, but gets no old sample.
+        # The latched one's expected DURABILITY incompatibility with a volatile publisher is
+        # not worth a warning here (the volatile one takes that publisher)
+        self.create_subscription(
+            PointStamped, 'target', lambda msg: self.on_target(msg, 'latched'), LATCHED,
+            event_callbacks=SubscriptionEventCallbacks(incompatible_qos=lambda event: None))
+        self.create_subscription(PointStamped, 'target',
+                                 lambda msg: self.on_target(msg, 'volatile'), VOLATILE)
+        self.create_subscription(String, 'robot_description', self.on_description, LATCHED)
         self.create_subscription(Bool, 'estop', self.on_estop,
                                  QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
         self.create_service(Trigger, '~/reset_estop', self.on_reset_estop)
-        self.diagnostics = Diagnostics(self, 'policy_node: trained policy', 'policy_node')
+        # the full name: two robots in two namespaces must not overwrite each other's status
+        self.diagnostics = Diagnostics(self, f'{self.get_fully_qualified_name()}: trained policy',
+                                       'policy_node')
         # steady clock: with use_sim_time the watchdog must still tick when /clock stops
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.timers_by_param = {
@@ -249,6 +281,8 @@ class PolicyNode(LifecycleNode):
         """Load and warm up the policy, check joints and kinematics, open the record."""
         self.failure = self._configure()
         if self.failure is not None:
+            self.set_status(NodeState.UNCONFIGURED, f'unconfigured: configure failed: '
+                                                    f'{self.failure}')
             if self.params['autostart']:        # run() reports it, in one line, and exits
                 return TransitionCallbackReturn.FAILURE
             self.get_logger().error(f'configure failed: {self.failure}')
@@ -270,15 +304,26 @@ class PolicyNode(LifecycleNode):
         if reason is not None:
             return reason
         joints = list(card['joint_names'])
-        if self._names:
-            try:
-                joint_columns(self._names, joints, self.num_arms)
-            except ConfigError as exc:
-                return str(exc)
+        reason = self._await_inputs()
+        if reason is not None:
+            return reason
+        try:
+            index = joint_columns(self._names, joints, self.num_arms)
+        except ConfigError as exc:
+            return str(exc)
+        self.kinematics = 'not checked: no robot_description received'
         if self.description is not None:
-            reason = compare_kinematics(model, self.description)
+            tolerance = p['kinematics_tolerance']
+            reason = compare_kinematics(model, self.description, tolerance=tolerance)
             if reason is not None:
                 return f"robot_description is not the policy's arm: {reason}"
+            self.kinematics = f'match robot_description within {1000 * tolerance:g} mm'
+        guard = CommandGuard(arm, joints, interface, self.settings, 1.0 / self.control_rate())
+        commanded = arm_joint_names([joints[c] for c in guard.cols], len(index),
+                                    joints[0] in self._names)
+        reason = self._check_controller(commanded)
+        if reason is not None:
+            return reason
         load_seconds = time.perf_counter() - t0
         t0 = time.perf_counter()
         for _ in range(WARM_UP):                # the first calls allocate; not on the robot
@@ -300,8 +345,7 @@ class PolicyNode(LifecycleNode):
                 return f"parameter 'policy_node.record': {exc}"
             self.records_opened += 1
         self.policy, self.builder, self.actuators = policy, builder, arm
-        self.guard = CommandGuard(arm, joints, interface, self.settings,
-                                  1.0 / self.control_rate())
+        self.guard = guard
         self.joints, self.digest = joints, digest
         self.load_seconds, self.warm_up_ms = load_seconds, warm_ms
         self.policy_id = int(digest[:12], 16)
@@ -320,8 +364,115 @@ class PolicyNode(LifecycleNode):
             f'{load_seconds:.2f} s, {warm_ms:.2f} ms per call warmed up: {card["model"]} '
             f"(joints {', '.join(joints)}); commands {interface} in {unit}, "
             f'{_ranges(low, high)} at {self.control_rate():g} Hz; state_timeout '
-            f'{p["state_timeout"]:g} s' + ('; kinematics match robot_description'
-                                           if self.description is not None else ''))
+            f'{p["state_timeout"]:g} s; kinematics {self.kinematics}; controller joints '
+            f'{self.controller_joints}')
+        return None
+
+    def _await_inputs(self) -> Optional[str]:
+        """
+        Wait (``configure_timeout``) for the first joint state, and robot_description if required.
+
+        Not through the executor, which is running this very callback (a lifecycle
+        transition) or not yet (autostart): rclpy's ``wait_for_message`` waits on a
+        subscription of its own. Return the refusal, or None.
+        """
+        p = self.params
+        timeout = p['configure_timeout']
+        wanted = []
+        if not self._names:
+            wanted.append(('joint_states', JointState, qos_profile_sensor_data,
+                           self.on_joint_state, "is the robot's joint_state_broadcaster "
+                           'running, and is joint_states remapped to its topic?'))
+        if p['require_robot_description'] and self.description is None:
+            wanted.append(('robot_description', String, LATCHED, self.on_description,
+                           'is robot_state_publisher running? (require_robot_description)'))
+        if not wanted:
+            return None
+        topics = ' and '.join(self.resolve_topic_name(w[0]) for w in wanted)
+        self.set_status(NodeState.UNCONFIGURED, f'configuring: waiting up to {timeout:g} s '
+                                                f'for {topics}')
+        self.get_logger().info(self.status)
+        self.publish_diag()
+        deadline = time.monotonic() + timeout
+        for topic, msg_type, qos, take, hint in wanted:
+            while True:
+                # in slices of the diagnostics period, the status said at each: a supervisor
+                # (play) or an operator sees what configure waits for
+                left = deadline - time.monotonic()
+                ok, msg = wait_for_message(
+                    msg_type, self, topic, qos_profile=qos,
+                    time_to_wait=max(min(left, 1.0 / p['diagnostics_rate']), 0.0))
+                if ok or left <= 0:
+                    break
+                self.publish_diag()
+            if not ok:
+                return (f'no {self.resolve_topic_name(topic)} within {timeout:g} s '
+                        f'(configure_timeout): {hint}')
+            take(msg)
+        self.set_status(NodeState.UNCONFIGURED, 'unconfigured: configuring')
+        return None
+
+    def _check_controller(self, commanded: List[str]) -> Optional[str]:
+        """
+        Compare the controller's ``joints`` parameter with the commanded joints.
+
+        A controller is a node named as the controller, in the controller manager's namespace,
+        whose parameter services stay on (ros2_control (jazzy 9ffbf97fd)
+        controller_manager/src/controller_manager.cpp:2474-2479,
+        controller_interface/src/controller_interface_base.cpp:77-79); ``joints`` is declared
+        from load on. ``controller_name`` is resolved as the command topic
+        ``arm_controller/commands`` is: relative names in this node's namespace, so a robot
+        in ``/left`` with its controller manager there needs nothing, and an absolute name
+        (``/arm_controller``) reaches a controller manager at the root. Return the refusal,
+        or None (also when the parameter cannot be read: then a warning, once).
+        """
+        p = self.params
+        timeout, name = p['controller_timeout'], p['controller_name']
+        self.joints_unchecked = False
+        if timeout == 0:
+            self.controller_joints = 'not checked (controller_timeout 0)'
+            return None
+        # a node of its own, spun by an executor of its own: this node's executor is busy
+        # running this callback (or not running yet, with autostart)
+        helper = rclpy.create_node(f'{self.get_name()}_controller_check', context=self.context,
+                                   namespace=self.get_namespace(), use_global_arguments=False,
+                                   start_parameter_services=False, enable_rosout=False)
+        executor = SingleThreadedExecutor(context=self.context)
+        try:
+            service = helper.resolve_service_name(f'{name}/get_parameters')
+            controller = service[:-len('/get_parameters')]
+            served, why = None, f'no such service within {timeout:g} s (controller_timeout)'
+            client = helper.create_client(GetParameters, f'{name}/get_parameters')
+            if client.wait_for_service(timeout_sec=timeout):
+                executor.add_node(helper)
+                future = client.call_async(GetParameters.Request(names=['joints']))
+                executor.spin_until_future_complete(future, timeout_sec=timeout)
+                values = future.result().values if future.done() else None
+                if values is None:
+                    why = f'no answer within {timeout:g} s (controller_timeout)'
+                elif values and values[0].type == ParameterType.PARAMETER_STRING_ARRAY:
+                    served = list(values[0].string_array_value)
+                else:
+                    why = 'it has no joints parameter (a string array)'
+        finally:
+            executor.shutdown()
+            helper.destroy_node()
+        topic = self.pub.topic_name
+        if not topic.startswith(controller + '/'):
+            self.get_logger().warning(
+                f'commands go to {topic}, not to controller {controller}: give '
+                f'controller_name the controller that subscribes to {topic}')
+        if served is None:
+            self.joints_unchecked = True
+            self.controller_joints = f'not checked: could not read {service} ({why})'
+            self.warn_once(('controller', service), f'could not read {service}: joint order not '
+                                                    f'checked ({why})')
+            return None
+        reason = controller_mismatch(commanded, served, controller,
+                                     ordered=p['command_message'] == 'forward')
+        if reason is not None:
+            return reason
+        self.controller_joints = f'match {controller}'
         return None
 
     def on_activate(self, state) -> TransitionCallbackReturn:
@@ -346,6 +497,7 @@ class PolicyNode(LifecycleNode):
         self._close_record()
         self.policy = self.guard = self.builder = None
         self.targets.clear()
+        self.joints_unchecked, self.controller_joints = False, 'not checked'
         self.lifecycle = 'unconfigured'
         self.set_status(NodeState.UNCONFIGURED,
                         'unconfigured: cleaned up, waiting for configure')
@@ -452,10 +604,13 @@ class PolicyNode(LifecycleNode):
             response.message = 'no e-stop was latched'
         return response
 
-    def on_target(self, msg: PointStamped):
+    def on_target(self, msg: PointStamped, source: str = 'volatile'):
         """Keep a goal by its frame: the base frame, or ``arm<i>`` (sim_node's arm frames)."""
         point = np.array([msg.point.x, msg.point.y, msg.point.z])
         frame = msg.header.frame_id
+        stamp = msg.header.stamp
+        if self.twins.twin(source, (stamp.sec, stamp.nanosec, frame, point.tobytes())):
+            return                  # a latched publisher's message, through the other one
         if not np.all(np.isfinite(point)):
             self.counters['targets_ignored'] += 1
             self.warn_once(('nonfinite', frame),
@@ -667,14 +822,31 @@ class PolicyNode(LifecycleNode):
             load_seconds=round(self.load_seconds, 3) if self.policy is not None else 'n/a',
             warm_up_ms_per_call=(round(self.warm_up_ms, 3) if self.policy is not None
                                  else 'n/a'),
-            robot_description=self.description_digest,
+            robot_description=self.description_digest, kinematics=self.kinematics,
+            controller_joints=self.controller_joints,
+            command_topic=self.pub.topic_name,
+            command_subscribers=self.pub.get_subscription_count(),
             **(self.guard.describe() if self.guard is not None else {}),
             **self.counters)
-        # diagnostic_updater's habits: idle WARN, stale or stopped ERROR
+        # diagnostic_updater's habits: idle WARN, stale or stopped ERROR, degraded WARN.
+        # A subscriber count of 0 proves that no controller listens; more proves less: a
+        # configured but inactive ros2_control controller subscribes too and drops what it
+        # gets (ros2_controllers (jazzy ed360c97d)
+        # forward_command_controller/src/forward_controllers_base.cpp:73-89, 131-149;
+        # joint_trajectory_controller/src/joint_trajectory_controller.cpp:1002-1004,
+        # 1393-1397); whether it is active only the controller manager's list_controllers says
+        no_listener = self.lifecycle == 'active' and not values['command_subscribers']
         faults = [f for f, on in ((Fault.STALE_STATE, self.watchdog.stale),
-                                  (Fault.ESTOP, self.estop.latched)) if on]
-        self.diagnostics.publish(values, LEVELS[diagnostic_level(self.state, faults)],
-                                 self.status)
+                                  (Fault.ESTOP, self.estop.latched),
+                                  (Fault.NO_LISTENER, no_listener),
+                                  (Fault.JOINTS_UNCHECKED, self.joints_unchecked)) if on]
+        message = self.status
+        if no_listener:
+            message += (f'; no subscriber on {self.pub.topic_name}: no controller is '
+                        'listening (a subscriber would not prove an active one)')
+        if self.joints_unchecked:
+            message += f'; controller joints {self.controller_joints}'
+        self.diagnostics.publish(values, LEVELS[diagnostic_level(self.state, faults)], message)
 
 
 def tick_from_msg(msg: Float64MultiArray):

@@ -8,6 +8,10 @@ compiled by MuJoCo with its geometry removed (meshes are not needed and often no
 then, at a few joint configurations drawn within the limits, each arm joint's anchor
 (relative to the first joint's) and axis are compared between the two models. This covers
 the chain up to the last joint; the fingertip's offset beyond it is not in a URDF.
+
+The tolerance is ``policy_node``'s ``kinematics_tolerance`` parameter: a calibrated arm's
+description (``ur_calibration``'s, for a UR) differs from the nominal one by millimetres to
+centimetres, and the refusal gives the deviation measured, so a user can judge it.
 """
 from typing import Optional, Sequence
 import xml.etree.ElementTree as ET
@@ -16,7 +20,8 @@ import mujoco
 import numpy as np
 from pg_node.sim.arm_task import ArmSpec
 
-#: metres and unit-vector components: anchors and axes that differ less are the same
+#: metres and unit-vector components: anchors and axes that differ less are the same (the
+#: default of ``kinematics_tolerance``)
 TOLERANCE = 1e-3
 CONFIGURATIONS = 5
 
@@ -45,8 +50,14 @@ def _pose(model: mujoco.MjModel, joints: Sequence[str], q: np.ndarray):
     return anchors, data.xaxis[ids]
 
 
-def compare_kinematics(model: mujoco.MjModel, urdf: str, seed: int = 0) -> Optional[str]:
-    """Return how ``urdf`` differs from the arm ``model`` on its arm joints (one line), or None."""
+def compare_kinematics(model: mujoco.MjModel, urdf: str, seed: int = 0,
+                       tolerance: float = TOLERANCE) -> Optional[str]:
+    """
+    Return how ``urdf`` differs from the arm ``model`` on its arm joints (one line), or None.
+
+    ``tolerance``: in metres for the joints' anchors, and in unit-vector components for
+    their axes. A refusal names the largest deviation found and the tolerance.
+    """
     spec = ArmSpec.from_model(model)
     joints = list(spec.joint_names)
     try:
@@ -63,17 +74,26 @@ def compare_kinematics(model: mujoco.MjModel, urdf: str, seed: int = 0) -> Optio
             return f'joint {j} is of another type in robot_description'
     rng = np.random.default_rng(seed)
     low, high = spec.angle_bounds()
+    worst_gap = worst_turn = (0.0, None, None)
     for _ in range(CONFIGURATIONS):
         q = rng.uniform(low, high)
         a, b = _pose(model, joints, q), _pose(other, joints, q)
         for k, j in enumerate(joints):
             gap = float(np.linalg.norm(a[0][k] - b[0][k]))
-            if gap > TOLERANCE:
-                return (f"joint {j} is {1000 * gap:.1f} mm away from where the policy's "
-                        f'model has it (relative to {joints[0]}, at angles '
-                        f'{np.round(q, 2).tolist()})')
-            if np.linalg.norm(a[1][k] - b[1][k]) > TOLERANCE:
-                return (f'joint {j} turns about {np.round(b[1][k], 3).tolist()} in '
-                        f'robot_description, about {np.round(a[1][k], 3).tolist()} in the '
-                        "policy's model")
+            turn = float(np.linalg.norm(a[1][k] - b[1][k]))
+            if gap > worst_gap[0]:
+                worst_gap = (gap, j, q)
+            if turn > worst_turn[0]:
+                worst_turn = (turn, j, (a[1][k], b[1][k]))
+    gap, j, q = worst_gap
+    if gap > tolerance:
+        return (f"joint {j} is {1000 * gap:.1f} mm away from where the policy's model has it "
+                f'(relative to {joints[0]}, at angles {np.round(q, 2).tolist()}; '
+                f'kinematics_tolerance {1000 * tolerance:g} mm)')
+    turn, j, axes = worst_turn
+    if turn > tolerance:
+        ours, theirs = axes
+        return (f'joint {j} turns about {np.round(theirs, 3).tolist()} in robot_description, '
+                f"about {np.round(ours, 3).tolist()} in the policy's model (a difference of "
+                f'{turn:.3g}; kinematics_tolerance {tolerance:g})')
     return None

@@ -204,7 +204,8 @@ def main(argv=None) -> int:
                              lambda m: commands.append(1), 10)
     node.create_subscription(
         DiagnosticArray, '/diagnostics',
-        lambda m: ready.extend(s for s in m.status if s.name.startswith('policy_node')), 10)
+        lambda m: ready.extend(s for s in m.status if s.name.endswith('/policy_node: trained '
+                                                                      'policy')), 10)
     node.create_subscription(
         Float64MultiArray, 'pg_node/transition',
         lambda m: episodes.add(transition.from_msg(m)),
@@ -220,7 +221,8 @@ def main(argv=None) -> int:
             procs['policy_node'] = processes.start_logged(
                 [sys.executable, '-m', 'pg_node.ros.policy_node', '--ros-args', '-r',
                  f'__ns:={namespace}', '-p', f'policy:={source.resolve()}',
-                 '-p', 'autostart:=true', '-p', 'use_sim_time:=true'],
+                 '-p', 'autostart:=true', '-p', 'use_sim_time:=true',
+                 '-p', 'configure_timeout:=120.0'],    # its joint states: the sim, started next
                 log_dir / 'policy_node.log', env)
             # the simulator starts once the policy is loaded (torch's import alone can take
             # seconds), so that the first episodes are not spent without commands
