@@ -149,7 +149,8 @@ def start_node(policy: Path, params, log: Path):
     """Start policy_node as a process in the bench's domain."""
     from pg_node.tools import processes
     args = [sys.executable, '-m', 'pg_node.ros.policy_node', '--ros-args', '-p',
-            f'policy:={policy}', '-p', 'autostart:=true']
+            f'policy:={policy}', '-p', 'autostart:=true',
+            '-p', 'controller_timeout:=0.0']      # no controller here whose joints to read
     for p in params:
         args += ['-p', p]
     return processes.start_logged(args, log, processes.child_env(DOMAIN_ID))

@@ -7,9 +7,11 @@ reads its state and drives its transitions over ``lifecycle_msgs``' services. Wh
 prints is ros2cli's (ros2cli jazzy de6cd272 ros2lifecycle/ros2lifecycle/verb/get.py:76 and
 set.py:86-89): ``unconfigured [1]``, ``Transitioning successful``, ``Transitioning failed``.
 """
+import contextlib
 from pathlib import Path
 import subprocess
 import sys
+import threading
 import types
 
 from domains import ros_domain
@@ -44,6 +46,35 @@ def lifecycle(*args, timeout=60):
                           timeout=timeout)
 
 
+@contextlib.contextmanager
+def joint_states_published(names=('joint0', 'joint1'), rate=20.0):
+    """Publish reacher2's joint states at rest in the test's domain (configure waits for one)."""
+    import rclpy
+    from rclpy.context import Context
+    from sensor_msgs.msg import JointState
+    context = Context()
+    rclpy.init(context=context, domain_id=int(DOMAIN_ID))
+    node = rclpy.create_node('lifecycle_test_joint_states', context=context)
+    pub = node.create_publisher(JointState, '/joint_states', 10)
+    stop = threading.Event()
+
+    def feed():
+        while not stop.is_set():
+            pub.publish(JointState(name=list(names), position=[0.0] * len(names),
+                                   velocity=[0.0] * len(names)))
+            stop.wait(1.0 / rate)
+
+    thread = threading.Thread(target=feed, daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        thread.join()
+        node.destroy_node()
+        rclpy.shutdown(context=context)
+
+
 def one_line(done, code, *words):
     """Assert exit ``code`` and one line on stderr holding ``words``, nothing on stdout."""
     assert done.returncode == code, (done.returncode, done.stdout, done.stderr)
@@ -62,39 +93,47 @@ def test_lifecycle_command_drives_policy_node(tmp_path, policy):
     from pg_node.tools import processes
 
     def start(name, *args):
+        # no controller serves its joints here: the check is off (controller_timeout 0)
         return processes.start_logged(
             [sys.executable, '-m', 'pg_node.ros.policy_node', '--ros-args', '--params-file',
-             str(REPO / 'config' / 'policy_node.yaml'), '-p', f'policy:={policy}', *args],
+             str(REPO / 'config' / 'policy_node.yaml'), '-p', f'policy:={policy}',
+             '-p', 'controller_timeout:=0.0', *args],
             tmp_path / f'{name}.log', processes.child_env(DOMAIN_ID))
 
-    node = start('policy_node')
-    # in a namespace, with a record it cannot write: its configure callback fails
-    bad = start('bad', '-r', '__ns:=/bad', '-p', 'record:=/proc/no_bags_here/bag')
-    try:
-        one_line(lifecycle('/bad/policy_node', 'configure', '--timeout', '30'), 1,
-                 'Transitioning failed: /bad/policy_node refused configure and is '
-                 'unconfigured [1] (its log says why)')
-        first = lifecycle('policy_node', 'get', '--timeout', '30')   # a bare name: /policy_node
-        assert (first.returncode, first.stdout) == (0, 'unconfigured [1]\n'), first.stderr
-        # activate does not start from unconfigured: the node answers success false
-        one_line(lifecycle('/policy_node', 'activate'), 1,
-                 'Transitioning failed: /policy_node is unconfigured [1], from which there is '
-                 'no activate (from there: configure, shutdown)')
-        for command, state in (('configure', 'inactive [2]'), ('activate', 'active [3]'),
-                               ('deactivate', 'inactive [2]'), ('cleanup', 'unconfigured [1]')):
-            done = lifecycle('/policy_node', command)
-            assert (done.returncode, done.stdout) == (0, 'Transitioning successful\n'), \
-                (command, done.stderr)
-            done = lifecycle('/policy_node', 'get')
-            assert (done.returncode, done.stdout) == (0, state + '\n'), (command, done.stderr)
-        # 3 s: time enough for the command to discover both nodes' services
-        one_line(lifecycle('/no_such_node', 'get', '--timeout', '3'), 1,
-                 'Node not found: no lifecycle node /no_such_node answered within 3 s',
-                 f'lifecycle nodes seen on ROS_DOMAIN_ID {DOMAIN_ID}: /bad/policy_node, '
-                 '/policy_node (ros2 lifecycle nodes lists them)')
-    finally:
-        code, log = processes.stop_logged(node)
-        bad_code, bad_log = processes.stop_logged(bad)
+    with joint_states_published():
+        node = start('policy_node')
+        # in a namespace, with a record it cannot write: its configure callback fails
+        bad = start('bad', '-r', '__ns:=/bad', '-r', 'joint_states:=/joint_states',
+                    '-p', 'record:=/proc/no_bags_here/bag')
+        try:
+            one_line(lifecycle('/bad/policy_node', 'configure', '--timeout', '30'), 1,
+                     'Transitioning failed: /bad/policy_node refused configure and is '
+                     'unconfigured [1] (its log says why)')
+            # a bare name: /policy_node
+            first = lifecycle('policy_node', 'get', '--timeout', '30')
+            assert (first.returncode, first.stdout) == (0, 'unconfigured [1]\n'), first.stderr
+            # activate does not start from unconfigured: the node answers success false
+            one_line(lifecycle('/policy_node', 'activate'), 1,
+                     'Transitioning failed: /policy_node is unconfigured [1], from which '
+                     'there is no activate (from there: configure, shutdown)')
+            for command, state in (('configure', 'inactive [2]'),
+                                   ('activate', 'active [3]'),
+                                   ('deactivate', 'inactive [2]'),
+                                   ('cleanup', 'unconfigured [1]')):
+                done = lifecycle('/policy_node', command)
+                assert (done.returncode, done.stdout) == (0, 'Transitioning successful\n'), \
+                    (command, done.stderr)
+                done = lifecycle('/policy_node', 'get')
+                assert (done.returncode, done.stdout) == (0, state + '\n'), \
+                    (command, done.stderr)
+            # 3 s: time enough for the command to discover both nodes' services
+            one_line(lifecycle('/no_such_node', 'get', '--timeout', '3'), 1,
+                     'Node not found: no lifecycle node /no_such_node answered within 3 s',
+                     f'lifecycle nodes seen on ROS_DOMAIN_ID {DOMAIN_ID}: /bad/policy_node, '
+                     '/policy_node (ros2 lifecycle nodes lists them)')
+        finally:
+            code, log = processes.stop_logged(node)
+            bad_code, bad_log = processes.stop_logged(bad)
     assert code == 0, log[-3000:]
     assert bad_code == 0 and "configure failed: parameter 'policy_node.record'" in bad_log, \
         bad_log[-3000:]

@@ -1024,8 +1024,7 @@ def test_when_policy_node_is_killed_the_trajectory_path_holds_the_forward_keeps_
                        f'command_message:={command_message}')
     sim = None
     try:
-        client.wait(lambda: any(m.startswith('waiting') for m, _ in client.diagnostics),
-                    what='policy_node to load its policy')
+        # policy_node's configure waits for the stand-in's first joint state
         sim = start(tmp_path, 'pg_node.ros.sim_node', 'mode:=real_time', f'seed:={SIM_SEED}',
                     'num_envs:=1', 'jtc_cmd_timeout:=0.2', 'command_timeout:=1000.0',
                     *SIM_AS_ROBOT, remap=AS_ROBOT)
@@ -1161,14 +1160,18 @@ def feed_until_exit(client, pol, names=PLAIN, seconds=30.0):
 @pytest.mark.parametrize('served,params,refusal', [
     # a Float64MultiArray carries no names: element i goes to joints[i]
     # (ros2_controllers (jazzy ed360c97d) forward_command_controller.cpp:48-52)
-    (['joint1', 'joint0'], (), 'controller /arm_controller has joints [joint1, joint0], the '
-     'commands are for [joint0, joint1]: the same joints in another order'),
+    (['joint1', 'joint0'], ('command_message:=forward',), 'controller /arm_controller has '
+     'joints [joint1, joint0], the commands are for [joint0, joint1]: the same joints in '
+     'another order'),
+    (['joint0', 'wrist'], ('command_message:=forward',), 'controller /arm_controller has '
+     'joints [joint0, wrist], the commands are for [joint0, joint1]: missing joint1; extra '
+     'wrist'),
+    (['joint0', 'joint1'], ('command_message:=forward',), None),
+    # a trajectory names its joints: JTC takes any order of its own joints
+    # (joint_trajectory_controller.cpp:1702-1713, sorted at 1603-1650), not another set
+    (['joint1', 'joint0'], (), None),
     (['joint0', 'wrist'], (), 'controller /arm_controller has joints [joint0, wrist], the '
      'commands are for [joint0, joint1]: missing joint1; extra wrist'),
-    (['joint0', 'joint1'], (), None),
-    # a trajectory names its joints: JTC takes any order of its own joints
-    # (joint_trajectory_controller.cpp:1702-1713, sorted at 1603-1650)
-    (['joint1', 'joint0'], ('command_message:=trajectory',), None),
 ])
 def test_configure_refuses_a_controller_with_other_joints(
         tmp_path, client, trained, served, params, refusal):
@@ -1373,6 +1376,7 @@ def test_two_namespaces_publish_two_status_names(tmp_path, client, trained):
 def test_no_subscriber_on_the_command_topic_warns(tmp_path, client, trained):
     """Commanding with nobody on the command topic is WARN, naming it; a subscriber: OK."""
     pol = start_policy(tmp_path, f'policy:={trained["onnx"]}', 'state_timeout:=5.0',
+                       'command_message:=forward',
                        remap=('arm_controller/commands:=/nobody/commands',))
     try:
         with feeding(client):

@@ -222,7 +222,9 @@ def main(argv=None) -> int:
                 [sys.executable, '-m', 'pg_node.ros.policy_node', '--ros-args', '-r',
                  f'__ns:={namespace}', '-p', f'policy:={source.resolve()}',
                  '-p', 'autostart:=true', '-p', 'use_sim_time:=true',
-                 '-p', 'configure_timeout:=120.0'],    # its joint states: the sim, started next
+                 # its joint states come from the sim, started next; the sim is its own
+                 # robot, with no controller node whose joints parameter could be read
+                 '-p', 'configure_timeout:=120.0', '-p', 'controller_timeout:=0.0'],
                 log_dir / 'policy_node.log', env)
             # the simulator starts once the policy is loaded (torch's import alone can take
             # seconds), so that the first episodes are not spent without commands
