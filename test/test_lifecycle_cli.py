@@ -11,11 +11,11 @@ import contextlib
 from pathlib import Path
 import subprocess
 import sys
-import threading
 import types
 
 from domains import ros_domain
 import pytest
+from repeating import repeating
 
 REPO = Path(__file__).resolve().parent.parent
 DOMAIN_ID = ros_domain(base=100, spread=10)
@@ -56,21 +56,12 @@ def joint_states_published(names=('joint0', 'joint1'), rate=20.0):
     rclpy.init(context=context, domain_id=int(DOMAIN_ID))
     node = rclpy.create_node('lifecycle_test_joint_states', context=context)
     pub = node.create_publisher(JointState, '/joint_states', 10)
-    stop = threading.Event()
-
-    def feed():
-        while not stop.is_set():
-            pub.publish(JointState(name=list(names), position=[0.0] * len(names),
-                                   velocity=[0.0] * len(names)))
-            stop.wait(1.0 / rate)
-
-    thread = threading.Thread(target=feed, daemon=True)
-    thread.start()
+    rest = JointState(name=list(names), position=[0.0] * len(names),
+                      velocity=[0.0] * len(names))
     try:
-        yield
+        with repeating(lambda: pub.publish(rest), rate):
+            yield
     finally:
-        stop.set()
-        thread.join()
         node.destroy_node()
         rclpy.shutdown(context=context)
 

@@ -10,7 +10,6 @@ the policy's mean action, and with zero torque. Other tests feed policy_node joi
 and targets from this process: stale states, joint order, missing joints.
 """
 import collections
-import contextlib
 from pathlib import Path
 import subprocess
 import sys
@@ -33,6 +32,7 @@ import pytest
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from repeating import repeating
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, Float64MultiArray
 from std_srvs.srv import Trigger
@@ -1127,23 +1127,9 @@ def fake_controller(client, joints, name='arm_controller', namespace=None):
     return node
 
 
-@contextlib.contextmanager
 def feeding(client, names=PLAIN, q=(0.3, -1.2), qd=(0.0, 0.0), rate=20.0):
-    """Publish joint states at ``rate`` Hz in a thread while the block runs."""
-    stop = threading.Event()
-
-    def feed():
-        while not stop.is_set():
-            client.send_state(names, q, qd)
-            time.sleep(1 / rate)
-
-    thread = threading.Thread(target=feed, daemon=True)
-    thread.start()
-    try:
-        yield
-    finally:
-        stop.set()
-        thread.join(5)
+    """Publish joint states at ``rate`` Hz in a thread while the ``with`` block runs."""
+    return repeating(lambda: client.send_state(names, q, qd), rate)
 
 
 def feed_until_exit(client, pol, names=PLAIN, seconds=30.0):
