@@ -9,8 +9,9 @@ default, explained) and the topic remaps that wire it to the robot. Arguments:
   ``.onnx`` with its card); empty (the default): the parameter file's. The launch stops
   with one line when neither gives one;
 - ``params_file``: a copy of ``config/policy_node.yaml`` with your values;
-- ``command_interface`` (``effort``, ``position``) and ``command_message`` (``forward``,
-  ``trajectory``): empty (the default): the parameter file's values;
+- ``command_interface`` (``effort``, ``position``), ``command_message`` (``forward``,
+  ``trajectory``) and ``controller_name`` (the controller whose ``joints`` configure
+  checks): empty (the default): the parameter file's values;
 - ``commands_topic``, ``trajectory_topic``, ``joint_states_topic``: where the robot's
   controller takes commands and where its joint states are; the node's own names
   (``arm_controller/commands``, ``arm_controller/joint_trajectory``, ``joint_states``)
@@ -43,7 +44,7 @@ REMAPS = {'commands_topic': 'arm_controller/commands',
           'trajectory_topic': 'arm_controller/joint_trajectory',
           'joint_states_topic': 'joint_states'}
 #: launch arguments that override the parameter file's value when given
-OVERRIDES = ('command_interface', 'command_message')
+OVERRIDES = ('command_interface', 'command_message', 'controller_name')
 #: launch arguments always given to the node as parameters (booleans)
 SWITCHES = ('autostart', 'use_sim_time')
 
@@ -100,6 +101,9 @@ def generate_launch_description():
         ('command_interface', '', 'effort (N m) or position (rad) (empty: from params_file)'),
         ('command_message', '', 'forward (Float64MultiArray) or trajectory (JointTrajectory) '
                                 '(empty: from params_file)'),
+        ('controller_name', '', "the controller whose joints parameter configure checks, "
+                                'e.g. /scaled_joint_trajectory_controller (empty: from '
+                                'params_file)'),
         ('commands_topic', REMAPS['commands_topic'],
          "the forward command controller's commands topic, e.g. "
          '/forward_position_controller/commands'),

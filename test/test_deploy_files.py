@@ -140,6 +140,7 @@ def test_deploy_launch_remaps_to_the_robots_controllers(monkeypatch):
     (node,), _ = _launch(
         monkeypatch, policy='2024', command_interface='position',
         command_message='trajectory', namespace='/ur',
+        controller_name='/scaled_joint_trajectory_controller',
         trajectory_topic='/scaled_joint_trajectory_controller/joint_trajectory',
         commands_topic='/forward_position_controller/commands', autostart='true')
     kw = node.kwargs
@@ -147,6 +148,7 @@ def test_deploy_launch_remaps_to_the_robots_controllers(monkeypatch):
     given = kw['parameters'][1]
     assert given.pop('policy') == '2024'        # a name of digits stays a string
     assert given == {'command_interface': 'position', 'command_message': 'trajectory',
+                     'controller_name': '/scaled_joint_trajectory_controller',
                      'autostart': True, 'use_sim_time': False}
     assert dict(kw['remappings']) == {
         'arm_controller/commands': '/forward_position_controller/commands',
