@@ -101,7 +101,7 @@ def generate_launch_description():
         ('command_interface', '', 'effort (N m) or position (rad) (empty: from params_file)'),
         ('command_message', '', 'forward (Float64MultiArray) or trajectory (JointTrajectory) '
                                 '(empty: from params_file)'),
-        ('controller_name', '', "the controller whose joints parameter configure checks, "
+        ('controller_name', '', 'the controller whose joints parameter configure checks, '
                                 'e.g. /scaled_joint_trajectory_controller (empty: from '
                                 'params_file)'),
         ('commands_topic', REMAPS['commands_topic'],
