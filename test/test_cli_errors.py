@@ -60,6 +60,20 @@ def test_eval_accepts_a_run_dir(run_dir):
     assert 'policy version 0: return' in done.stdout
 
 
+def test_eval_answers_a_missing_path_before_importing_torch(tmp_path):
+    """``eval runs/nope`` is refused in one line with torch unimportable (it took seconds)."""
+    from test_architecture import BLOCKER
+    # BLOCKER's own imports after the blocker, then the command instead of the layers
+    code = BLOCKER.split('import pg_node')[0] + (
+        'import runpy\nsys.argv = ["pg_node", "eval", sys.argv[2]]\n'
+        'runpy.run_module("pg_node", run_name="__main__")\n')
+    env = dict(os.environ, PYTHONPATH=str(REPO))
+    done = subprocess.run([sys.executable, '-c', code, 'torch', str(tmp_path / 'nope')],
+                          env=env, cwd=REPO, capture_output=True, text=True, timeout=60)
+    refused(done, 2, f'eval: no such file or directory: {tmp_path / "nope"}')
+    assert len(done.stderr.strip().splitlines()) == 1, done.stderr
+
+
 def test_eval_refuses_the_critic_dir(run_dir):
     refused(run('eval', run_dir / 'critic', '--episodes', 2), 1, 'critic', 'not policy')
 

@@ -13,11 +13,9 @@ nominal evaluation's, so the two reports compare episode for episode.
 """
 import argparse
 import json
+import os
 import sys
 
-from pg_node.rl.evaluate import evaluate_policy
-from pg_node.rl.learner import policy_from_checkpoint
-from pg_node.rl.trained_policy import find_checkpoint, PolicySourceError
 from pg_node.tools.args import positive_int
 
 
@@ -39,7 +37,13 @@ def main(argv=None) -> int:
                              'e.g. mass_scale=1.3 latency_steps=2')
     parser.add_argument('--json', action='store_true', help='print JSON')
     args = parser.parse_args(argv)
+    if not os.path.exists(args.checkpoint):  # answered before torch is imported
+        print(f'eval: no such file or directory: {args.checkpoint}', file=sys.stderr)
+        return 2
     from pg_node.common.perturbations import BadTerm, parse_perturbation
+    from pg_node.rl.evaluate import evaluate_policy
+    from pg_node.rl.learner import policy_from_checkpoint
+    from pg_node.rl.trained_policy import find_checkpoint, PolicySourceError
     try:
         perturbation = parse_perturbation(args.perturb)
     except BadTerm as exc:
