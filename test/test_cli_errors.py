@@ -169,6 +169,16 @@ def test_train_refuses_a_bad_override_before_starting(tmp_path, override, words)
     assert not (tmp_path / 'run').exists()  # nothing was started
 
 
+def test_train_says_to_quote_an_override_with_spaces(tmp_path):
+    """The shell split ``randomize_latency=uniform 0 2``: the bare words were ignored."""
+    done = run('train', 'randomize_latency=uniform', '0', '2', '--run-dir', tmp_path / 'run',
+               timeout=60)
+    refused(done, 2, "configuration error: override '0' looks like the rest of an override "
+            "with spaces: quote it: 'randomize_latency=uniform 0 2'")
+    assert len(done.stderr.strip().splitlines()) == 1, done.stderr
+    assert not (tmp_path / 'run').exists()  # nothing was started
+
+
 def _not_an_arm(tmp_path, kind):
     """Write a model that MuJoCo compiles but that is no pg_node arm (or a URDF)."""
     import re

@@ -17,6 +17,7 @@ import difflib
 import math
 from pathlib import Path
 import re
+import shlex
 from typing import Any, Callable, Dict, Optional, Sequence, Tuple
 
 from pg_node.common.paths import check_model
@@ -439,6 +440,33 @@ def known_keys() -> set:
     return set(SHARED_PARAMS).union(*(set(t) for t in SCHEMA.values()))
 
 
+_OVERRIDE = re.compile(r'([^=:]+)(:?=)(.*)', re.S)
+
+
+def check_unquoted(overrides: Sequence[str]) -> None:
+    """
+    Raise ConfigError for a word after ``key=value`` that is no override: unquoted spaces.
+
+    >>> try:
+    ...     check_unquoted(['randomize_latency=uniform', '0', '2', 'seed=1'])
+    ... except ConfigError as exc:
+    ...     print(str(exc).split(': ')[-1])
+    'randomize_latency=uniform 0 2'
+    """
+    texts = list(overrides)
+    for i, text in enumerate(texts):
+        if i == 0 or _OVERRIDE.fullmatch(text) is not None:
+            continue
+        if _OVERRIDE.fullmatch(texts[i - 1]) is None:
+            return                  # a bare word first: parse_override says what is wrong
+        end = i
+        while end < len(texts) and _OVERRIDE.fullmatch(texts[end]) is None:
+            end += 1
+        whole = shlex.quote(' '.join(texts[i - 1:end]))
+        raise ConfigError(f'override {text!r} looks like the rest of an override with spaces: '
+                          f'quote it: {whole}')
+
+
 def parse_override(text: str):
     """
     Split ``key=value`` or ``key:=value`` (value parsed as YAML: ``3``, ``0.5``, ``[64, 64]``).
@@ -449,7 +477,7 @@ def parse_override(text: str):
     >>> parse_override('model:=my_arm.xml'), parse_override('actor_node.n_steps=16')
     (('model', 'my_arm.xml'), ('actor_node.n_steps', 16))
     """
-    match = re.fullmatch(r'([^=:]+)(:?=)(.*)', text, re.S)
+    match = _OVERRIDE.fullmatch(text)
     if match is None:
         raise ConfigError(f'override {text!r} is not of the form key=value (or key:=value)')
     key, raw = match.group(1), match.group(3)
@@ -488,6 +516,7 @@ def load_config(path=None, overrides: Sequence[str] = (), extra_sections=None
     tables.update({name: params_for(name) for name in SCHEMA})
     tables.update(extra)
     given = {name: {} for name in tables}
+    check_unquoted(overrides)
     if path is not None:
         for name, params in _read_sections(path).items():
             if name not in tables:
