@@ -685,9 +685,10 @@ def main(argv=None) -> int:
         print(f'configuration error: {exc}', file=sys.stderr)
         return 2
     run_dir = Path(cfg[SHARED]['run_dir'])
-    run_dir.mkdir(parents=True, exist_ok=True)
     params = run_dir / 'params.yaml'
-    write_params(cfg, params)
+    if args.part != 'workers':      # a worker host writes its run folder once it has joined
+        run_dir.mkdir(parents=True, exist_ok=True)
+        write_params(cfg, params)
     total = cfg['learner_node']['total_steps']
     n_act = cfg[SHARED]['num_actors']
     algo = f"{cfg['learner_node']['algo']} (phi = {cfg['critic_node']['estimator']})"
@@ -806,7 +807,8 @@ def run_workers(args, cfg: dict, actors: List[int], params: Path, discovery: dic
     Run this host's simulator/actor pairs of a run whose learner runs on another host.
 
     Waits for the learner host's announcement (:mod:`pg_node.tools.hosts`), refuses to join a
-    run that no learner announces or whose configuration differs, then supervises the pairs
+    run that no learner announces or whose configuration differs (leaving no run folder:
+    it is written once the host has joined), then supervises the pairs
     (restarting one that dies) until the learner host says the run has ended.
     """
     from pg_node.tools.hosts import Follower
@@ -832,6 +834,8 @@ def run_workers(args, cfg: dict, actors: List[int], params: Path, discovery: dic
             print(f'run {run_id} has ended on the learner host ({info["state"]}): nothing '
                   'to do', file=sys.stderr)
             return 1
+        run_dir.mkdir(parents=True, exist_ok=True)
+        write_params(cfg, params)
         compose = not args.separate
         sup = Supervisor(run_dir, node_commands(params, cfg, compose, 'workers', actors),
                          args.max_restarts, None, sim_seeds(cfg, compose),
