@@ -173,6 +173,58 @@ def test_topics_lists_types_endpoints_and_rates(publisher):
     assert 'diagnostic_msgs/msg/DiagnosticArray' in plain.stdout and '…' not in plain.stdout
 
 
+class Graph:
+    """A graph whose topic list changes at given times of a clock that only ``spin`` moves."""
+
+    def __init__(self, *changes):
+        self.changes = changes          # (time, topic names from then on)
+        self.now = 0.0
+        self.asked = []
+
+    def names(self):
+        current = [names for at, names in self.changes if at <= self.now][-1]
+        self.asked.append((self.now, current))
+        return current
+
+    def spin(self, seconds):
+        self.now = round(self.now + seconds, 6)
+
+
+BASIC = ['/parameter_events', '/rosout']
+
+
+def test_discovery_waits_for_a_node_that_comes_late():
+    """The first answers hold only the basic topics, then one node's, then another's."""
+    from pg_node.tools.topics import wait_for_discovery
+    late = BASIC + ['/joint_states', '/arm/commands']
+    graph = Graph((0.0, BASIC), (1.0, BASIC + ['/joint_states']), (1.4, late))
+    assert wait_for_discovery(graph.names, graph.spin, settle=0.5, longest=5.0,
+                              clock=lambda: graph.now)
+    assert graph.asked[-1][1] == late              # the late node's topic was waited for
+    last_change = min(t for t, names in graph.asked if names == late)
+    # ended once the list had settled (within one poll)
+    assert last_change + 0.5 - 1e-9 <= graph.now <= last_change + 0.6 + 1e-9
+
+
+def test_discovery_ends_early_on_an_idle_graph_and_at_the_longest_on_an_empty_one():
+    from pg_node.tools.topics import wait_for_discovery
+    idle = Graph((0.0, BASIC + ['/joint_states']))
+    assert wait_for_discovery(idle.names, idle.spin, settle=0.5, longest=5.0,
+                              clock=lambda: idle.now)
+    assert 0.5 - 1e-9 <= idle.now <= 0.6 + 1e-9    # not the 5 s at most
+    empty = Graph((0.0, BASIC))                    # only the basic topics: no answer yet
+    assert not wait_for_discovery(empty.names, empty.spin, settle=0.5, longest=5.0,
+                                  clock=lambda: empty.now)
+    assert 5.0 - 1e-9 <= empty.now <= 5.1 + 1e-9
+
+
+def test_topics_help_says_how_long_it_waits_for_discovery():
+    done = run('topics', '--help', columns=100)
+    assert done.returncode == 0, done.stderr
+    text = ' '.join(done.stdout.split())
+    assert 'has not changed for --settle seconds' in text and '(default: 5.0)' in text
+
+
 GRAPH_ROWS = [  # the longest names and types of a training graph
     {'name': '/arm3/pg_node/transition', 'types': ['std_msgs/msg/Float64MultiArray'],
      'publishers': 1, 'subscribers': 1, 'count': 123456, 'rate_hz': 1234.5},
@@ -245,7 +297,8 @@ def test_monitor_and_topics_tell_two_runs_apart(publisher):
         names = {r['name'] for r in json.loads(listed.stdout)}
         assert '/exp_b/pg_node/metrics/policy_loss' in names and '/diagnostics' in names
         assert not any(n.startswith('/pg_node/') for n in names), names
-        both = run('topics', '--discovery', '4', '--duration', '0.5')
+        # two participants: under load the second may be found seconds after the first
+        both = run('topics', '--discovery', '8', '--settle', '4', '--duration', '0.5')
         assert 'runs: (no run id), exp_b' in both.stdout, both.stdout
     finally:
         other.close()

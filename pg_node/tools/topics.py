@@ -2,9 +2,11 @@
 ``python -m pg_node topics``: the graph's topics, types, publishers, subscribers and rates.
 
 For users without the ``ros2`` command line (``ros2 topic list -t``, ``ros2 topic info``,
-``ros2 topic hz`` in one). It joins the graph (``ROS_DOMAIN_ID`` as usual), waits
-``--discovery`` seconds for discovery, then listens to every topic whose type is installed
-for ``--duration`` seconds more (topics found meanwhile are listened to from then on) with a
+``ros2 topic hz`` in one). It joins the graph (``ROS_DOMAIN_ID`` as usual) and waits for
+discovery to settle (:func:`wait_for_discovery`: the graph's topic list unchanged for
+``--settle`` seconds once it holds more than ``/parameter_events`` and ``/rosout``, at most
+``--discovery`` seconds), then listens to every topic whose type is installed for
+``--duration`` seconds more (topics found meanwhile are listened to from then on) with a
 best-effort, volatile subscription (which matches any
 publisher) taking the serialised bytes only, and prints one row per topic: type, number of
 publishers and of subscribers (its own listener not counted), messages received and rate in
@@ -22,7 +24,7 @@ import sys
 import time
 
 from pg_node.common.run import run_label, run_namespace, run_of_topic
-from pg_node.tools.args import run_id_arg
+from pg_node.tools.args import non_negative_float, run_id_arg
 
 
 def in_run(name: str, run) -> bool:
@@ -44,10 +46,44 @@ def runs_in(names) -> list:
                    if run is not None})
 
 
-def survey(discovery=1.0, duration=2.0, include_hidden=False, context=None, run=None):
+#: the topics of any node, this tool's own too: a graph of these only is not an answer yet
+TRIVIAL_TOPICS = frozenset({'/parameter_events', '/rosout'})
+DISCOVERY_MAX = 5.0
+SETTLE = 1.0
+POLL = 0.1
+
+
+def wait_for_discovery(names, spin, settle=SETTLE, longest=DISCOVERY_MAX,
+                       clock=time.monotonic) -> bool:
+    """
+    Spin until discovery settles; return whether it did (False: ``longest`` seconds passed).
+
+    Settled: the topic names (``names()``, polled every :data:`POLL` s between calls of
+    ``spin(seconds)``) have not changed for ``settle`` seconds and hold a topic besides
+    :data:`TRIVIAL_TOPICS`. On a loaded machine the first answers list only those two, and
+    the nodes' topics come later, one node at a time: each change starts the wait again.
+    """
+    start = clock()
+    seen, since = None, start
+    while True:
+        now = clock()
+        current = frozenset(names())
+        if current != seen:
+            seen, since = current, now
+        elif seen - TRIVIAL_TOPICS and now - since >= settle:
+            return True
+        if now - start >= longest:
+            return False
+        spin(POLL)
+
+
+def survey(discovery=DISCOVERY_MAX, duration=2.0, include_hidden=False, context=None,
+           run=None, settle=SETTLE):
     """
     Return one dict per topic: name, types, publishers, subscribers, count, rate_hz.
 
+    Waits for discovery to settle first (:func:`wait_for_discovery`, ``settle`` seconds of
+    no change, at most ``discovery`` seconds), then measures for ``duration`` seconds.
     ``run``: only that run's topics and ``/diagnostics`` (:func:`in_run`).
     """
     from pg_node.bag import ros_types
@@ -67,7 +103,8 @@ def survey(discovery=1.0, duration=2.0, include_hidden=False, context=None, run=
                      durability=DurabilityPolicy.VOLATILE)
 
     def refresh():
-        for name, types in node.get_topic_names_and_types():
+        graph = node.get_topic_names_and_types()
+        for name, types in graph:
             if name in topics or not in_run(name, run) or (not include_hidden and any(
                     part.startswith('_') for part in name.split('/'))):
                 continue
@@ -81,10 +118,18 @@ def survey(discovery=1.0, duration=2.0, include_hidden=False, context=None, run=
                 stamps.append(time.monotonic())
             node.create_subscription(cls, name, on_message, qos, raw=True)
             listening.add(name)
+        return [name for name, _ in graph]
+
+    def spin(seconds):
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            executor.spin_once(timeout_sec=max(0.0, min(0.05, end - time.monotonic())))
 
     try:
+        # what is found is listened to from then on, while discovery settles too
+        wait_for_discovery(refresh, spin, settle, discovery)
         # discovery goes on while we listen: a topic found late is measured for less time
-        end = time.monotonic() + discovery + duration
+        end = time.monotonic() + duration
         next_refresh = 0.0
         while time.monotonic() < end:
             if time.monotonic() >= next_refresh:
@@ -165,15 +210,22 @@ def main(argv=None) -> int:
                                      description='Topics with types, endpoints and rates.')
     parser.add_argument('--duration', type=float, default=2.0,
                         help='seconds to measure rates over')
-    parser.add_argument('--discovery', type=float, default=1.0,
-                        help='seconds to wait for discovery first')
+    parser.add_argument('--discovery', type=non_negative_float, default=DISCOVERY_MAX,
+                        help='at most this many seconds to wait for discovery first; the '
+                             'wait ends once the topic list (more than /parameter_events and '
+                             '/rosout) has not changed for --settle seconds (default: '
+                             '%(default)s)')
+    parser.add_argument('--settle', type=non_negative_float, default=SETTLE,
+                        help='seconds without a new or gone topic that end the wait for '
+                             'discovery (default: %(default)s)')
     parser.add_argument('--include-hidden', action='store_true')
     parser.add_argument('--json', action='store_true', help='print JSON')
     parser.add_argument('--run', type=run_id_arg,
                         help="only this run's topics (and /diagnostics)")
     args = parser.parse_args(argv)
     try:
-        rows = survey(args.discovery, args.duration, args.include_hidden, run=args.run)
+        rows = survey(args.discovery, args.duration, args.include_hidden, run=args.run,
+                      settle=args.settle)
     except KeyboardInterrupt:
         return 130
     if args.json:
