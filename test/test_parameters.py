@@ -204,3 +204,19 @@ def test_every_parameter_is_live_or_read_only_with_its_range():
     learner = params_for('learner_node')
     assert learner['learning_rate'].live and not learner['algo'].live
     assert 'read-only' in descriptor(sim['mode']).description
+
+
+@pytest.mark.parametrize('node', ['policy_node', 'sim_node'])
+def test_a_node_run_by_hand_prints_its_parameters_for_help(node):
+    """``policy_node --help`` (ros2 run, on a robot) lists each parameter and exits 0."""
+    import subprocess
+    from pg_node.common.params import params_for, POLICY_PARAMS
+    table = POLICY_PARAMS if node == 'policy_node' else params_for(node)
+    env = dict(os.environ, PYTHONPATH=str(REPO))
+    done = subprocess.run([sys.executable, '-m', f'pg_node.ros.{node}', '--help'],
+                          env=env, cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0 and done.stderr == '', done.stderr
+    assert done.stdout.startswith(f'usage: ros2 run pg_node {node}')
+    for key, param in table.items():
+        assert f'\n  {key} ({param.default!r}' in done.stdout, key
+        assert ' '.join(param.description.split()[:4]) in done.stdout, key

@@ -130,7 +130,7 @@ from pg_node.ros import command
 from pg_node.ros import table_msg
 from pg_node.ros.diagnostics import Diagnostics, RateCounter
 from pg_node.ros.parameters import declare_params
-from pg_node.ros.runtime import run
+from pg_node.ros.runtime import params_help, run
 from pg_node.sim.actuation import actuators
 from pg_node.sim.kinematics_check import compare_kinematics
 from pg_node.sim.observation import ObservationBuilder
@@ -874,6 +874,8 @@ def _ranges(low: np.ndarray, high: np.ndarray) -> str:
 
 def main(args=None):
     """Run policy_node until Ctrl-C or an external shutdown (one hold command, if active)."""
+    if params_help('policy_node', POLICY_PARAMS, args):
+        return 0
     return run(PolicyNode, args, cleanup=lambda node: node.stop())
 
 

@@ -11,8 +11,9 @@ import contextlib
 import os
 import signal
 import sys
+import textwrap
 import threading
-from typing import Callable, Iterator, List, Optional, Union
+from typing import Callable, Iterator, List, Mapping, Optional, Union
 
 from pg_node.common.params import ConfigError
 from pg_node.common.paths import SUPERVISOR_ENV
@@ -281,6 +282,30 @@ def init_quietly(args=None) -> Optional[str]:
             sys.stderr.buffer.write(text)
             sys.stderr.flush()
     return None
+
+
+def params_help(name: str, table: Mapping, args=None) -> bool:
+    """
+    Print ``name``'s parameters if the command line asks ``--help``/``-h``; return whether.
+
+    Asked before ``--ros-args`` (rclpy is not initialised: no graph is joined). ``table``:
+    a map of parameter name to :class:`pg_node.common.params.Param`.
+    """
+    argv = list(sys.argv if args is None else args)
+    if '--ros-args' in argv:
+        argv = argv[:argv.index('--ros-args')]
+    if not {'-h', '--help'} & set(argv):
+        return False
+    print(f'usage: ros2 run pg_node {name} [--ros-args -p NAME:=VALUE ... '
+          '| --params-file FILE]\n\nparameters (default; live: ros2 param set takes it while '
+          'the node runs):')
+    for key, param in table.items():
+        live = ', live' if param.live else ''
+        choices = f' One of: {", ".join(map(str, param.choices))}.' if param.choices else ''
+        print(f'  {key} ({param.default!r}{live})')
+        print(textwrap.fill(param.description + choices, 79, initial_indent=' ' * 6,
+                            subsequent_indent=' ' * 6))
+    return True
 
 
 def run(make_node: Callable[[], Union[Node, List[Node]]], args=None,

@@ -120,7 +120,7 @@ from pg_node.ros import table_msg
 from pg_node.ros import transition
 from pg_node.ros.parameters import declare_params
 from pg_node.ros.run_protocol import EndWithLearner, RANDOMIZATION, RunGuard
-from pg_node.ros.runtime import run
+from pg_node.ros.runtime import params_help, run
 from pg_node.sim.actuation import actuators
 from pg_node.sim.arm_task import arm_groups, ArmTask
 from rclpy.event_handler import PublisherEventCallbacks
@@ -705,6 +705,8 @@ class SimNode(Node):
 
 def main(args=None):
     """Run sim_node until Ctrl-C or an external shutdown."""
+    if params_help('sim_node', params_for('sim_node'), args):
+        return 0
     return run(SimNode, args, cleanup=lambda node: node.close())
 
 
