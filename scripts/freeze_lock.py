@@ -7,7 +7,8 @@ Only real distributions (``.dist-info``) are listed; the ROS wheels also carry
 import importlib.metadata
 import sys
 
-SKIP = {'pip', 'setuptools', 'wheel', 'pg_node'}   # pg_node: the editable install of this checkout
+# pg_node: the editable install of this checkout; uv: the installer, pinned in the Makefile
+SKIP = {'pip', 'setuptools', 'wheel', 'pg_node', 'uv'}
 
 
 def main(path='requirements.lock'):
