@@ -75,10 +75,11 @@ def test_an_add_that_takes_a_model_value_below_zero_is_refused():
 
 def test_perturbation_keys():
     got = parse_perturbation(['mass_scale=1.3', 'latency_steps=2', 'obs_noise=0.02',
-                              'damping_add=0.5'])
+                              'damping_add=0.5', 'servo_bandwidth=5', 'payload=0.5'])
     assert {t: s.text() for t, s in got.items()} == {
         'mass': 'scale 1.3 startup', 'latency': 'abs 2 startup', 'obs_noise': 'abs 0.02 startup',
-        'damping': 'add 0.5 startup'}
+        'damping': 'add 0.5 startup', 'servo_bandwidth': 'abs 5 startup',
+        'payload': 'abs 0.5 startup'}
     for bad, message in [(['mass=1.3', 'mass_scale=1'], 'mass given twice'),
                          (['weight_scale=2'], 'unknown key; known: mass_scale'),
                          (['mass_scale'], 'write KEY=VALUE'),
