@@ -23,7 +23,7 @@ from pg_node.common.params import load_config
 from pg_node.common.paths import resolve_model
 from pg_node.sim.arm_task import ArmTask
 from pg_node.sim.urdf_import import (import_urdf, ImportOptions, read_urdf, resolve_mesh,
-                                     UrdfImportError)
+                                     training_settings, UrdfImportError)
 from pg_node.tools import arm
 import pytest
 
@@ -444,8 +444,8 @@ def test_links_without_mass_are_named(tmp_path, capsys):
 
 def test_continuous_joints_turn_without_end(tmp_path, capsys):
     out = tmp_path / 'cont.xml'
-    code, stdout, err = run_import(capsys, FIXTURES / 'continuous.urdf', '--tip', 'tip', '-o',
-                                   out)
+    code, stdout, err = run_import(capsys, FIXTURES / 'continuous.urdf', '--tip', 'tip',
+                                   '--velocity-damping', '-o', out)
     assert code == 0, err
     assert 'arm joints (2): joint0, joint1' in stdout
     assert "joint 'joint0' has no effort limit; using 1 N m" in err
@@ -470,7 +470,8 @@ def test_mimic_on_the_chain_couples_and_below_the_tip_is_fixed(tmp_path, capsys)
     import measures and prints by how much); at rest it settles onto its mimic.
     """
     out = tmp_path / 'mimic.xml'
-    code, stdout, err = run_import(capsys, FIXTURES / 'mimic.urdf', '--tip', 'tip', '-o', out)
+    code, stdout, err = run_import(capsys, FIXTURES / 'mimic.urdf', '--tip', 'tip',
+                                   '--velocity-damping', '--timestep', 0.02, '-o', out)
     assert code == 0, err
     assert 'arm joints (2): joint0, joint2' in stdout
     assert 'fixed joints (2): finger_left_joint, finger_right_joint' in stdout
@@ -577,30 +578,68 @@ def test_xacro_files_are_expanded_with_their_arguments(tmp_path, capsys, monkeyp
     assert exc.value.code == 2 and "'length=2' is not NAME:=VALUE" in capsys.readouterr().err
 
 
-def test_defaults_that_learn_and_what_the_command_says(tmp_path, capsys):
-    """
-    A 0.02 s timestep, velocity damping and gravity compensation by default, and said so.
+def model_text(path, name: str) -> str:
+    """Return the custom text ``name`` of the model at ``path`` ('' when it has none)."""
+    model = mujoco.MjModel.from_xml_path(str(path))
+    i = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_TEXT, name)
+    if i < 0:
+        return ''
+    adr, size = model.text_adr[i], model.text_size[i]
+    return bytes(model.text_data[adr:adr + size - 1]).decode()
 
-    The timestep makes 2 s episodes with pg_node's 50 steps of frame_skip 2; the command
-    prints the physics it chose and the train command (frame_skip:= for another timestep).
-    Velocity damping holds full torque to the URDF's velocity limit (10 rad/s here): the
-    old default, 0.002 s without damping, let bang-bang torques spin reacher2's joints past
-    200 rad/s.
+
+def test_torque_defaults_add_no_damping_and_what_the_command_says(tmp_path, capsys):
+    """
+    Motor actuators: the URDF's damping only, a 0.002 s timestep, gravity compensation.
+
+    A robot in torque mode enforces no velocity damping, so the defaults add none (the
+    URDF's <dynamics damping> 1 stays); undamped, a torque arm needs the finer step (0.02 s
+    blows up, see the example-robot-data test), which the train command's frame_skip:=20
+    keeps at a 0.04 s control step. The model keeps what it assumes (pg_physics_assumptions).
     """
     out = tmp_path / 'arm.xml'
     code, stdout, err = run_import(capsys, TWO_LINK, '--tip', 'fingertip', '-o', out)
     assert code == 0 and not err, err
+    assert ("physics: timestep 0.002 s (implicitfast), the URDF's damping (no velocity "
+            'damping), gravity compensation on, motor actuators') in stdout
+    assert (f'model:={out} frame_skip:=20  (a control step of 20 x 0.002 s = 0.04 s, '
+            '50-step episodes of 2 s)') in stdout
+    model = mujoco.MjModel.from_xml_path(str(out))
+    assert model.opt.timestep == 0.002
+    np.testing.assert_allclose(model.dof_damping, [1, 1])
+    assert model.body_gravcomp[model.body('link1').id] == 1.0
+    said = model_text(out, 'pg_physics_assumptions')
+    assert said.startswith('gravity compensation: the robot cancels') and 'velocity' not in said
+    # position servos keep velocity damping and the 0.02 s step by default
+    code, stdout, err = run_import(capsys, TWO_LINK, '--tip', 'fingertip', '--actuator',
+                                   'position', '-o', out)
+    assert code == 0 and 'timestep 0.02 s (implicitfast), velocity damping' in stdout
+
+
+def test_velocity_damping_is_the_old_default_kept_as_an_assumption(tmp_path, capsys):
+    """
+    ``--velocity-damping``: damping = effort / velocity limit, said in the model's text.
+
+    It holds full torque to the URDF's velocity limit (10 rad/s here); without it, at
+    0.002 s, bang-bang torques spin reacher2's joints past 100 rad/s.
+    """
+    out = tmp_path / 'arm.xml'
+    code, stdout, err = run_import(capsys, TWO_LINK, '--tip', 'fingertip', '--velocity-damping',
+                                   '--timestep', 0.02, '-o', out)
+    assert code == 0 and not err, err
     assert ('physics: timestep 0.02 s (implicitfast), velocity damping (effort / velocity '
-            'limit), gravity compensation on, motor actuators') in stdout
+            'limit, an assumption), gravity compensation on, motor actuators') in stdout
     assert (f'train with: python -m pg_node train model:={out}  (a control step of 2 x 0.02 s '
             '= 0.04 s, 50-step episodes of 2 s)') in stdout
     model = mujoco.MjModel.from_xml_path(str(out))
-    assert model.opt.timestep == 0.02
     np.testing.assert_allclose(model.dof_damping, [200 / 10] * 2)
-    assert model.body_gravcomp[model.body('link1').id] == 1.0
+    assert model_text(out, 'pg_physics_assumptions').startswith(
+        'velocity_damping: each arm joint is damped by effort / velocity limit (N m s/rad), '
+        "as if the robot's controller enforced it; a robot in torque mode does not")
 
     def fastest(path):
-        task = ArmTask(path, num_envs=4, seed=0)
+        task = ArmTask(path, num_envs=4, seed=0, frame_skip=training_settings(
+            mujoco.MjModel.from_xml_path(str(path)).opt.timestep)[0])
         task.reset()
         rng = np.random.default_rng(0)
         top = 0.0
@@ -610,20 +649,20 @@ def test_defaults_that_learn_and_what_the_command_says(tmp_path, capsys):
         return top
 
     assert fastest(out) < 1.5 * 10
-    code, stdout, err = run_import(capsys, TWO_LINK, '--tip', 'fingertip', '--timestep',
-                                   0.002, '--no-velocity-damping', '--no-gravity-compensation',
-                                   '-o', out)
-    assert code == 0
-    assert 'warning: no velocity damping: torque-driven joints' in err
-    assert "the URDF's damping (no velocity damping), gravity compensation off" in stdout
-    assert (f'model:={out} frame_skip:=20  (a control step of 20 x 0.002 s = 0.04 s, '
-            '50-step episodes of 2 s)') in stdout
+    code, stdout, err = run_import(capsys, TWO_LINK, '--tip', 'fingertip',
+                                   '--no-gravity-compensation', '-o', out)
+    assert code == 0 and "the URDF's damping (no velocity damping), gravity compensation off" \
+        in stdout
+    assert model_text(out, 'pg_physics_assumptions') == ''
     assert fastest(out) > 100
     # --damping replaces velocity damping unless that is asked for too
     code, stdout, err = run_import(capsys, TWO_LINK, '--tip', 'fingertip', '--damping', 3,
                                    '-o', out)
     assert code == 0 and 'damping 3 N m s/rad (no velocity damping)' in stdout and not err
+    assert 'timestep 0.02 s' in stdout
     np.testing.assert_allclose(mujoco.MjModel.from_xml_path(str(out)).dof_damping, [3, 3])
+    assert 'damping: every arm joint is damped by 3 N m s/rad' in model_text(
+        out, 'pg_physics_assumptions')
     code, stdout, err = run_import(capsys, TWO_LINK, '--tip', 'fingertip', '--damping', 3,
                                    '--velocity-damping', '--timestep', 0.01, '-o', out)
     np.testing.assert_allclose(mujoco.MjModel.from_xml_path(str(out)).dof_damping, [20, 20])
@@ -660,17 +699,19 @@ def test_example_robot_data_arms_import_and_simulate(name, example_robot_data, t
     """
     Vendors' URDFs as they ship (COLLADA meshes, massless frames, grippers, continuous joints).
 
-    Each imports with the defaults, has its arm joints, and 50 control steps of bang-bang
-    commands from another folder stay finite, every joint within 3x its URDF velocity limit
-    (seen: 1.0-2.4x; without velocity damping UR5, Z1 and SO-101 reach 10^4-10^8 rad/s and
-    MuJoCo resets them as unstable).
+    Each imports with velocity damping at 0.02 s (the defaults before issue 46), has its arm
+    joints, and 50 control steps of bang-bang commands from another folder stay finite,
+    every joint within 3x its URDF velocity limit (seen: 1.0-2.4x; without velocity damping
+    at 0.02 s UR5, Panda, Z1 and SO-101 reach 10^4-10^8 rad/s and MuJoCo resets them as
+    unstable).
     """
     rel, tip, joints = EXAMPLE_ARMS[name]
     urdf = example_robot_data / 'example-robot-data' / 'robots' / rel
     out = tmp_path / 'models' / f'{name}.xml'
     out.parent.mkdir()
     code, stdout, err = run_import(capsys, urdf, '--tip', tip, '--package-path',
-                                   example_robot_data, '--targets', 100, '-o', out)
+                                   example_robot_data, '--targets', 100, '--velocity-damping',
+                                   '--timestep', 0.02, '-o', out)
     assert code == 0, err
     assert f'arm joints ({joints}): ' in stdout
     monkeypatch.chdir(tmp_path)
@@ -804,3 +845,38 @@ def test_sim_node_runs_the_imported_arm(tmp_path):
         client.close()
         rc, log = stop_node(proc)
     assert rc == 0 and 'Traceback' not in log, log[-2000:]
+
+
+@pytest.mark.parametrize('name, unstable', [('ur5', False), ('panda', False),
+                                            ('so101', True)])
+def test_torque_defaults_of_vendor_arms_are_stable_or_said_not_to_be(
+        name, unstable, example_robot_data, tmp_path, capsys):
+    """
+    With the defaults (motor, no added damping, 0.002 s) UR5 and Panda stay stable.
+
+    Under bang-bang full torque neither is reset by MuJoCo (seen: 181 and 225 rad/s at most,
+    what a torque robot reaches before its over-speed fault) and the import warns of nothing
+    unstable; the SO-101's light links still go unstable at 0.002 s, and the import says
+    so in one line with what to do (its servos take --actuator position anyway).
+    """
+    rel, tip, _ = EXAMPLE_ARMS[name]
+    urdf = example_robot_data / 'example-robot-data' / 'robots' / rel
+    out = tmp_path / f'{name}.xml'
+    code, stdout, err = run_import(capsys, urdf, '--tip', tip, '--package-path',
+                                   example_robot_data, '--targets', 50, '--no-visual-meshes',
+                                   '-o', out)
+    assert code == 0, err
+    said = [line for line in err.splitlines() if 'unstable' in line]
+    assert bool(said) == unstable, err
+    if unstable:
+        assert said[0].startswith('warning: MuJoCo found the simulation unstable')
+        assert '--armature' in said[0] and '--velocity-damping' in said[0]
+    model = mujoco.MjModel.from_xml_path(str(out))
+    robot = read_urdf(urdf)
+    urdf_damping = []
+    for i in range(model.nu):
+        dynamics = robot.find(f'joint[@name="{model.actuator(i).name}"]/dynamics')
+        urdf_damping.append(float(dynamics.get('damping', 0)) if dynamics is not None else 0)
+    dofs = model.jnt_dofadr[model.actuator_trnid[:, 0]]
+    np.testing.assert_allclose(model.dof_damping[dofs], urdf_damping)
+    assert model.opt.timestep == 0.002

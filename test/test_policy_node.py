@@ -1389,3 +1389,31 @@ def listened(client):
     n = len(client.diagnostics)
     client.wait(lambda: len(client.diagnostics) > n + 1, what='two more statuses')
     return client.diagnostics[-1], alone
+
+
+# --- issue 46: the training physics on the card, against the robot's settings -----------
+
+
+def test_configure_warns_in_one_line_when_the_settings_contradict_the_cards_physics(
+        tmp_path, client, trained):
+    """
+    reacher2 learned at 50 Hz with nothing compensating gravity: 100 Hz and robot say other.
+
+    Configure still succeeds (the user may know better) and logs one WARN line naming both
+    contradictions (pg_node.control.physics_check); the card's physics came with the export.
+    """
+    physics = trained['policy'].card['physics']
+    assert physics['control_period'] == pytest.approx(0.02)
+    assert physics['gravity_compensation'] == 'policy'
+    pol = start_policy(tmp_path, f'policy:={trained["onnx"]}', 'control_rate:=100.0',
+                       'gravity_compensation:=robot')
+    try:
+        assert not feed_until_exit(client, pol)             # configured and active
+    finally:
+        code, log = processes.stop_logged(pol)
+    assert code == 0 and 'Traceback' not in log, log[-2000:]
+    said = [line for line in log.splitlines() if 'contradict' in line]
+    assert len(said) == 1 and '[WARN]' in said[0], log[-2000:]
+    assert ("the parameters contradict the policy card's physics: control_rate 100 Hz, the "
+            'policy was trained at 50 Hz (control period 0.02 s); gravity_compensation '
+            'robot, the policy was trained with no gravity compensation') in said[0]

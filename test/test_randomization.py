@@ -24,7 +24,8 @@ EVERY_TERM = {'mass': 'uniform 0.5 2', 'damping': 'log_uniform 0.5 3',
               'frictionloss': 'add uniform 0 0.05 startup', 'armature': 'gaussian 1 0.1 every 7',
               'gear': 'uniform 0.6 1.4', 'latency': 'uniform 0 2', 'obs_noise': '0.01',
               'vel_noise': 'gaussian 0.05 0.01', 'action_noise': '0.05',
-              'target_noise': 'uniform 0 0.01'}
+              'target_noise': 'uniform 0 0.01', 'servo_bandwidth': 'log_uniform 2 20',
+              'servo_latency': 'uniform 0 0.03', 'payload': 'uniform 0 0.5'}
 
 
 def actions(steps, n, seed=0):
@@ -45,6 +46,10 @@ def actions(steps, n, seed=0):
     ('gear', 'uniform 0.5 1 every 0', 'need a whole number of control steps >= 1'),
     ('gear', 'uniform a 1', "gear: 'a' is not a number"),
     ('torque', '1', "unknown term 'torque'"),
+    ('servo_bandwidth', 'uniform 0 5', 'a servo bandwidth must stay > 0 Hz (it can draw 0)'),
+    ('servo_latency', 'uniform 0 2', 'the servo latency must stay within 0..1 s'),
+    ('servo_latency', 'scale 0.01', 'servo_latency: only abs applies'),
+    ('payload', 'gaussian 0.5 0.5', 'a payload must be >= 0 kg (it can draw -1)'),
 ])
 def test_bad_terms_are_refused_in_one_line(term, text, message):
     with pytest.raises(BadTerm) as err:
@@ -70,10 +75,11 @@ def test_an_add_that_takes_a_model_value_below_zero_is_refused():
 
 def test_perturbation_keys():
     got = parse_perturbation(['mass_scale=1.3', 'latency_steps=2', 'obs_noise=0.02',
-                              'damping_add=0.5'])
+                              'damping_add=0.5', 'servo_bandwidth=5', 'payload=0.5'])
     assert {t: s.text() for t, s in got.items()} == {
         'mass': 'scale 1.3 startup', 'latency': 'abs 2 startup', 'obs_noise': 'abs 0.02 startup',
-        'damping': 'add 0.5 startup'}
+        'damping': 'add 0.5 startup', 'servo_bandwidth': 'abs 5 startup',
+        'payload': 'abs 0.5 startup'}
     for bad, message in [(['mass=1.3', 'mass_scale=1'], 'mass given twice'),
                          (['weight_scale=2'], 'unknown key; known: mass_scale'),
                          (['mass_scale'], 'write KEY=VALUE'),
@@ -229,3 +235,119 @@ def test_gymnasium_env_takes_the_terms_and_reseeds_them():
     assert np.array_equal(env.unwrapped.task.datas[0].qpos, nominal.unwrapped.task.datas[0].qpos)
     assert not np.array_equal(on, o1)
     env.close(), nominal.close()
+
+
+#: one link in the vertical x-z plane on a stiff position servo (kp, kv critically damped for
+#: its inertia of about 1.08 kg m^2: natural frequency 96 rad/s), its own gravity compensated
+PENDULUM = """
+<mujoco>
+  <compiler angle="radian"/>
+  <option timestep="0.002" integrator="implicitfast"/>
+  <worldbody>
+    <body name="link" pos="0 0 1" gravcomp="1">
+      <joint name="joint0" type="hinge" axis="0 1 0" armature="1" range="-3 3" limited="true"/>
+      <geom type="capsule" fromto="0 0 0 0.5 0 0" size="0.02" mass="1"/>
+      <site name="fingertip" pos="0.5 0 0"/>
+    </body>
+    <body name="target" mocap="true" pos="0.5 0 1">
+      <geom type="sphere" size="0.02" contype="0" conaffinity="0"/>
+    </body>
+  </worldbody>
+  <actuator>
+    <position name="joint0" joint="joint0" kp="10000" kv="208" ctrlrange="-1 1"/>
+  </actuator>
+</mujoco>
+"""
+
+
+@pytest.fixture
+def pendulum(tmp_path):
+    path = tmp_path / 'pendulum.xml'
+    path.write_text(PENDULUM)
+    return path
+
+
+def step_response(path, terms, steps, command=0.5):
+    """Return the servo's ctrl and the joint angle after each physics step of a step command."""
+    task = ArmTask(path, num_envs=1, seed=0, frame_skip=1, max_episode_steps=None,
+                   randomization=terms)
+    task.reset()
+    task.set_state(0, np.zeros(1), np.zeros(1))
+    ctrl, q = [], []
+    for _ in range(steps):
+        task.step(np.full((1, 1), command))
+        ctrl.append(task.datas[0].ctrl[0])
+        q.append(task.datas[0].qpos[0])
+    task.close()
+    return np.array(ctrl), np.array(q)
+
+
+def test_servo_lag_is_the_first_order_step_response_the_docs_give(pendulum):
+    """
+    ``servo_bandwidth`` f and ``servo_latency`` L: ctrl is ``1 - exp(-(t - L) / tau)``.
+
+    The servo's setpoint after k physics steps of a step command is exactly the documented
+    one (``tau = 1 / (2 pi f)``, dead time L in whole steps); the joint behind a stiff servo
+    (critically damped at 96 rad/s: 63% of a step in 2.15 / 96 s) reaches 63% of the step
+    between L + tau and L + tau plus that, where without the term it takes that alone.
+    """
+    f, latency, dt, steps = 1.0, 0.01, 0.002, 400
+    tau = 1 / (2 * math.pi * f)
+    ctrl, q = step_response(pendulum, {'servo_bandwidth': f'{f}',
+                                       'servo_latency': f'{latency}'}, steps)
+    k = np.arange(1, steps + 1) - round(latency / dt)      # steps since the dead time ended
+    want = 0.5 * -np.expm1(-np.maximum(k, 0) * dt / tau)
+    np.testing.assert_allclose(ctrl, want, rtol=1e-12, atol=1e-15)
+    final = 0.5                      # MuJoCo's position actuator: ctrl is the angle, rad
+    assert abs(q[-1] - final) < 0.01
+    rise = dt * (1 + np.argmax(q >= 0.632 * final))
+    own = 2.15 / 96
+    assert latency + tau <= rise <= latency + tau + own + dt, (rise, latency + tau)
+    ctrl0, q0 = step_response(pendulum, {}, steps)
+    assert np.all(ctrl0 == 0.5)
+    assert dt * (1 + np.argmax(q0 >= 0.632 * final)) <= own + dt
+
+
+def test_servo_terms_off_by_value_are_the_nominal_arm_to_the_bit():
+    """A dead time of 0 and no bandwidth: the per-physics-step path is the nominal one."""
+    a = ArmTask(REACHER, num_envs=2, seed=4)
+    b = ArmTask(REACHER, num_envs=2, seed=4,
+                randomization={'servo_latency': '0', 'payload': '0'})
+    a.reset(), b.reset()
+    for act in actions(10, 2):
+        assert np.array_equal(a.step(act)[0], b.step(act)[0])
+    a.close(), b.close()
+
+
+def test_payload_pulls_at_the_fingertip_with_its_weight(pendulum):
+    """
+    ``payload`` m: the generalized force ``m g L`` on the horizontal link (L = 0.5 m).
+
+    The link's own weight is compensated (gravcomp), so from rest with its servo off the
+    unknown payload alone sets it falling, at about ``m g L / I`` (I about 1.08 kg m^2).
+    """
+    m, L, g = 0.4, 0.5, 9.81
+    task = ArmTask(pendulum, num_envs=1, seed=0, frame_skip=1, max_episode_steps=None,
+                   randomization={'payload': f'{m}'})
+    task.reset()
+    task.set_state(0, np.zeros(1), np.zeros(1))
+    task.models[0].actuator_gainprm[0, 0] = task.models[0].actuator_biasprm[0, 1:3] = 0.0
+    task.step(np.zeros((1, 1)))
+    d = task.datas[0]
+    # a force -m g z at (L, 0, 0) about the y axis: (L, 0, 0) x (0, 0, -m g) = m g L y
+    assert d.qfrc_applied[0] == pytest.approx(m * g * L, rel=1e-9)
+    inertia = task.model.dof_armature[0] + 1 * L ** 2 / 3
+    assert d.qacc[0] == pytest.approx(m * g * L / inertia, rel=0.05)
+    task.close()
+
+
+def test_damping_and_friction_reach_zero_on_an_arm_that_has_none(tmp_path):
+    """``abs uniform 0 x``: a torque robot's near-zero damping and friction, drawn per joint."""
+    task = ArmTask(REACHER, num_envs=200, seed=0,
+                   randomization={'damping': 'abs uniform 0 0.1',
+                                  'frictionloss': 'abs log_uniform 0.0001 0.05'})
+    damping = np.array([m.dof_damping[task.spec.dof_adr] for m in task.models])
+    friction = np.array([m.dof_frictionloss[task.spec.dof_adr] for m in task.models])
+    assert damping.min() < 0.001 and damping.max() <= 0.1
+    assert friction.min() < 0.0002 and friction.max() <= 0.05
+    task.close()

@@ -110,7 +110,8 @@ RANDOMIZED = ['randomize_mass=uniform 0.5 2', 'randomize_damping=log_uniform 0.5
               'randomize_armature=gaussian 1 0.1 every 7', 'randomize_gear=uniform 0.6 1.4',
               'randomize_latency=uniform 0 2', 'randomize_obs_noise=0.01',
               'randomize_vel_noise=gaussian 0.05 0.01', 'randomize_action_noise=0.05',
-              'randomize_target_noise=uniform 0 0.01']
+              'randomize_target_noise=uniform 0 0.01', 'randomize_servo_bandwidth=uniform 2 20',
+              'randomize_servo_latency=uniform 0 0.02', 'randomize_payload=uniform 0 0.5']
 
 
 @pytest.mark.parametrize('groups, overrides', [(2, []), (3, RANDOMIZED)],
@@ -121,8 +122,9 @@ def test_graph_equals_inprocess_reference_with_other_lock_step_groups(
     Two groups of 32 arms, or three of 21-22 arms: the in-process computation too.
 
     The second run randomizes every term (each arm its own masses, damping, friction,
-    armature, gears, latency and noise, drawn at startup, reset and every 7 steps): the
-    simulator's groups draw them as the in-process task's arms do, and the bag holds them.
+    armature, gears, latency, noise, servo lag and dead time and payload, drawn at startup,
+    reset and every 7 steps): the simulator's groups draw them as the in-process task's arms
+    do, and the bag holds them.
     """
     steps = 20_480
     res = train(tmp_path / 'run', '--total-steps', str(steps), f'lock_step_groups={groups}',

@@ -409,6 +409,12 @@ POLICY_PARAMS: Dict[str, Param] = {
     'controller_timeout': Param(2.0, "seconds configure waits for the controller's parameter "
                                      'service; then it warns once that the joint order was '
                                      'not checked (0: do not check)', low=0.0),
+    'gravity_compensation': Param('', "who carries the arm's weight on this robot: robot (its "
+                                      'driver compensates gravity, as a Franka in torque mode '
+                                      'does) or policy (nothing does); empty: not stated. '
+                                      'Configure warns in one line where it, control_rate or '
+                                      "an effort interface contradicts the policy card's "
+                                      'physics', choices=('', 'robot', 'policy')),
 }
 
 SCHEMA: Dict[str, Dict[str, Param]] = {

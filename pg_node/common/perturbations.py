@@ -21,6 +21,10 @@ term               operation   what it changes (per arm; each link / joint / mot
 ``vel_noise``      abs         std of Gaussian noise on the observed joint velocities, rad/s
 ``action_noise``   abs         std of Gaussian noise added to each applied command
 ``target_noise``   abs         std of Gaussian noise on the observed target position, m
+``servo_bandwidth`` abs        each servo's tracking bandwidth, Hz: a first-order lag
+``servo_latency``  abs         the servos' dead time, s (whole physics steps)
+``payload``        abs         an unknown payload at the fingertip, kg: its weight, which no
+                               gravity compensation knows
 =================  ==========  ================================================================
 
 A term is written as a short string, one ROS parameter each (``randomize_<term>`` of
@@ -49,6 +53,21 @@ distance are the true ones. The fingertip-to-target part of the observation is w
 robot computes: the fingertip by forward kinematics of the noisy joint angles, minus the
 noisy target.
 
+Servo tracking (``servo_bandwidth``, ``servo_latency``): a position or velocity servo on a
+real arm reaches its setpoint late and gradually; between the command the arm receives (after
+``latency`` and ``action_noise``) and MuJoCo's ``ctrl`` it goes through a dead time of
+``round(servo_latency / timestep)`` physics steps and then a first-order lag of time constant
+``tau = 1 / (2 pi servo_bandwidth)``, advanced exactly at every physics step (ctrl of a unit
+step after ``k`` steps: ``1 - exp(-k timestep / tau)``). The law is the same for every
+interface (a position setpoint, a velocity, a torque whose current loop is slow), and its
+one parameter is the -3 dB bandwidth drive makers state. Both start at zero in each
+episode, as the ``latency`` history does.
+
+Payload: the weight ``payload x gravity`` pulls at the fingertip site (``qfrc_applied``,
+set at every physics step from the site's position), on an arm whose gravity compensation
+(``gravcomp``) knows only its own links: the gravity-compensation error of an unknown tool
+or object. Its inertia is left out (what ``mass`` and ``armature`` cover).
+
 The terms are applied by :class:`pg_node.sim.randomization.Randomizer`, inside
 :class:`~pg_node.sim.arm_task.ArmTask`. Every arm draws from its own generator,
 ``PCG64(SeedSequence(seed + i, spawn_key=(1,)))``, apart from the task's (which draws the
@@ -66,6 +85,8 @@ DISTRIBUTIONS = ('uniform', 'log_uniform', 'gaussian')
 POSITIVE = ('mass', 'gear')
 #: the most control steps a command may be late
 MAX_LATENCY = 10
+#: the longest servo dead time, s
+MAX_SERVO_LATENCY = 1.0
 #: the spawn key of the randomization generators (the task's own have none)
 STREAM = 1
 
@@ -74,7 +95,7 @@ STREAM = 1
 class Term:
     """What one term changes: a model field, the command path or the observation."""
 
-    kind: str           # 'model', 'latency' or 'noise'
+    kind: str           # 'model', 'latency', 'noise', 'servo' or 'payload'
     default_op: str
     unit: str
     description: str
@@ -93,6 +114,11 @@ TERMS: Dict[str, Term] = {
                                                'velocities'),
     'action_noise': Term('noise', 'abs', '', 'std of the noise added to applied commands'),
     'target_noise': Term('noise', 'abs', 'm', 'std of the noise on the observed target'),
+    'servo_bandwidth': Term('servo', 'abs', 'Hz', "each servo's tracking bandwidth (a "
+                                                  'first-order lag, tau = 1 / (2 pi f))'),
+    'servo_latency': Term('servo', 'abs', 's', "the servos' dead time (whole physics steps)"),
+    'payload': Term('payload', 'abs', 'kg', 'an unknown payload at the fingertip: its weight, '
+                                            'which no gravity compensation knows'),
 }
 
 #: ``--perturb`` names: ``<term>_<operation>`` or these aliases
@@ -216,6 +242,16 @@ def _check_bounds(spec: TermSpec):
     elif kind == 'noise':
         if lo < 0:
             raise BadTerm(f'{name}: a noise std must be >= 0 (it can draw {lo:g})')
+    elif spec.term == 'servo_bandwidth':
+        if lo <= 0:
+            raise BadTerm(f'{name}: a servo bandwidth must stay > 0 Hz (it can draw {lo:g})')
+    elif spec.term == 'servo_latency':
+        if lo < 0 or hi > MAX_SERVO_LATENCY:
+            raise BadTerm(f'{name}: the servo latency must stay within 0..'
+                          f'{MAX_SERVO_LATENCY:g} s (it can draw {lo:g}..{hi:g})')
+    elif kind == 'payload':
+        if lo < 0:
+            raise BadTerm(f'{name}: a payload must be >= 0 kg (it can draw {lo:g})')
     elif spec.operation == 'scale' and lo <= 0 and spec.term in POSITIVE:
         raise BadTerm(f'{name}: a {spec.term} scale must stay > 0 (it can draw {lo:g})')
     elif spec.operation == 'scale' and lo < 0:

@@ -7,7 +7,8 @@ and read it (observation layout, joint names, control range, control step, the a
 
 * a run directory (its ``checkpoints/``, the newest readable one), a directory of
   ``ckpt_*.pt`` files or one such file: the policy network in torch, the card built from
-  the checkpoint's configuration and the run's ``params.yaml`` (``frame_skip``);
+  the checkpoint's configuration and the run's ``params.yaml`` (``frame_skip`` and the
+  ``randomize_<term>`` terms, which the card's ``physics`` records);
 * an exported ``*.onnx`` file (:mod:`pg_node.rl.onnx_export`) with its card beside it as
   JSON (``policy.onnx`` -> ``policy.json``): run by onnxruntime, torch is never imported.
 
@@ -66,29 +67,46 @@ def find_checkpoint(path) -> Tuple[dict, Path]:
     return state, file
 
 
-def _run_frame_skip(ckpt_file: Path) -> Optional[int]:
-    """Return ``sim_node.frame_skip`` from the run's ``params.yaml``, if there is one."""
+def _run_sim_params(ckpt_file: Path) -> Dict:
+    """Return ``sim_node``'s parameters from the run's ``params.yaml`` (none: ``{}``)."""
     import yaml
     params = ckpt_file.resolve().parent.parent / 'params.yaml'
     try:
         raw = yaml.safe_load(params.read_text()) or {}
     except (OSError, yaml.YAMLError):
-        return None
+        return {}
+    if not isinstance(raw, dict):
+        return {}
     for key in ('/**/sim_node', 'sim_node'):
-        value = ((raw.get(key) or {}).get('ros__parameters') or {}).get('frame_skip')
-        if isinstance(value, int):
-            return value
-    return None
+        values = (raw.get(key) or {}).get('ros__parameters')
+        if isinstance(values, dict):
+            return values
+    return {}
+
+
+def _run_frame_skip(ckpt_file: Path) -> Optional[int]:
+    """Return ``sim_node.frame_skip`` from the run's ``params.yaml``, if there is one."""
+    value = _run_sim_params(ckpt_file).get('frame_skip')
+    return value if isinstance(value, int) else None
+
+
+def _run_randomization(ckpt_file: Path) -> Dict[str, str]:
+    """Return the run's ``randomize_<term>`` texts that are on, ``{term: text}``."""
+    from pg_node.common.perturbations import from_params
+    return {t: text for t, text in from_params(_run_sim_params(ckpt_file)).items() if text}
 
 
 def make_card(model_name: str, obs_dim: int, act_dim: int, frame_skip: int,
-              source: Dict) -> Dict:
+              source: Dict, randomization: Optional[Dict[str, str]] = None) -> Dict:
     """
     Return the card of a policy trained on ``model_name`` with ``frame_skip``.
 
     The arm model's MJCF text is kept in the card (``model_xml``), so that the card alone
-    is enough to compute the observation's forward kinematics.
+    is enough to compute the observation's forward kinematics. ``physics`` records what the
+    policy was trained on (:func:`pg_node.sim.training_physics.training_physics`), with the
+    run's ``randomization`` (``{term: text}``, the ``randomize_<term>`` parameters).
     """
+    from pg_node.sim.training_physics import training_physics
     import mujoco
     from pg_node.common.paths import resolve_model
     from pg_node.control.interfaces import card as command_card
@@ -107,6 +125,8 @@ def make_card(model_name: str, obs_dim: int, act_dim: int, frame_skip: int,
             f'the policy has {obs_dim} observations and {act_dim} actions, its model '
             f'{model_name!r} {layout.size} and {model.nu}')
 
+    interfaces = command_card(actuators(model))
+
     def bound(values):
         return [float(v) if np.isfinite(v) else None for v in values]
 
@@ -122,7 +142,10 @@ def make_card(model_name: str, obs_dim: int, act_dim: int, frame_skip: int,
                    'high': bound(spec.ctrl_high),
                    'meaning': 'actuator control (MuJoCo ctrl: torque / gear), joint order'},
         # what a robot's controller takes: per interface the model has, its unit and range
-        'command_interfaces': command_card(actuators(model)),
+        'command_interfaces': interfaces,
+        # what it was trained on: who carries the weight, damping, armature, steps, terms
+        'physics': training_physics(model, spec, frame_skip, list(interfaces),
+                                    randomization or {}),
         'control_step': float(model.opt.timestep * frame_skip),
         'timestep': float(model.opt.timestep),
         'frame_skip': int(frame_skip),
@@ -139,7 +162,7 @@ def checkpoint_card(state: dict, file: Path) -> Dict:
     source = {'checkpoint': str(Path(file).resolve()), 'policy_version': int(state['version']),
               'env_steps': int(state.get('env_steps', 0))}
     return make_card(state['config']['model'], int(state['obs_dim']), int(state['act_dim']),
-                     frame_skip, source)
+                     frame_skip, source, _run_randomization(file))
 
 
 class TrainedPolicy:

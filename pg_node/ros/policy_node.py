@@ -117,7 +117,7 @@ import numpy as np
 from pg_node.bag.writer import BagWriter
 from pg_node.common.params import ConfigError, POLICY_PARAMS
 from pg_node.common.run import CONTROLLER_COMMANDS, CONTROLLER_TRAJECTORY
-from pg_node.control import interfaces
+from pg_node.control import interfaces, physics_check
 from pg_node.control.composers import command_trajectory
 from pg_node.control.estop import EStop
 from pg_node.control.guards import CommandGuard, GuardSettings
@@ -366,6 +366,9 @@ class PolicyNode(LifecycleNode):
             f'{_ranges(low, high)} at {self.control_rate():g} Hz; state_timeout '
             f'{p["state_timeout"]:g} s; kinematics {self.kinematics}; controller joints '
             f'{self.controller_joints}')
+        physics = physics_check.warning(card.get('physics') or {}, p)
+        if physics:                             # one line: the robot is not what it learned
+            self.get_logger().warn(physics)
         return None
 
     def _await_inputs(self) -> Optional[str]:

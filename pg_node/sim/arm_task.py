@@ -504,6 +504,9 @@ class ArmTask:
 
         def advance(envs):
             for i in envs:
+                if r is not None and r.per_physics_step:    # servo tracking, payload
+                    r.physics_steps(i, applied[i - lo], models[i], datas[i], n)
+                    continue
                 ctrl[i][:] = applied[i - lo]
                 mujoco.mj_step(models[i], datas[i], nstep=n)
 

@@ -3,9 +3,10 @@ The terms of :mod:`pg_node.common.perturbations` applied to the arms of an ``Arm
 
 :class:`Randomizer` holds what differs per arm: a copy of the ``MjModel`` with its drawn
 masses, damping, friction, armature and gears (only when such a term is on; the arms
-share one model otherwise), each arm's recent commands (latency) and the noise of its
-next observation. It draws from generators of its own, so the task's episode starts are
-the same with and without it.
+share one model otherwise), each arm's recent commands (latency), its servos' state (their
+dead time's recent inputs and their lag's output) and the noise of its next observation.
+It draws from generators of its own, so the task's episode starts are the same with and
+without it.
 """
 import copy
 import math
@@ -75,6 +76,16 @@ class Randomizer:
         self.steps = np.zeros(num_envs, dtype=np.int64)
         self._fk = mujoco.MjData(model) if 'obs_noise' in self.terms else None
         self._qpos_adr, self._tip = spec.qpos_adr, spec.fingertip_site
+        # servo tracking and payload act at every physics step (physics_steps)
+        self.timestep = float(model.opt.timestep)
+        servo_latency = self.terms.get('servo_latency')
+        self.sub_history = (int(round(servo_latency.bounds[1] / self.timestep)) + 1
+                            if servo_latency else 1)
+        self.sub_hist = np.zeros((num_envs, self.sub_history, self.act_dim))
+        self.servo_out = np.zeros((num_envs, self.act_dim))
+        self.per_physics_step = any(t in self.terms for t in
+                                    ('servo_bandwidth', 'servo_latency', 'payload'))
+        self._tip_body = int(model.site_bodyid[self._tip])
         self.seed(seed)
 
     def _nominal(self, term: str) -> np.ndarray:
@@ -110,8 +121,8 @@ class Randomizer:
             elif term in DOF_FIELDS:
                 labels[term] = [f'{term}/{name(mujoco.mjtObj.mjOBJ_JOINT, j)}'
                                 for j in model.dof_jntid[self.dofs]]
-            elif term == 'gear':
-                labels[term] = [f'gear/{name(mujoco.mjtObj.mjOBJ_ACTUATOR, a)}'
+            elif term in ('gear', 'servo_bandwidth'):
+                labels[term] = [f'{term}/{name(mujoco.mjtObj.mjOBJ_ACTUATOR, a)}'
                                 for a in range(model.nu)]
             else:
                 labels[term] = [term]
@@ -186,6 +197,8 @@ class Randomizer:
         """Arm ``i`` starts an episode: redraw its reset terms, clear its commands."""
         self._draw(i)
         self.hist[i] = 0.0
+        self.sub_hist[i] = 0.0
+        self.servo_out[i] = 0.0
         self.draw_noise(i)
 
     def before_step(self, lo: int, hi: int):
@@ -208,6 +221,46 @@ class Randomizer:
             act = act + np.stack([self.rngs[i].standard_normal(self.act_dim)
                                   for i in range(lo, hi)]) * self._std('action_noise', lo, hi)
         return act
+
+    def physics_steps(self, i: int, act: np.ndarray, model: mujoco.MjModel,
+                      data: mujoco.MjData, n: int):
+        """
+        Step arm ``i`` ``n`` physics steps with command ``act``, through its servos, loaded.
+
+        At each physics step the command enters the servo's dead time (``servo_latency``,
+        whole physics steps), whose output ``x`` drives the first-order lag
+        ``dy/dt = (x - y) / tau``, ``tau = 1 / (2 pi servo_bandwidth)``, advanced exactly
+        over the step (``y += (1 - exp(-timestep / tau)) (x - y)``, ``x`` held over the step)
+        and applied as ``ctrl`` during that step: from rest, a unit step reads
+        ``1 - exp(-k timestep / tau)`` after ``k`` steps. Without a bandwidth ``y = x``.
+        ``payload``: its weight pulls at the fingertip site, as ``qfrc_applied`` computed
+        from the site's position the previous step left (the newest MuJoCo has).
+        """
+        bandwidth = self.terms.get('servo_bandwidth')
+        alpha = (-np.expm1(-2 * math.pi * self.value(i, 'servo_bandwidth') * self.timestep)
+                 if bandwidth else None)
+        delay = (int(round(self.value(i, 'servo_latency')[0] / self.timestep))
+                 if 'servo_latency' in self.terms else 0)
+        weight = (self.value(i, 'payload')[0] * model.opt.gravity
+                  if 'payload' in self.terms else None)
+        hist, y = self.sub_hist[i], self.servo_out[i]
+        for _ in range(n):
+            x = act
+            if self.sub_history > 1:
+                hist[1:] = hist[:-1]
+                hist[0] = act
+                x = hist[delay]
+            if alpha is None:
+                y[:] = x
+            else:
+                y += alpha * (x - y)
+            data.ctrl[:] = y
+            if weight is not None:
+                data.qfrc_applied[:] = 0.0
+                mujoco.mj_applyFT(model, data, weight, np.zeros(3),
+                                  data.site_xpos[self._tip].copy(), self._tip_body,
+                                  data.qfrc_applied)
+            mujoco.mj_step(model, data)
 
     def _std(self, term: str, lo: int, hi: int) -> np.ndarray:
         return self.values[lo:hi, self.cols[term]]

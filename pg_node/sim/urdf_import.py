@@ -22,16 +22,25 @@ for it and then edits the compiled :class:`mujoco.MjSpec` into pg_node's convent
   ``<limit effort>``), ``position`` drives the joint to the angle ``u`` maps to linearly
   over the joint's range (``-pi..pi`` for a continuous joint) with stiffness ``kp`` and
   damping ``kv``, its force clamped to ``effort * effort_scale``.
-* **physics that learns** (the defaults): ``timestep`` 0.02 s, so that pg_node's default
+* **physics the robot has** (the defaults): ``timestep`` 0.02 s, so that pg_node's default
   ``frame_skip`` (2) and ``max_episode_steps`` (50) make a 0.04 s control step and 2 s
   episodes, time for a real arm to reach (:func:`training_settings` gives the overrides
-  for another timestep); ``velocity_damping``: each arm joint's damping becomes ``effort /
-  velocity limit`` (the URDF's ``<limit velocity>``), so that the full torque drives the
-  joint at no more than its velocity limit, as the robot's controller enforces (without
-  it a torque-driven joint of small inertia reaches hundreds of rad/s); otherwise
-  ``damping`` (if given) or the URDF's ``<dynamics damping>``; ``gravity_compensation``:
-  every body of the arm gets ``gravcomp="1"`` (MuJoCo applies the bodies' weight back as a
-  passive force), as torque-controlled arms do in their firmware.
+  for another timestep); each arm joint's damping is the URDF's ``<dynamics damping>``
+  (or ``damping``, if given). ``velocity_damping`` makes it ``effort / velocity limit``
+  (the URDF's ``<limit velocity>``), so that the full torque drives the joint at no more
+  than its velocity limit: on by default for servo actuators (``position``, whose joint
+  the drive's own loop slows) and off for ``motor`` (torque) actuators, because a robot in
+  torque mode enforces no such damping (a Franka faults on over-speed instead): the
+  policy would learn to lean on a brake the robot lacks. An undamped torque arm at 0.02 s
+  blows up under full torque (seen: UR5 and Panda of example-robot-data past 10^5 rad/s,
+  MuJoCo resetting them), so ``motor`` without damping gets ``timestep`` 0.002 s by default
+  (:func:`with_defaults`; stable for both, frame_skip 20), and every import is tried with
+  2 s of full-torque bang-bang commands: a model MuJoCo finds unstable is warned of
+  (:func:`unstable_steps`). What the import assumes that a URDF does not say is kept as
+  the custom text ``pg_physics_assumptions`` (one per line, :func:`assumptions`), which a
+  policy's card carries. ``gravity_compensation``: every body of the arm gets
+  ``gravcomp="1"`` (MuJoCo applies the bodies' weight back as a passive force), as
+  torque-controlled arms do in their firmware (libfranka's torques are "without gravity").
 * **inertias**: one that MuJoCo rejects (principal moments breaking ``A + B >= C``) is
   balanced by MuJoCo's ``balanceinertia`` (all three moments set to their mean), with a
   warning naming the link and both sets of moments; one that is not positive definite is
@@ -65,7 +74,7 @@ for it and then edits the compiled :class:`mujoco.MjSpec` into pg_node's convent
 Errors are :class:`UrdfImportError` with a one-line message.
 """
 import contextlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 import io
 import math
 import os
@@ -112,11 +121,13 @@ class ImportOptions:
     package_paths: Sequence[str] = ()
     visual_meshes: bool = True
     contacts: bool = False
-    timestep: float = 0.02
+    #: None: :func:`with_defaults` (0.02 s; 0.002 s for undamped motors)
+    timestep: Optional[float] = None
     integrator: str = 'implicitfast'
     armature: Optional[float] = None
     damping: Optional[float] = None
-    velocity_damping: bool = True
+    #: None: :func:`with_defaults` (on for servo actuators without ``damping``, off for motor)
+    velocity_damping: Optional[bool] = None
     home: Optional[Sequence[float]] = None
     targets: int = 1000
     target_min_height: Optional[float] = 0.0
@@ -146,6 +157,66 @@ class ImportResult:
     timestep: float = 0.02
     #: coupled joint -> the largest distance from its mimic seen under random commands, rad
     coupling_error: Dict[str, float] = field(default_factory=dict)
+    #: the options as the import took them (:func:`with_defaults`)
+    options: Optional[ImportOptions] = None
+    #: what the import assumes that the URDF does not say (:func:`assumptions`)
+    assumptions: List[str] = field(default_factory=list)
+
+
+#: the default physics step, and the one of a torque-driven arm without damping
+TIMESTEP, UNDAMPED_TIMESTEP = 0.02, 0.002
+
+
+def with_defaults(opts: ImportOptions) -> ImportOptions:
+    """
+    Return ``opts`` with ``velocity_damping`` and ``timestep`` decided where they are None.
+
+    ``velocity_damping``: off for ``motor`` actuators (a torque-mode robot has no such
+    damping) and wherever ``damping`` is given; on for servo actuators. ``timestep``:
+    :data:`UNDAMPED_TIMESTEP` for motors with neither, else :data:`TIMESTEP`.
+
+    >>> o = with_defaults(ImportOptions(tip='tool0'))
+    >>> o.velocity_damping, o.timestep
+    (False, 0.002)
+    >>> o = with_defaults(ImportOptions(tip='tool0', actuator='position'))
+    >>> o.velocity_damping, o.timestep
+    (True, 0.02)
+    """
+    velocity = opts.velocity_damping
+    if velocity is None:
+        velocity = opts.actuator != 'motor' and opts.damping is None
+    timestep = opts.timestep
+    if timestep is None:
+        undamped = opts.actuator == 'motor' and not velocity and opts.damping is None
+        timestep = UNDAMPED_TIMESTEP if undamped else TIMESTEP
+    return replace(opts, velocity_damping=velocity, timestep=timestep)
+
+
+def assumptions(opts: ImportOptions) -> List[str]:
+    """
+    Return what a model imported with ``opts`` assumes that the URDF does not say.
+
+    One line each, kept in the model (custom text ``pg_physics_assumptions``) and in the card
+    of every policy trained on it.
+    """
+    out = []
+    if opts.velocity_damping:
+        out.append('velocity_damping: each arm joint is damped by effort / velocity limit '
+                   "(N m s/rad), as if the robot's controller enforced it; a robot in torque "
+                   'mode does not')
+    elif opts.damping is not None:
+        out.append(f'damping: every arm joint is damped by {opts.damping:g} N m s/rad (arm '
+                   "import --damping, not the URDF's)")
+    if opts.armature is not None:
+        out.append(f'armature: every arm joint has {opts.armature:g} kg m^2 of rotor inertia '
+                   '(arm import --armature)')
+    if opts.gravity_compensation:
+        out.append("gravity compensation: the robot cancels the arm's own weight (MuJoCo "
+                   'gravcomp on every arm body); a payload it is not told of is not '
+                   'cancelled')
+    if opts.effort_scale != 1:
+        out.append(f'effort: the URDF effort limits x {opts.effort_scale:g} (--effort-scale)')
+    return out
 
 
 def training_settings(timestep: float) -> Tuple[int, int]:
@@ -660,6 +731,7 @@ def import_urdf(urdf_path, opts: ImportOptions, out_path=None, command: str = ''
     ``<robot>`` already read (it is changed), else read from ``urdf_path``.
     """
     urdf_path = Path(urdf_path).resolve() if Path(urdf_path).exists() else Path(urdf_path)
+    opts = with_defaults(opts)
     warnings: List[str] = []
     if robot is None:
         robot = load_robot(urdf_path, opts.xacro_args, opts.package_paths, warnings)
@@ -697,7 +769,8 @@ def import_urdf(urdf_path, opts: ImportOptions, out_path=None, command: str = ''
                         n_targets=n_targets, coupled_joints=coupled,
                         mesh_dir=mesh_dir if meshes.files else None,
                         mesh_files=meshes.files, converted_meshes=meshes.converted,
-                        timestep=opts.timestep, coupling_error=lag)
+                        timestep=opts.timestep, coupling_error=lag, options=opts,
+                        assumptions=assumptions(opts))
 
 
 def _build(robot, urdf_path, opts, base, arm, coupled, joints, warnings, command):
@@ -756,10 +829,6 @@ def _build(robot, urdf_path, opts, base, arm, coupled, joints, warnings, command
                 joint.damping = [effort / velocity, 0.0, 0.0]
             else:
                 warnings.append(f'joint {name!r} has no velocity limit; its damping stays')
-    if opts.actuator == 'motor' and not opts.velocity_damping and opts.damping is None:
-        warnings.append('no velocity damping: torque-driven joints of small inertia can reach '
-                        'hundreds of rad/s, and at a coarse timestep the simulation can blow '
-                        'up (--velocity-damping, or --damping D)')
     moving = _subtree(spec, base)
     if opts.gravity_compensation:
         for body in moving:
@@ -827,8 +896,42 @@ def _build(robot, urdf_path, opts, base, arm, coupled, joints, warnings, command
         spec.add_numeric(name=name, data=list(np.asarray(data, dtype=float)))
     if command:
         spec.add_text(name='pg_import_command', data=command)
+    said = assumptions(opts)
+    if said:
+        spec.add_text(name='pg_physics_assumptions', data='\n'.join(said))
     _compile(spec)
+    unstable = unstable_steps(model, arm, home, opts)
+    if unstable:
+        times = 'once' if unstable == 1 else f'{unstable} times'
+        warnings.append(f'MuJoCo found the simulation unstable {times} in 2 s of '
+                        f'full-torque commands at timestep {opts.timestep:g} s: give the '
+                        "motors' rotor inertia (--armature), a smaller --timestep, or "
+                        '--velocity-damping (a damping a robot in torque mode lacks)')
     return spec.to_xml(), len(points), fixed, _coupling_error(model, arm, coupled, home, opts)
+
+
+def unstable_steps(model: mujoco.MjModel, arm: List[str], home: np.ndarray,
+                   opts: ImportOptions) -> int:
+    """
+    Return how often MuJoCo reset the arm as unstable under 2 s of full-torque commands.
+
+    From the start pose, a command of -1 or 1 per actuator drawn at every control step (the
+    frame_skip of :func:`training_settings`), the worst an exploring policy commands;
+    MuJoCo counts ``mjWARN_BADQACC`` when it resets a diverged simulation.
+    """
+    frame_skip, steps = training_settings(opts.timestep)
+    data = mujoco.MjData(model)
+    data.qpos[[model.joint(name).qposadr[0] for name in arm]] = home
+    rng = np.random.default_rng(opts.seed)
+    previous = mujoco.get_mju_user_warning()
+    mujoco.set_mju_user_warning(lambda text: None)   # counted here, said in one warning
+    try:
+        for _ in range(steps):
+            data.ctrl[:] = rng.choice([-1.0, 1.0], model.nu)
+            mujoco.mj_step(model, data, nstep=frame_skip)
+    finally:
+        mujoco.set_mju_user_warning(previous)
+    return int(data.warning[mujoco.mjtWarning.mjWARN_BADQACC].number)
 
 
 def _coupling_error(model: mujoco.MjModel, arm: List[str],

@@ -70,9 +70,10 @@ def parser() -> argparse.ArgumentParser:
                    help='keep only the collision geometry')
     p.add_argument('--contacts', action='store_true',
                    help='keep collision contacts (default: off, as in the shipped arms)')
-    p.add_argument('--timestep', type=positive_float, default=0.02,
-                   help='physics step in s (default: %(default)s: with the default frame_skip '
-                        '2 a 0.04 s control step, 50 steps a 2 s episode)')
+    p.add_argument('--timestep', type=positive_float,
+                   help='physics step in s (default: 0.02, with the default frame_skip 2 a '
+                        '0.04 s control step, 50 steps a 2 s episode; 0.002 for motor '
+                        'actuators without damping, which blow up at 0.02)')
     p.add_argument('--integrator', choices=('euler', 'rk4', 'implicit', 'implicitfast'),
                    default='implicitfast', help='default: %(default)s')
     p.add_argument('--armature', type=float, help='rotor inertia added to every arm joint')
@@ -80,8 +81,10 @@ def parser() -> argparse.ArgumentParser:
                    help='damping of every arm joint (default: the URDF <dynamics>)')
     p.add_argument('--velocity-damping', action=argparse.BooleanOptionalAction,
                    help='damping of each arm joint = effort / URDF velocity limit, so that '
-                        'full torque moves it at most at its velocity limit (default: on, '
-                        'unless --damping is given)')
+                        'full torque moves it at most at its velocity limit; an assumption '
+                        'the model and the card keep: a robot in torque mode has no such '
+                        'damping (default: off for motor actuators and with --damping, on '
+                        'for position)')
     p.add_argument('--home', type=float, nargs='+', metavar='Q',
                    help='start pose, one angle per arm joint (default: 0, moved 0.1 rad '
                         'inside the limits where it is not)')
@@ -106,8 +109,7 @@ def options(args):
         visual_meshes=not args.no_visual_meshes, contacts=args.contacts,
         timestep=args.timestep, integrator=args.integrator, armature=args.armature,
         damping=args.damping, home=args.home,
-        velocity_damping=(args.damping is None if args.velocity_damping is None
-                          else args.velocity_damping),
+        velocity_damping=args.velocity_damping,
         targets=args.targets,
         target_min_height=args.target_min_height,
         target_region=tuple(args.target_region) if args.target_region else None,
@@ -161,8 +163,9 @@ def report(result, opts, out) -> list:
                             in result.coupled_joints.items())
         lines.append(f'coupled joints ({len(result.coupled_joints)}, URDF <mimic>, no '
                      f'actuator): {coupled}')
+    opts = result.options or opts          # as the import took them (with_defaults)
     if opts.velocity_damping:
-        damping = 'velocity damping (effort / velocity limit)'
+        damping = 'velocity damping (effort / velocity limit, an assumption)'
     elif opts.damping is not None:
         damping = f'damping {opts.damping:g} N m s/rad (no velocity damping)'
     else:
