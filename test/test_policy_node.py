@@ -1277,7 +1277,8 @@ def test_configure_without_inputs_is_refused_in_one_line(tmp_path, client, train
         code, log = processes.stop_logged(pol)
     assert code == 2 and 'Traceback' not in log, log
     errors = [line for line in log.splitlines() if 'error' in line.lower()]
-    assert len(errors) == 1 and f'no {missing} within {timeout:g} s (configure_timeout)' in errors[0]
+    assert len(errors) == 1
+    assert f'no {missing} within {timeout:g} s (configure_timeout)' in errors[0], errors
 
 
 def test_lifecycle_configure_waits_for_the_first_joint_state(tmp_path, client, trained):
