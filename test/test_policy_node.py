@@ -1052,11 +1052,13 @@ def test_when_policy_node_is_killed_the_trajectory_path_holds_the_forward_keeps_
         assert 'rejected a trajectory' not in sim_log
     else:
         # the last torque, at every tick from 0.3 s on (a command in flight at the kill may
-        # land in the first ticks) but the one at an episode's reset, which reports the
-        # reset state's effort
-        kept = [tuple(e) for t, e in after if t > 0.3]
-        torque, count = collections.Counter(kept).most_common(1)[0]
-        assert count >= len(kept) - 1 and any(torque), kept
+        # land in the first ticks) but those at an episode's reset, which report the reset
+        # state's effort: one per started episode (50 steps of 20 ms = 1 s) in the window
+        kept = [(t, tuple(e)) for t, e in after if t > 0.3]
+        window = kept[-1][0] - kept[0][0]
+        resets = int(window // 1.0) + 1
+        torque, count = collections.Counter(e for _, e in kept).most_common(1)[0]
+        assert count >= len(kept) - resets and any(torque), kept
         assert 'aborted due to command timeout' not in sim_log
 
 
