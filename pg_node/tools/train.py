@@ -580,17 +580,31 @@ class ProgressView:
         steps = row['env_steps'] - self.first['env_steps']
         return steps / seconds if seconds > 0 else float('nan')
 
+    def eta(self, row) -> str:
+        """
+        Return the time left at this session's speed, as tqdm writes times (n/a: unknown).
+
+        The speed is the one shown (since the first update): the bring-up and the steps of
+        an earlier session do not make it look faster or slower than it is.
+        """
+        from tqdm import tqdm
+        rate = self.steps_per_second(row)
+        if not rate > 0:
+            return 'n/a'
+        return tqdm.format_interval(max(self.total - row['env_steps'], 0) / rate)
+
     def describe(self, row) -> str:
         """Return the labelled fields of one progress row."""
         return (f'{_rate(self.steps_per_second(row))} steps/s (since the first update), '
+                f'ETA {self.eta(row)}, '
                 f"training episodes' mean return {_ret(row['episode_return'])}, "
                 f"policy version {int(row['policy_version'])}")
 
     def describe_short(self, row) -> str:
         """Return :meth:`describe` in words that leave the bar room."""
         ret = row['episode_return']
-        return (f'{_rate(self.steps_per_second(row))} steps/s since 1st update, training '
-                f"return {'n/a' if ret != ret else f'{ret:.2f}'}, "
+        return (f'ETA {self.eta(row)}, {_rate(self.steps_per_second(row))} steps/s since 1st '
+                f"update, training return {'n/a' if ret != ret else f'{ret:.2f}'}, "
                 f"policy v{int(row['policy_version'])}")
 
     def stopping(self):
