@@ -190,7 +190,7 @@ CRITIC_PARAMS: Dict[str, Param] = {
                        choices=('total_return', 'reward_to_go', 'constant_baseline',
                                 'optimal_baseline', 'time_baseline', 'value_baseline',
                                 'td_residual', 'gae')),
-    'gamma': Param(0.9, 'discount factor', low=0.0, high=1.0, live=True),
+    'gamma': Param(0.95, 'discount factor', low=0.0, high=1.0, live=True),
     'gae_lambda': Param(0.95, 'GAE lambda (also of the TD(lambda) value target)',
                         low=0.0, high=1.0, live=True),
     'value_target': Param('td_lambda', 'targets V is fitted to: td_lambda (GAE + V) or mc '
@@ -198,7 +198,7 @@ CRITIC_PARAMS: Dict[str, Param] = {
                           choices=('td_lambda', 'mc')),
     'vf_learning_rate': Param(1e-3, 'learning rate of the value network', **POSITIVE, live=True),
     'vf_coef': Param(0.5, 'weight of the value loss', **POSITIVE, live=True),
-    'vf_epochs': Param(1, 'passes over each batch when fitting V', low=1, live=True),
+    'vf_epochs': Param(10, 'passes over each batch when fitting V', low=1, live=True),
     'vf_batch_size': Param(0, 'minibatch size when fitting V (0: the whole batch)', low=0,
                            live=True),
     'vf_optimizer': Param('adam', 'optimiser of the value network', choices=('rmsprop', 'adam')),
