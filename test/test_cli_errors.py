@@ -290,6 +290,25 @@ def test_a_reader_that_leaves_early_ends_the_command_quietly(args):
     assert err == '', err
 
 
+@pytest.mark.parametrize('args', [['--help'], [], ['train', '--help'], ['play', '--help'],
+                                  ['replay', '--help']],
+                         ids=['--help', 'no command', 'train --help', 'play --help',
+                              'replay --help'])
+def test_help_into_a_pipe_closed_early_ends_without_a_traceback(args):
+    """``python -m pg_node --help | head``: the command list met a closed pipe in a traceback."""
+    reader, writer = os.pipe()
+    env = dict(os.environ, PYTHONPATH=str(REPO),
+               AMENT_PREFIX_PATH=os.environ.get('AMENT_PREFIX_PATH', sys.prefix))
+    proc = subprocess.Popen([sys.executable, '-m', 'pg_node', *args], env=env, cwd=REPO,
+                            stdout=writer, stderr=subprocess.PIPE, text=True)
+    os.close(writer)
+    os.close(reader)
+    err = proc.communicate(timeout=120)[1]
+    # argparse's own help swallows the error (0); the command list ends as SIGPIPE would
+    assert proc.returncode in (0, 141), err
+    assert err == '', err
+
+
 # -- replay ------------------------------------------------------------------------------------
 @pytest.mark.parametrize('param, words', [
     ('rate:=-3', ['rate must be >= 0', 'not -3']),             # an integer, taken as a double

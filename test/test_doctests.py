@@ -7,7 +7,7 @@ import pytest
 MODULES = ['pg_node.rl.rollout', 'pg_node.rl.returns', 'pg_node.rl.baselines', 'pg_node.rl.gae',
            'pg_node.ros.command', 'pg_node.rl.natural_gradient',
            'pg_node.ros.policy_node', 'bench.tax', 'pg_node.tools.hosts',
-           'pg_node.tools.train', 'pg_node.rl.actor_sync',
+           'pg_node.tools.train', 'pg_node.tools.play', 'pg_node.rl.actor_sync',
            'pg_node.rl.critic_batching', 'pg_node.rl.learner_gate', 'pg_node.ros.replay_node']
 
 

@@ -535,6 +535,8 @@ def test_services_pause_step_reset_and_lock_step_timeout(tmp_path, client):
         client.spin_until(lambda: client.transitions[-1].seq == seq + 2)
         tr = client.transitions[-1]
         assert tr.episode_step[0] == 0 and tr.episode_id[0] == 1 and tr.reward[0] == 0.0
+        # re-seeded: the episode it started with, again (play's repeatable episodes)
+        np.testing.assert_array_equal(tr.obs, client.transitions[0].obs)
         assert client.call(SetBool, '/sim_node/set_pause', SetBool.Request(data=False)).success
         refused = client.call(Trigger, '/sim_node/step_simulation', Trigger.Request())
         assert not refused.success

@@ -58,6 +58,7 @@ def test_progress_says_starting_then_labels_every_figure(runs):
     progress = [ln for ln in lines if ln.startswith('step ')]
     assert progress, out
     assert re.fullmatch(r'step \d+/4096: ([\d,]+|n/a) steps/s \(since the first update\), '
+                        r'ETA (\d\d:\d\d|n/a), '
                         r"training episodes' mean return (-?\d+\.\d\d|n/a \(no episode "
                         r'finished yet\)), policy version \d+', progress[0]), progress[0]
     # one speed in the whole output: the same figure in the last line as in summary.json

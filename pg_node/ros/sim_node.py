@@ -83,8 +83,9 @@ Modes (parameter ``mode``):
 * ``real_time``: control steps at ``real_time_factor / dt`` Hz of wall time with the last
   command held, zero torque once it is older than ``command_timeout`` s.
 
-Services (names as in mujoco_ros2_control): ``~/reset_world`` (``std_srvs/Trigger``: new
-episodes in all arms, publishes a transition), ``~/set_pause`` (``std_srvs/SetBool``) and
+Services (names as in mujoco_ros2_control): ``~/reset_world`` (``std_srvs/Trigger``: the
+world as it started, every arm re-seeded from ``seed`` and starting its first episode again
+under a new id; publishes a transition), ``~/set_pause`` (``std_srvs/SetBool``) and
 ``~/step_simulation`` (``std_srvs/Trigger``: while paused, one control step with the held
 command; refused when not paused). While paused, lock-step commands are held, not stepped.
 
@@ -663,8 +664,15 @@ class SimNode(Node):
     # --- services -------------------------------------------------------------------------
 
     def on_reset_world(self, request, response):
-        """Start new episodes in every arm and publish them (logged: it cuts episodes short)."""
-        self.publish_reset(self.task.reset())
+        """
+        Put the world back as it started and publish it (logged: it cuts episodes short).
+
+        Every arm is re-seeded from ``seed``, as at start: it starts again the episodes it
+        started with (their ids go on counting), as mujoco_ros2_control's ``reset_world``
+        goes back to the initial keyframe. ``play`` calls it once the policy commands, so
+        that the same ``--seed`` plays the same episodes however long the policy took.
+        """
+        self.publish_reset(self.task.reset(seed=self.params['seed']))
         response.success = True
         response.message = f'new episodes {self.task.episode_id.tolist()}'
         self.get_logger().info(f'~/reset_world called: {response.message}')

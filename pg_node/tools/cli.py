@@ -54,7 +54,21 @@ def usage() -> str:
 
 
 def main(argv=None) -> int:
-    """Dispatch to the command's module."""
+    """Dispatch to the command's module; a reader that leaves early ends it quietly."""
+    try:
+        code = dispatch(argv)
+        sys.stdout.flush()          # here, not at exit, where a closed pipe would be reported
+        return code
+    except BrokenPipeError:
+        # the reader left (``... --list | head``, ``--help | head``): stop quietly, as
+        # coreutils do when SIGPIPE ends them (status 128 + 13); the recipe of Python's signal
+        # docs: stdout goes to devnull so that nothing is written to the closed pipe at exit
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return EXIT_BROKEN_PIPE
+
+
+def dispatch(argv=None) -> int:
+    """Run the command ``argv`` names; return its exit code."""
     argv = list(sys.argv[1:] if argv is None else argv)
     if not argv or argv[0] in ('-h', '--help'):
         print(usage())
@@ -73,13 +87,4 @@ def main(argv=None) -> int:
         print(f'pg_node: command {name!r} is not available in this version '
               f'(module {module_name} is missing)', file=sys.stderr)
         return 2
-    try:
-        code = int(importlib.import_module(module_name).main(rest) or 0)
-        sys.stdout.flush()          # here, not at exit, where a closed pipe would be reported
-        return code
-    except BrokenPipeError:
-        # the reader left (``... --list | head``): stop quietly, as coreutils do when SIGPIPE
-        # ends them (status 128 + 13); the recipe of Python's signal docs: stdout goes to
-        # devnull so that nothing is written to the closed pipe at exit
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-        return EXIT_BROKEN_PIPE
+    return int(importlib.import_module(module_name).main(rest) or 0)

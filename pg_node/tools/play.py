@@ -2,9 +2,14 @@
 ``python -m pg_node play RUN``: watch a trained policy act, as it would on a robot.
 
 Starts ``sim_node`` in real-time mode and ``policy_node`` with the policy (a run directory,
-a checkpoint or an exported ``.onnx``) as processes, and prints each episode's return and the
-fingertip's final distance to the target, summed from the simulator's transitions. Episodes
-that began before the policy's first command are left out. ``--gif out.gif`` draws the first
+a checkpoint or an exported ``.onnx``) as processes, and prints each episode's target, return
+and the fingertip's final distance to the target (cm), summed from the simulator's
+transitions. Once the policy commands, ``play`` resets the simulator's world
+(``~/reset_world``, which re-seeds every arm from ``--seed``) and plays the episodes that begin
+there, numbered from 1 by the simulator's ids: the same ``--seed`` plays the same episodes
+(targets and start poses) however long the policy took to start. The nodes' logs go to a
+temporary folder, removed at the end unless a node failed (``--log-dir`` keeps them). Ctrl-C
+stops the nodes; with ``--gif`` a second one skips the drawing. ``--gif out.gif`` draws the first
 ``--gif-episodes`` episodes of arm 0 with MuJoCo's offscreen renderer, in this process (which
 never trains: no torch optimiser runs beside the OpenGL context), from the observations the
 simulator published: the angles from ``cos q``/``sin q``, the goal from the target field.
@@ -28,6 +33,8 @@ the one the policy's sensors saw.
 import argparse
 import os
 from pathlib import Path
+import re
+import shutil
 import sys
 import tempfile
 import time
@@ -48,7 +55,8 @@ def parse_args(argv):
                         help='episodes to play (all arms together; default: %(default)s)')
     parser.add_argument('--arms', type=positive_int, default=1,
                         help='arms in the simulator (default: %(default)s)')
-    parser.add_argument('--seed', type=int, default=0, help='simulator seed (default: 0)')
+    parser.add_argument('--seed', type=int, default=0,
+                        help='simulator seed: the same seed plays the same episodes (default: 0)')
     parser.add_argument('--real-time-factor', type=positive_float, default=1.0,
                         help='simulated seconds per wall second (default: %(default)s)')
     parser.add_argument('--gif', help='write an animation of arm 0 (.gif)')
@@ -65,18 +73,25 @@ def parse_args(argv):
 
 
 class Episodes:
-    """Episode returns and final distances summed from a stream of transitions."""
+    """
+    Episode returns and final distances summed from a stream of transitions.
+
+    Only the episodes whose simulator id is at least :attr:`first_id` are played (the ones
+    that began at the world reset ``play`` asks for once the policy commands, and after
+    it), numbered from 1 by that id: episode ``k`` is the same start (arm, target, pose)
+    for the same ``--seed``, whatever the load.
+    """
 
     def __init__(self, obs_layout):
         """Take the observation's :class:`~pg_node.control.obs_layout.ObsLayout`."""
         at = obs_layout.slices
         self.cos, self.sin = at['cos_q'], at['sin_q']
         self.target, self.vec = at['target'], at['fingertip_minus_target']
-        self.counted_from = None        # transitions after this seq count
+        self.first_id = None            # the episodes from this simulator id on count
         self.prev = None
-        self.running = {}               # episode id -> [return, arm, start seq, frames]
-        # (number, arm, return, distance, frames); numbered from 1 in the order they end:
-        # the simulator's own ids count the episodes that began before the first command
+        self.running = {}               # episode id -> [return, arm, frames]
+        # (number, arm, return, distance, frames), in the order they end; frames
+        # [(observation, return so far), ...]
         self.finished = []
 
     def add(self, tr):
@@ -93,17 +108,26 @@ class Episodes:
                 entry[0] += float(tr.reward[i])
                 if tr.truncated[i] or tr.terminated[i]:
                     del self.running[ep]
-                    entry[3].append((tr.final_obs[i], entry[0]))
-                    if self.counted_from is not None and entry[2] > self.counted_from:
+                    entry[2].append((tr.final_obs[i], entry[0]))
+                    if self.first_id is not None and ep >= self.first_id:
                         dist = float(np.linalg.norm(tr.final_obs[i, self.vec]))
-                        self.finished.append((len(self.finished) + 1, i, entry[0], dist,
-                                              entry[3]))
+                        self.finished.append((ep - self.first_id + 1, i, entry[0], dist,
+                                              entry[2]))
+                elif tr.episode_id[i] != ep:
+                    del self.running[ep]        # cut short by a world reset
                 else:
-                    entry[3].append((tr.obs[i], entry[0]))
+                    entry[2].append((tr.obs[i], entry[0]))
         for i in range(tr.num_envs):
             if tr.episode_step[i] == 0:
-                self.running[int(tr.episode_id[i])] = [0.0, i, tr.seq, [(tr.obs[i], 0.0)]]
+                self.running[int(tr.episode_id[i])] = [0.0, i, [(tr.obs[i], 0.0)]]
         self.prev = tr
+
+    def line(self, done) -> str:
+        """Return the console line of a finished episode (distances in cm)."""
+        number, arm, ret, dist, frames = done
+        target = ', '.join(f'{100 * v:.1f}' for v in frames[0][0][self.target])
+        return (f'episode {number:4d} (arm {arm}): target ({target}) cm, return {ret:8.3f}, '
+                f'final fingertip distance {100 * dist:.2f} cm')
 
     def angles(self, obs):
         """Return the joint angles of an observation."""
@@ -136,7 +160,7 @@ def render_frames(card, frames, episodes, width=400, height=400):
                 draw.text((8, height - 36), f'episode {ep} (arm 0)  step {k}/{len(steps) - 1}'
                           f'  t = {k * card["control_step"]:.2f} s', fill=(255, 255, 255))
                 draw.text((8, height - 20), f'return {so_far:.2f} of {ret:.2f}  distance '
-                          f'{dist:.3f} m', fill=(255, 255, 255))
+                          f'{100 * dist:.1f} cm', fill=(255, 255, 255))
                 out.append(np.asarray(image))
     finally:
         renderer.close()
@@ -149,7 +173,7 @@ def main(argv=None) -> int:
     if args.gif and Path(args.gif).suffix.lower() != '.gif':
         print(f'play: --gif {args.gif}: the animation is written as .gif', file=sys.stderr)
         return 2
-    from pg_node.common.perturbations import BadTerm, PARAM_PREFIX, parse_perturbation
+    from pg_node.common.perturbations import BadTerm, parse_perturbation
     try:
         perturbation = parse_perturbation(args.perturb)
     except BadTerm as exc:
@@ -169,9 +193,36 @@ def main(argv=None) -> int:
         print(f'play: {exc}', file=sys.stderr)
         return 1
     # the nodes run in the repository folder: every path they are given is absolute
+    temporary = args.log_dir is None
     log_dir = Path(args.log_dir or tempfile.mkdtemp(prefix='pg_node_play_')).resolve()
     log_dir.mkdir(parents=True, exist_ok=True)
+    keep = True         # a crash keeps the logs
+    try:
+        code, keep = play(args, card, source, perturbation, log_dir, temporary)
+        return code
+    finally:
+        if temporary and not keep:
+            shutil.rmtree(log_dir, ignore_errors=True)
+
+
+def first_episode(response) -> int:
+    """
+    Return the first id of the episodes ``sim_node``'s ``~/reset_world`` answered it began.
+
+    >>> from types import SimpleNamespace
+    >>> first_episode(SimpleNamespace(success=True, message='new episodes [7, 8]'))
+    7
+    """
+    ids = re.search(r'\[([\d,\s]+)\]', response.message or '')
+    if not response.success or ids is None:
+        raise RuntimeError(f"sim_node's ~/reset_world answered {response.message!r}")
+    return min(int(i) for i in ids.group(1).split(','))
+
+
+def play(args, card, source: Path, perturbation, log_dir: Path, temporary: bool):
+    """Start the nodes, report the episodes, draw the GIF; return (exit code, keep the logs)."""
     model = _model_param(card, log_dir)
+    from pg_node.common.perturbations import BadTerm, PARAM_PREFIX
     if perturbation:
         # a perturbation this arm cannot take (an add below zero) is refused here, not in
         # the simulator's log
@@ -181,7 +232,7 @@ def main(argv=None) -> int:
             ArmTask(resolve_model(model), randomization=perturbation).close()
         except BadTerm as exc:
             print(f'play: --perturb: {exc}', file=sys.stderr)
-            return 2
+            return 2, False
     perturb_params = [a for term, spec in perturbation.items()
                       for a in ('-p', f'{PARAM_PREFIX}{term}:={spec.text()}')]
     from diagnostic_msgs.msg import DiagnosticArray
@@ -190,6 +241,7 @@ def main(argv=None) -> int:
     import rclpy
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
     from std_msgs.msg import Float64MultiArray
+    from std_srvs.srv import Trigger
     from pg_node.common.run import COMMANDS, CONTROLLER_COMMANDS, CONTROLLER_TRAJECTORY
     from trajectory_msgs.msg import JointTrajectory
     from pg_node.tools.train import discovery_env
@@ -211,83 +263,108 @@ def main(argv=None) -> int:
         lambda m: episodes.add(transition.from_msg(m)),
         QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
                    durability=DurabilityPolicy.TRANSIENT_LOCAL))
+    reset_world = node.create_client(Trigger, 'sim_node/reset_world')
+    reset = None
     procs = {}
     code = shown = 0
+    keep = interrupted = False
     on = f' perturbed ({" ".join(args.perturb)})' if args.perturb else ''
+    logs = (f'logs in {log_dir} (removed at the end unless a node fails; --log-dir keeps '
+            'them)' if temporary else f'logs in {log_dir}')
     print(f'play: {source} on {args.arms} x {card["model"]}{on} in real time '
-          f'(x{args.real_time_factor:g}); logs in {log_dir}', flush=True)
-    try:
-        with processes.terminate_as_interrupt():
-            procs['policy_node'] = processes.start_logged(
-                [sys.executable, '-m', 'pg_node.ros.policy_node', '--ros-args', '-r',
-                 f'__ns:={namespace}', '-p', f'policy:={source.resolve()}',
-                 '-p', 'autostart:=true', '-p', 'use_sim_time:=true',
-                 # its joint states come from the sim, started next; the sim is its own
-                 # robot, with no controller node whose joints parameter could be read
-                 '-p', 'configure_timeout:=120.0', '-p', 'controller_timeout:=0.0'],
-                log_dir / 'policy_node.log', env)
-            # the simulator starts once the policy is loaded (torch's import alone can take
-            # seconds), so that the first episodes are not spent without commands
-            deadline = time.monotonic() + 120
-            while not ready and procs['policy_node'].poll() is None \
-                    and time.monotonic() < deadline:
-                rclpy.spin_once(node, timeout_sec=0.1)
-            procs['sim_node'] = processes.start_logged(
-                [sys.executable, '-m', 'pg_node.ros.sim_node', '--ros-args',
-                 '-r', f'__ns:={namespace}', '-r', f'{COMMANDS}:={CONTROLLER_COMMANDS}',
-                 '-p', 'mode:=real_time', '-p', 'command_interface:=effort',
-                 '-p', f'num_envs:={args.arms}', '-p',
-                 f'seed:={args.seed}', '-p', f'model:={model}',
-                 '-p', f'real_time_factor:={args.real_time_factor}', *perturb_params],
-                log_dir / 'sim_node.log', env)
-            deadline = time.monotonic() + 120 + 5 * args.episodes
+          f'(x{args.real_time_factor:g}), seed {args.seed}; {logs}', flush=True)
+    interrupts = processes.Interrupts()
+    with interrupts.handled():
+        try:
+            with interrupts.raising():
+                procs['policy_node'] = processes.start_logged(
+                    [sys.executable, '-m', 'pg_node.ros.policy_node', '--ros-args', '-r',
+                     f'__ns:={namespace}', '-p', f'policy:={source.resolve()}',
+                     '-p', 'autostart:=true', '-p', 'use_sim_time:=true',
+                     # its joint states come from the sim, started next; the sim is its own
+                     # robot, with no controller node whose joints parameter could be read
+                     '-p', 'configure_timeout:=120.0', '-p', 'controller_timeout:=0.0'],
+                    log_dir / 'policy_node.log', env)
+                # the simulator starts once the policy is loaded (torch's import alone can
+                # take seconds)
+                deadline = time.monotonic() + 120
+                while not ready and procs['policy_node'].poll() is None \
+                        and time.monotonic() < deadline:
+                    rclpy.spin_once(node, timeout_sec=0.1)
+                procs['sim_node'] = processes.start_logged(
+                    [sys.executable, '-m', 'pg_node.ros.sim_node', '--ros-args',
+                     '-r', f'__ns:={namespace}', '-r', f'{COMMANDS}:={CONTROLLER_COMMANDS}',
+                     '-p', 'mode:=real_time', '-p', 'command_interface:=effort',
+                     '-p', f'num_envs:={args.arms}', '-p',
+                     f'seed:={args.seed}', '-p', f'model:={model}',
+                     '-p', f'real_time_factor:={args.real_time_factor}', *perturb_params],
+                    log_dir / 'sim_node.log', env)
+                deadline = time.monotonic() + 120 + 5 * args.episodes
 
-            def arm0_done():
-                return sum(1 for f in episodes.finished if f[1] == 0)
+                def arm0_done():
+                    return sum(1 for f in episodes.finished if f[1] == 0)
 
-            while (len(episodes.finished) < args.episodes
-                   or (args.gif and arm0_done() < args.gif_episodes)):
-                rclpy.spin_once(node, timeout_sec=0.05)
-                if episodes.counted_from is None and commands and episodes.prev is not None:
-                    episodes.counted_from = episodes.prev.seq
-                for ep, arm, ret, dist, _ in episodes.finished[shown:]:
-                    print(f'episode {ep:4d} (arm {arm}): return {ret:8.3f}, final fingertip '
-                          f'distance {dist:.4f} m', flush=True)
-                shown = len(episodes.finished)
-                dead = [name for name, p in procs.items() if p.poll() is not None]
-                if dead or time.monotonic() > deadline:
-                    why = (f'{dead[0]} exited with code {procs[dead[0]].returncode}' if dead
-                           else 'no episodes finished in time')
-                    print(f'play: {why}; see {log_dir}', file=sys.stderr)
-                    code = 1
-                    break
-    except KeyboardInterrupt:
-        print('play: interrupted', file=sys.stderr)
-    finally:
-        with processes.shutting_down():
+                while (len(episodes.finished) < args.episodes
+                       or (args.gif and arm0_done() < args.gif_episodes)):
+                    rclpy.spin_once(node, timeout_sec=0.05)
+                    # once the policy commands, the world starts again as seeded: the
+                    # episodes played do not depend on how long the policy took to start
+                    if reset is None and commands and reset_world.service_is_ready():
+                        reset = reset_world.call_async(Trigger.Request())
+                    if episodes.first_id is None and reset is not None and reset.done():
+                        episodes.first_id = first_episode(reset.result())
+                    for done in episodes.finished[shown:]:
+                        print(episodes.line(done), flush=True)
+                    shown = len(episodes.finished)
+                    dead = [name for name, p in procs.items() if p.poll() is not None]
+                    if dead or time.monotonic() > deadline:
+                        why = (f'{dead[0]} exited with code {procs[dead[0]].returncode}'
+                               if dead else 'no episodes finished in time')
+                        print(f'play: {why}; see {log_dir}', file=sys.stderr)
+                        code, keep = 1, True
+                        break
+        except KeyboardInterrupt:
+            interrupted = True
+            later = (f'; Ctrl-C again skips drawing {args.gif}' if args.gif
+                     and any(f[1] == 0 for f in episodes.finished) else '')
+            print(f'play: interrupted: stopping the nodes{later}', file=sys.stderr, flush=True)
+        finally:
+            # a second Ctrl-C is counted, not raised: it must not leave nodes behind
             for p in procs.values():
                 processes.stop_logged(p)
-        node.destroy_node()
-        rclpy.try_shutdown()
-    done = episodes.finished
-    for ep, arm, ret, dist, _ in done[shown:]:
-        print(f'episode {ep:4d} (arm {arm}): return {ret:8.3f}, final fingertip distance '
-              f'{dist:.4f} m')
-    if done:
-        rets = np.array([d[2] for d in done])
-        dists = np.array([d[3] for d in done])
-        print(f'{len(done)} episodes: return {rets.mean():.3f} +/- {rets.std():.3f}, final '
-              f'distance {dists.mean():.4f} m (median {np.median(dists):.4f} m)')
-    if args.gif and done:
+            node.destroy_node()
+            rclpy.try_shutdown()
+        done = episodes.finished
+        for one in done[shown:]:
+            print(episodes.line(one))
+        if done:
+            rets = np.array([d[2] for d in done])
+            dists = 100 * np.array([d[3] for d in done])
+            print(f'{len(done)} episodes: return {rets.mean():.3f} +/- {rets.std():.3f}, '
+                  f'final distance {dists.mean():.2f} cm (median {np.median(dists):.2f} cm)')
+        if not args.gif or not done:
+            return code, keep
         arm0 = [(ep, frames, ret) for ep, arm, ret, _, frames in done if arm == 0]
         if not arm0:
             print('play: no finished episode of arm 0 to draw', file=sys.stderr)
-            return 1
-        from pg_node.tools.render import write_animation
-        images = render_frames(card, episodes, arm0[:args.gif_episodes])
-        write_animation(images, Path(args.gif), fps=1.0 / card['control_step'])
-        print(f'wrote {args.gif} ({len(images)} frames)')
-    return code
+            return 1, keep
+        if interrupted and interrupts.count >= 2:
+            print(f'play: {args.gif} not drawn (Ctrl-C again)', file=sys.stderr)
+            return code, keep
+        arm0 = arm0[:args.gif_episodes]
+        steps = sum(len(frames) for _, frames, _ in arm0)
+        print(f'rendering {len(arm0)} episode(s) of arm 0 ({steps} frames) to {args.gif} '
+              '(Ctrl-C skips it) ...', flush=True)
+        try:
+            with interrupts.raising():
+                from pg_node.tools.render import write_animation
+                images = render_frames(card, episodes, arm0)
+                write_animation(images, Path(args.gif), fps=1.0 / card['control_step'])
+        except KeyboardInterrupt:
+            print(f'play: {args.gif} not drawn (Ctrl-C)', file=sys.stderr)
+            return code, keep
+    print(f'wrote {args.gif} ({len(images)} frames)')
+    return code, keep
 
 
 def _model_param(card, log_dir: Path) -> str:

@@ -75,6 +75,48 @@ def terminate_as_interrupt() -> Iterator[None]:
         yield
 
 
+class Interrupts:
+    """
+    Ctrl-C (SIGINT), SIGTERM and SIGHUP, counted, for a command that winds down in steps.
+
+    Inside :meth:`handled` each of them is counted (:attr:`count`); inside :meth:`raising`
+    it also raises KeyboardInterrupt (``signal SIGTERM`` for the others), as Ctrl-C does.
+    ``train`` and ``play`` run their nodes inside :meth:`raising`: the first Ctrl-C stops
+    them. Stopping the nodes runs outside it, so a second one cannot leave a node behind; the
+    slow step after it (``train``'s evaluation, ``play``'s GIF) runs inside it again, only
+    when fewer than two came: the second Ctrl-C skips it. SIGINT is taken even when it was
+    inherited ignored (see :func:`terminate_as_interrupt`).
+    """
+
+    SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+
+    def __init__(self):
+        """Count none yet."""
+        self.count = 0
+        self._raise = False
+
+    def _handle(self, signum, frame):
+        self.count += 1
+        if self._raise:
+            self._raise = False         # one KeyboardInterrupt per raising block
+            if signum == signal.SIGINT:
+                raise KeyboardInterrupt
+            raise KeyboardInterrupt(f'signal {signal.Signals(signum).name}')
+
+    def handled(self):
+        """Count the signals inside the block (main thread only), then restore."""
+        return signals_handled(self.SIGNALS, self._handle)
+
+    @contextlib.contextmanager
+    def raising(self) -> Iterator[None]:
+        """Inside :meth:`handled`: a signal in this block raises KeyboardInterrupt."""
+        self._raise = True
+        try:
+            yield
+        finally:
+            self._raise = False
+
+
 def shutting_down():
     """Ignore SIGINT, SIGTERM and SIGHUP inside the block: the nodes are being stopped."""
     return signals_handled((signal.SIGINT, signal.SIGTERM, signal.SIGHUP), signal.SIG_IGN)

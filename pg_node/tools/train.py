@@ -38,8 +38,8 @@ from pg_node.common.params import ConfigError, load_config, SHARED
 from pg_node.common.paths import preset_names
 from pg_node.common.run import pair_namespace, run_id_for_dir, run_namespace
 from pg_node.tools.args import non_negative_float, run_id_arg
-from pg_node.tools.processes import (child_env, process_usage, shutting_down, signal_process,
-                                     STOP_WAITS, terminate_as_interrupt)
+from pg_node.tools.processes import (child_env, Interrupts, process_usage, shutting_down,
+                                     signal_process, STOP_WAITS, terminate_as_interrupt)
 import yaml
 
 
@@ -580,17 +580,31 @@ class ProgressView:
         steps = row['env_steps'] - self.first['env_steps']
         return steps / seconds if seconds > 0 else float('nan')
 
+    def eta(self, row) -> str:
+        """
+        Return the time left at this session's speed, as tqdm writes times (n/a: unknown).
+
+        The speed is the one shown (since the first update): the bring-up and the steps of
+        an earlier session do not make it look faster or slower than it is.
+        """
+        from tqdm import tqdm
+        rate = self.steps_per_second(row)
+        if not rate > 0:
+            return 'n/a'
+        return tqdm.format_interval(max(self.total - row['env_steps'], 0) / rate)
+
     def describe(self, row) -> str:
         """Return the labelled fields of one progress row."""
         return (f'{_rate(self.steps_per_second(row))} steps/s (since the first update), '
+                f'ETA {self.eta(row)}, '
                 f"training episodes' mean return {_ret(row['episode_return'])}, "
                 f"policy version {int(row['policy_version'])}")
 
     def describe_short(self, row) -> str:
         """Return :meth:`describe` in words that leave the bar room."""
         ret = row['episode_return']
-        return (f'{_rate(self.steps_per_second(row))} steps/s since 1st update, training '
-                f"return {'n/a' if ret != ret else f'{ret:.2f}'}, "
+        return (f'ETA {self.eta(row)}, {_rate(self.steps_per_second(row))} steps/s since 1st '
+                f"update, training return {'n/a' if ret != ret else f'{ret:.2f}'}, "
                 f"policy v{int(row['policy_version'])}")
 
     def stopping(self):
@@ -721,22 +735,39 @@ def main(argv=None) -> int:
                      total, sim_seeds(cfg, compose), learner_process(compose), env=discovery,
                      restart_delay=args.restart_delay)
     view = ProgressView(run_dir / 'progress.csv', total, start, bar=not args.no_progress)
+    interrupts = Interrupts()
+    with interrupts.handled():  # SIGTERM / SIGHUP stop the nodes as Ctrl-C does
+        return supervise_and_report(args, cfg, sup, view, start, announcer, interrupts)
+
+
+def supervise_and_report(args, cfg: dict, sup: Supervisor, view: 'ProgressView',
+                         start: Optional[dict], announcer, interrupts: Interrupts) -> int:
+    """
+    Run the graph until done, failed or interrupted; evaluate, write and print the summary.
+
+    The first Ctrl-C stops the nodes (and says how to skip the evaluation); the second,
+    while they stop or during the evaluation, skips it (``summary.json``'s ``evaluation``:
+    ``skipped``); further ones change nothing: the summary and the curve are written.
+    """
+    run_dir = sup.run_dir
     t0 = view.t0
     state = 'running'
     interrupted = False
     try:
-        with terminate_as_interrupt():  # SIGTERM / SIGHUP stop the nodes as Ctrl-C does
+        with interrupts.raising():
             state = supervise(sup, view)
     except KeyboardInterrupt as exc:
         interrupted = True
-        print(f'\ninterrupted{f" by {exc}" if str(exc) else ""}: stopping the nodes',
-              file=sys.stderr)
+        skip = (f'; Ctrl-C again skips the evaluation that follows ({args.eval_episodes} '
+                'episodes)' if args.eval_episodes > 0 else '')
+        print(f'\ninterrupted{f" by {exc}" if str(exc) else ""}: stopping the nodes{skip}',
+              file=sys.stderr, flush=True)
     finally:
-        with shutting_down():  # a second Ctrl-C must not leave nodes behind
-            sup.stop_all()
-            if announcer is not None:
-                announcer.finish(state)     # the worker hosts stop their nodes and end
-                announcer.close()
+        # a second Ctrl-C is counted, not raised: it must not leave nodes behind
+        sup.stop_all()
+        if announcer is not None:
+            announcer.finish(state)     # the worker hosts stop their nodes and end
+            announcer.close()
         # the rows the learner wrote while it was being stopped are this session's too (an
         # interrupted fresh run said '185344 steps in this session (189952 in all)')
         view.poll()
@@ -761,10 +792,18 @@ def main(argv=None) -> int:
                'restarts': sup.restarts,
                'nodes': sup.usage()}
     summary['steps_per_second'] = view.steps_per_second(last) if last else float('nan')
+    summary['evaluation'] = 'no checkpoint'
     if any((run_dir / 'checkpoints').glob('ckpt_*.pt')):
-        print(f'evaluating the deterministic policy over {args.eval_episodes} episodes ...',
-              flush=True)
-        summary.update(evaluate_run(run_dir, args.eval_episodes))
+        summary['evaluation'] = 'skipped'
+        if interrupts.count < 2:
+            print(f'evaluating the deterministic policy over {args.eval_episodes} episodes '
+                  '(Ctrl-C skips it) ...', flush=True)
+            try:
+                with interrupts.raising():
+                    summary.update(evaluate_run(run_dir, args.eval_episodes))
+                summary['evaluation'] = 'done'
+            except KeyboardInterrupt:
+                pass
     summary['curve'] = [{'env_steps': r['env_steps'], 'wall_seconds': r['wall_seconds'],
                          'episode_return': r['episode_return']} for r in rows]
     summary['config'] = dict(cfg)
@@ -782,6 +821,9 @@ def main(argv=None) -> int:
               f"final distance {100 * summary['eval_final_distance']:.2f} cm, "
               f"{100 * summary['eval_reached']:.0f}% within 2 cm, "
               f"policy version {summary['policy_version']}")
+    elif summary['evaluation'] == 'skipped':
+        print(f'evaluation skipped (Ctrl-C): python -m pg_node eval {run_dir} evaluates the '
+              'run')
     else:
         print('no policy to evaluate: the learner wrote no checkpoint')
     if last is not None:
