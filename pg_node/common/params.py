@@ -376,6 +376,12 @@ POLICY_PARAMS: Dict[str, Param] = {
                                    'inertia in the model (the other half is slack for the tick '
                                    'and the pose). The value taken is in /diagnostics '
                                    '(max_deceleration_taken)', low=0.0, live=True),
+    'max_position_delta': Param(0.0, 'rad: position interface: each target is kept within '
+                                     "this of the measured angle; 0: the policy card's "
+                                     'max_position_delta (a policy imported with '
+                                     '--position-delta commands changes around the measured '
+                                     'angle, at most that per control step), none for a '
+                                     'policy with absolute targets', low=0.0, live=True),
     'command_message': Param('trajectory', 'trajectory: each command as a one-point '
                                            'trajectory_msgs/JointTrajectory on '
                                            'arm_controller/joint_trajectory (a joint '

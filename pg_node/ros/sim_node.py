@@ -180,7 +180,9 @@ class SimNode(Node):
                             max_episode_steps=p['max_episode_steps'],
                             reward_dist_weight=p['reward_dist_weight'],
                             reward_control_weight=p['reward_control_weight'],
-                            randomization=from_params(p))
+                            randomization=from_params(p),
+                            # a robot's stand-in gets absolute angles from policy_node
+                            relative_actions=p['command_interface'] == 'control')
         self.params = p
         self.interface = p['command_interface']
         self.actuators = actuators(self.task.model)
