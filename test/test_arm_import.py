@@ -836,7 +836,7 @@ def test_sim_node_runs_the_imported_arm(tmp_path):
     try:
         client.wait_ready(client.joint_states)
         names = ArmTask(ARM7).spec.joint_names
-        assert list(client.joint_states[-1].name) == [f'arm0/{n}' for n in names]
+        assert list(client.joint_states[-1].name) == list(names)   # one arm: plain
         tr = client.step([0.5] * 7)
         assert tr.obs.shape == (1, 27) and np.all(np.isfinite(tr.reward))
         client.spin_until(lambda: client.joint_states[-1].effort[0] != 0.0)

@@ -18,7 +18,7 @@ import math
 from pathlib import Path
 import re
 import shlex
-from typing import Any, Callable, Dict, Optional, Sequence, Tuple
+from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple
 
 from pg_node.common.paths import check_model
 from pg_node.common.perturbations import PARAM_PREFIX, parse_term, TERMS
@@ -270,6 +270,22 @@ def _writable_file(path: str) -> None:
         raise ValueError(f'no directory {str(Path(path).expanduser().parent)!r} to write it in')
 
 
+def arm_indices(text: str) -> List[int]:
+    """
+    Return the arm indices in ``text`` (``'0, 3'``; empty: none); ValueError if not.
+
+    >>> arm_indices('0, 3'), arm_indices('')
+    ([0, 3], [])
+    """
+    try:
+        arms = [int(a) for a in text.replace(',', ' ').split()]
+    except ValueError:
+        raise ValueError(f'{text!r} is not arm indices separated by commas') from None
+    if any(a < 0 for a in arms):
+        raise ValueError(f'{text!r}: an arm index is 0 or more')
+    return arms
+
+
 SIM_PARAMS: Dict[str, Param] = {
     'frame_skip': Param(2, 'physics steps per control step', low=1),
     'max_episode_steps': Param(50, 'control steps after which an episode is truncated', low=1),
@@ -300,6 +316,14 @@ SIM_PARAMS: Dict[str, Param] = {
     'marker_spacing': Param(0.7, 'distance in m between arms drawn on the marker grid',
                             low=0.0, live=True),
     'frame_id': Param('world', 'frame of the markers', live=True),
+    'view_arms': Param('0', 'arms shown to ROS tools, indices separated by commas (empty: '
+                            'none): their joint states with plain names on '
+                            'arm<i>/joint_states, their links in pg_node/scene',
+                       validate=lambda text: arm_indices(text), numbers_as_text=True),
+    'scene_rate': Param(4.0, 'pg_node/scene (the view_arms as robot_description shows them, '
+                             'goal, fingertip trail) rate in Hz of wall time while it has a '
+                             'subscriber; 0 turns it off', low=0.0, live=True),
+    'trail_length': Param(50, "fingertip positions in pg_node/scene's trail", low=0),
     'diagnostics_rate': Param(1.0, 'diagnostics rate in Hz of wall time', **POSITIVE, live=True),
     'round_trip_log': Param('', 'lock_step: a .npy file to write every round trip to when the '
                                 'node stops (ns from just before a transition is published to '
