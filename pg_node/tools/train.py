@@ -732,17 +732,20 @@ def main(argv=None) -> int:
     view = ProgressView(run_dir / 'progress.csv', total, start, bar=not args.no_progress)
     interrupts = Interrupts()
     with interrupts.handled():  # SIGTERM / SIGHUP stop the nodes as Ctrl-C does
-        return supervise_and_report(args, cfg, sup, view, start, announcer, interrupts)
+        return supervise_and_report(args, cfg, sup, view, start, announcer, interrupts,
+                                    bags_before)
 
 
 def supervise_and_report(args, cfg: dict, sup: Supervisor, view: 'ProgressView',
-                         start: Optional[dict], announcer, interrupts: Interrupts) -> int:
+                         start: Optional[dict], announcer, interrupts: Interrupts,
+                         bags_before: list) -> int:
     """
     Run the graph until done, failed or interrupted; evaluate, write and print the summary.
 
     The first Ctrl-C stops the nodes (and says how to skip the evaluation); the second,
     while they stop or during the evaluation, skips it (``summary.json``'s ``evaluation``:
     ``skipped``); further ones change nothing: the summary and the curve are written.
+    ``bags_before``: the run's bag folders before this session (a resume writes the next).
     """
     run_dir = sup.run_dir
     t0 = view.t0
