@@ -4,13 +4,14 @@ The ``curves`` section of ``python -m bench``: every estimator's learning curve.
 Each choice of phi of the critic (``estimator``: total return, reward-to-go, constant,
 optimal and time baselines, value baseline, TD residual, GAE) is trained in-process
 (:func:`pg_node.rl.train_inprocess.train_inprocess`, the graph's computation) with otherwise
-the default settings, the design's A2C, over the same seeds; the deterministic policy is
+the default settings (A2C, ``config/a2c.yaml``), over the same seeds; the deterministic policy is
 evaluated at every tenth of the budget (full: 100k, 200k, ..., 1M environment steps, 100
 episodes, 3 seeds), so that the curves show where one row overtakes another; the table
 shows 30%, 50% and all of it, and the times to each return come from every point.
 The algorithm rows go in the same table: A2C (the ``gae`` runs above: the defaults),
 plain REINFORCE (total return, no advantage normalisation), PPO (the ``config/ppo.yaml``
-preset), tuned A2C (``config/a2c_tuned.yaml``), NPG and TRPO (the
+preset), the design's A2C (the defaults before issue 48: gamma 0.9, V fitted once per
+batch), NPG and TRPO (the
 ``config/npg.yaml`` and ``config/trpo.yaml`` presets);
 SB3 A2C and PPO come from the ``learning`` section of the same invocation (not run twice),
 and Tianshou's published numbers are quoted with their source (:data:`TIANSHOU`).
@@ -31,7 +32,8 @@ ESTIMATORS = ('total_return', 'reward_to_go', 'constant_baseline', 'optimal_base
 ALGORITHMS = {
     'reinforce': ('plain REINFORCE (total return, no baseline, advantages not normalised)',
                   None, ('estimator=total_return', 'normalize_advantage=false')),
-    'a2c_tuned': ('A2C tuned (config/a2c_tuned.yaml)', 'a2c_tuned', ()),
+    'a2c_design': ("the design's A2C (gamma 0.9, vf_epochs 1: the defaults before issue 48)",
+                   None, ('gamma=0.9', 'vf_epochs=1')),
     'ppo': ('PPO (config/ppo.yaml)', 'ppo', ()),
     'npg': ('NPG (config/npg.yaml)', 'npg', ()),
     'trpo': ('TRPO (config/trpo.yaml)', 'trpo', ()),
@@ -406,7 +408,7 @@ def make_plot(results: Dict, plot_dir) -> Dict[str, str]:
                      va='center')
     alg.set_ylabel(f'deterministic evaluation return ({curves["eval_episodes"]} episodes)')
     alg.set_title('Algorithms (mean over seeds, band: ± std)')
-    est.set_title("Estimators phi, the design's A2C otherwise (mean over seeds, band: ± std)")
+    est.set_title('Estimators phi, the default A2C otherwise (mean over seeds, band: ± std)')
     for ax in (alg, est):          # below each panel: the curves keep the whole plot
         ax.legend(fontsize=7, loc='upper center', bbox_to_anchor=(0.5, -0.1), ncol=2)
     fig.tight_layout()

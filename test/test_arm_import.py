@@ -610,10 +610,11 @@ def test_torque_defaults_add_no_damping_and_what_the_command_says(tmp_path, caps
     assert model.body_gravcomp[model.body('link1').id] == 1.0
     said = model_text(out, 'pg_physics_assumptions')
     assert said.startswith('gravity compensation: the robot cancels') and 'velocity' not in said
-    # position servos keep velocity damping and the 0.02 s step by default
+    # position servos get no velocity damping either (issue 46), and the 0.02 s step
     code, stdout, err = run_import(capsys, TWO_LINK, '--tip', 'fingertip', '--actuator',
                                    'position', '-o', out)
-    assert code == 0 and 'timestep 0.02 s (implicitfast), velocity damping' in stdout
+    assert code == 0 and ("timestep 0.02 s (implicitfast), the URDF's damping (no velocity "
+                          'damping)') in stdout
 
 
 def test_velocity_damping_is_the_old_default_kept_as_an_assumption(tmp_path, capsys):
@@ -835,7 +836,7 @@ def test_sim_node_runs_the_imported_arm(tmp_path):
     try:
         client.wait_ready(client.joint_states)
         names = ArmTask(ARM7).spec.joint_names
-        assert list(client.joint_states[-1].name) == [f'arm0/{n}' for n in names]
+        assert list(client.joint_states[-1].name) == list(names)   # one arm: plain
         tr = client.step([0.5] * 7)
         assert tr.obs.shape == (1, 27) and np.all(np.isfinite(tr.reward))
         client.spin_until(lambda: client.joint_states[-1].effort[0] != 0.0)

@@ -325,7 +325,7 @@ def test_curves_plot_two_panels_with_a_band_per_row(tmp_path, monkeypatch):
     panels = {id(ax): ax for ax in bands}
     assert len(panels) == 2
     by_panel = sorted(sum(1 for b in bands if b is ax) for ax in panels.values())
-    # a2c, reinforce, a2c_tuned, ppo, npg, trpo and the SB3 A2C row; 8 estimators
+    # a2c, reinforce, a2c_design, ppo, npg, trpo and the SB3 A2C row; 8 estimators
     assert by_panel == [7, 8]
     with Image.open(tmp_path / 'curves.png') as img:
         assert img.size == (1500, 700)

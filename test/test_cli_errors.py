@@ -320,7 +320,7 @@ def test_replay_node_refuses_bad_parameters_in_one_line(param, words):
     """Before: InvalidParameterTypeException tracebacks, and an unknown parameter ignored."""
     done = run('--ros-args', '-p', f'bag:={SAMPLE}', '-p', param, module='pg_node.ros.replay_node',
                timeout=60)
-    refused(done, 1, 'replay_node: ', *words)
+    refused(done, 2, 'replay_node: ', *words)
     assert len(done.stderr.strip().splitlines()) == 1, done.stderr
 
 

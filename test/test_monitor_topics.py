@@ -13,7 +13,7 @@ import sys
 import threading
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from domains import ros_domain
+from domains import ros_domain, ros_domains
 from pg_node.common.run import run_topic
 from pg_node.tools.monitor import MonitorState, sparkline
 import pytest
@@ -124,8 +124,8 @@ class Publisher:
         rclpy.try_shutdown(context=self.context)
 
 
-def run(*args, timeout=60, columns=160):
-    env = dict(os.environ, ROS_DOMAIN_ID=str(DOMAIN_ID), PYTHONPATH=str(REPO),
+def run(*args, timeout=60, columns=160, domain=DOMAIN_ID):
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), PYTHONPATH=str(REPO),
                COLUMNS=str(columns))
     env.pop('MUJOCO_GL', None)
     return subprocess.run([sys.executable, '-m', 'pg_node', *args], env=env, cwd=REPO,
@@ -302,3 +302,48 @@ def test_monitor_and_topics_tell_two_runs_apart(publisher):
         assert 'runs: (no run id), exp_b' in both.stdout, both.stdout
     finally:
         other.close()
+
+
+@pytest.mark.e2e
+def test_monitor_without_a_terminal_prints_plain_lines(publisher):
+    """Before: the live view, its output a pipe, printed nothing until it was stopped."""
+    done = run('monitor', '--duration', '6', '--every', '1')
+    assert done.returncode == 0, done.stderr
+    lines = done.stdout.splitlines()
+    assert len(lines) >= 3, done.stdout
+    assert not any(c in done.stdout for c in '│┃━\x1b'), done.stdout  # no table, no escapes
+    last = lines[-1]
+    assert 'episode_return ' in last and 'policy_loss 0.125' in last, last
+    assert 'episodes (mean return -12.500' in last and '1 WARN' in last, last
+
+
+@pytest.mark.e2e
+@pytest.mark.parametrize('args', [['--wait', '2'], ['--once', '--duration', '2']],
+                         ids=['lines', 'once'])
+def test_monitor_that_hears_no_run_names_the_domain_and_fails(args):
+    """A domain where nothing runs: one line naming ROS_DOMAIN_ID, exit code 1."""
+    empty = ros_domains(2, base=110, spread=50)[1]      # the test's domain is the first
+    done = run('monitor', *args, domain=empty, timeout=30)
+    assert done.returncode == 1, done.stdout + done.stderr
+    assert done.stderr.strip().splitlines() == [
+        f'monitor: no pg_node run and no node heard on ROS domain {empty} '
+        f'(ROS_DOMAIN_ID={empty}) in 2 s: is a training running, with the same ROS_DOMAIN_ID '
+        '(and ROS_AUTOMATIC_DISCOVERY_RANGE) as here?'], done.stderr
+
+
+def test_state_line_summarises_metrics_episodes_and_nodes():
+    state = MonitorState(stale=5.0)
+    state.runs, state.run = {'exp1'}, 'exp1'
+    state.on_metric('policy_loss', 0.5, now=0.0)
+    state.on_metric('episode_return', -3.0, now=0.0)
+    state.on_episode(episode(-2.0))
+    state.on_episode(episode(0.0, cut_short=True))
+    array = DiagnosticArray()
+    array.status = [DiagnosticStatus(level=DiagnosticStatus.OK, name='a'),
+                    DiagnosticStatus(level=DiagnosticStatus.ERROR, name='b')]
+    state.on_diagnostics(array, now=0.0)
+    assert state.line(now=1.0) == ('run exp1: /exp1/pg_node/...: episode_return -3, '
+                                   'policy_loss 0.5; 2 episodes (mean return -2.000 of the '
+                                   'recent ones, 1 cut short); nodes 1 OK, 1 ERROR')
+    assert state.line(now=10.0).endswith('; nodes 2 STALE')
+    assert not state.heard_nothing() and MonitorState().heard_nothing()

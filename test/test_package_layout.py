@@ -59,7 +59,7 @@ def test_share_holds_package_xml_config_launch_models(install):
     share = install / 'share' / 'pg_node'
     assert (share / 'package.xml').is_file()
     assert (share / 'config' / 'pg_node.yaml').is_file()
-    for preset in ('a2c', 'a2c_tuned', 'ppo'):
+    for preset in ('a2c', 'ppo'):
         assert (share / 'config' / f'{preset}.yaml').is_file()
     assert (share / 'launch' / 'train.launch.py').is_file()
     # the deployment's launch file and its parameter file (setup.py's globs take them)

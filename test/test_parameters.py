@@ -176,7 +176,7 @@ def test_learner_and_critic_apply_live_hyperparameters(client, tmp_path):
         assert code == 0, (name, log[-2000:])
     assert 'parameter learning_rate: 0.001 -> 0.0003' in logs['learner'][1]
     assert 'parameter ent_coef: 0.0 -> 0.01' in logs['learner'][1]
-    assert 'parameter gamma: 0.9 -> 0.99' in logs['critic'][1]
+    assert 'parameter gamma: 0.95 -> 0.99' in logs['critic'][1]
 
 
 def test_every_parameter_is_live_or_read_only_with_its_range():

@@ -203,3 +203,38 @@ def test_plot_without_output_writes_into_the_run_dir(tmp_path, monkeypatch):
     assert plot_main([str(tmp_path / 'run')]) == 0
     assert (tmp_path / 'run' / 'learning_curve.png').is_file()
     assert not (tmp_path / 'learning_curve.png').exists()
+
+
+def test_a_resumed_run_is_drawn_without_a_line_across_the_pause(tmp_path):
+    """bag/ then, ten minutes later, bag_1/: each curve breaks (NaN) between the two."""
+    import matplotlib.pyplot as plt
+    from pg_node.tools.plot import draw_runs
+    run = tmp_path / 'run'
+    metric_topics = [t for t in BagReader(SAMPLE).topics if t.startswith('/pg_node/metrics/')]
+    steps_t = RunData(SAMPLE).metrics['env_steps'][0]
+    t_cut = int(steps_t[len(steps_t) // 2])
+    pause = 600 * 10**9
+    for target, keep, shift in ((run / 'bag', lambda t: t < t_cut, 0),
+                                (run / 'bag_1', lambda t: t >= t_cut, pause)):
+        with BagWriter(target) as writer:
+            for topic in metric_topics:
+                writer.add_topic(topic, 'std_msgs/msg/Float64')
+            for m in BagReader(SAMPLE, warn=False).messages(topics=metric_topics):
+                if keep(m.log_time_ns):
+                    writer.write(m.topic, m.data, m.log_time_ns + shift)
+    data = RunData(run)
+    assert [b.name for b in data.bags] == ['bag', 'bag_1'] and len(data.breaks) == 1
+    t_returns = data.metrics['episode_return'][0]
+    first_session = int(np.sum(t_returns < t_cut))
+    assert 0 < first_session < len(t_returns)
+    fig = draw_runs([data])
+    for ax in fig.axes[:2]:     # the return against steps, and against wall time
+        (line,) = [ln for ln in ax.get_lines() if ln.get_label().startswith('training')]
+        x, y = (np.asarray(a, dtype=float) for a in line.get_data())
+        assert np.flatnonzero(np.isnan(y)).tolist() == [first_session], ax.get_xlabel()
+    minutes = fig.axes[1].get_lines()[0].get_xdata()
+    assert minutes[first_session + 1] - minutes[first_session - 1] > 9.9  # the pause
+    for ax in fig.axes[2:]:     # speed, losses, entropy: one break each
+        (line,) = ax.get_lines()
+        assert np.isnan(np.asarray(line.get_ydata(), dtype=float)).sum() == 1, ax.get_title()
+    plt.close(fig)

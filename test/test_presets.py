@@ -2,8 +2,8 @@
 The parameter presets in ``config/``: they load, they change only what they should.
 
 ``a2c.yaml`` is the design's A2C, the values ``make train`` runs (``config/pg_node.yaml``);
-``ppo.yaml`` is tuned PPO, ``a2c_tuned.yaml`` tuned A2C, ``npg.yaml`` and ``trpo.yaml`` the
-tuned natural-gradient methods. A preset names only algorithm
+``ppo.yaml`` is tuned PPO, ``npg.yaml`` and ``trpo.yaml`` the tuned natural-gradient
+methods. A preset names only algorithm
 settings: the arm, the seed, the run's bookkeeping and the simulator stay the defaults.
 ``--config`` and the launch file's ``preset:=`` take a preset's name as well as a path.
 """
@@ -17,7 +17,7 @@ import pytest
 import yaml
 
 REPO = Path(__file__).resolve().parent.parent
-PRESETS = ('a2c', 'a2c_tuned', 'ppo', 'npg', 'trpo')
+PRESETS = ('a2c', 'ppo', 'npg', 'trpo')
 #: what no preset may set: the task, the seed, the run's bookkeeping, the transport
 NOT_A_PRESET_SETTING = {
     SHARED: ('model', 'seed', 'sync_mode', 'max_policy_lag', 'num_actors', 'run_dir'),
@@ -72,13 +72,13 @@ def test_a2c_preset_is_the_default_job():
             assert table[key].default == pytest.approx(value), (section, key)
 
 
-@pytest.mark.parametrize('name', ['ppo', 'a2c_tuned', 'npg', 'trpo'])
+@pytest.mark.parametrize('name', ['ppo', 'npg', 'trpo'])
 def test_tuned_preset_differs_from_the_default_only_in_tuned_values(name):
     tuned_cfg, a2c = load_config(config_file(name)), load_config(default_config())
     changed = {(n, k) for n in tuned_cfg for k in tuned_cfg[n]
                if tuned_cfg[n][k] != a2c[n][k]}
     assert changed, f'{name}.yaml tunes nothing'
-    assert (('learner_node', 'algo') in changed) == (name != 'a2c_tuned')
+    assert ('learner_node', 'algo') in changed
     tuned = {(n.replace('/**/', ''), k) for n, v in _raw(name).items() for k in v}
     # a shared value reaches every node that reads it
     shared = {k for n, k in tuned if n == SHARED}

@@ -147,3 +147,19 @@ def test_compose_runs_each_simulator_and_its_actor_as_one_process(tmp_path, pair
         assert both[3:] == sim[3:] == apart[f'actor_node{t}'][3:]   # the namespace, if any
     assert list(sim_seeds(cfg, compose=True).values()) == list(sim_seeds(cfg).values())
     assert set(sim_seeds(cfg, compose=True)) == {f'sim_and_actor{t}' for t in tags}
+
+
+def test_resume_names_its_bag_in_the_summary_and_replay_info(runs, capsys):
+    """A resumed run's learner writes bag_1/: the summary and replay --info name it."""
+    run_dir, out1, sum1, out, summary = runs
+    assert sum1['bags'] == sum1['session_bags'] == ['bag']
+    assert summary['bags'] == ['bag', 'bag_1'] and summary['session_bags'] == ['bag_1']
+    lines = out.splitlines()
+    assert f'{"bag:":<11} {run_dir / "bag"}' in lines, out
+    assert f'{"bag:":<11} {run_dir / "bag_1"} (this session)' in lines, out
+    assert f'{"bag:":<11} {run_dir / "bag"}' in out1.splitlines()
+    from pg_node.ros.replay_node import main
+    assert main(['--info', str(run_dir)]) == 0
+    named = [ln.split()[1] for ln in capsys.readouterr().out.splitlines()
+             if ln.startswith('bag: ')]
+    assert named == [str(run_dir / 'bag'), str(run_dir / 'bag_1')]

@@ -323,7 +323,8 @@ def test_critic_annotates_with_the_chosen_estimator():
 
 def test_critic_judges_with_v_as_it_is_then_fits():
     """critic_node's order (judge, send, fit) gives exactly annotate's phi, targets and V."""
-    cfg = _cfg(estimator='gae', num_envs=3)['critic_node']
+    # one full-batch pass of V (the default fits 10): its reported loss is V's before the step
+    cfg = _cfg(estimator='gae', num_envs=3, vf_epochs=1)['critic_node']
     ro = _random_rollout(6, truncate_at=3, seed=1)
     one, two = Critic(4, cfg), Critic(4, cfg)
 

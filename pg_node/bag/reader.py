@@ -23,6 +23,7 @@ import warnings
 from mcap.exceptions import InvalidMagic
 from mcap.records import Channel, Chunk, DataEnd, Message, Metadata, Schema
 from mcap.stream_reader import breakup_chunk, CRCValidationError, StreamReader
+from mcap.writer import MCAP0_MAGIC
 from pg_node.bag import ros_types
 import yaml
 
@@ -233,16 +234,42 @@ def read_metadata_yaml(directory):
 
 
 def _find_bag_files(path: Path):
-    """Return (metadata dict or None, list of .mcap paths) for a bag dir or .mcap file."""
+    """
+    Return (metadata dict or None, .mcap paths to read, unlisted paths left out).
+
+    A directory's files are those ``metadata.yaml`` lists, then any other ``.mcap`` file
+    (a writer killed before it listed its newest split), except one that does not even
+    start as MCAP: ``reindex`` leaves such a file out of the metadata and beside the bag.
+    """
     if path.is_file():
-        return None, [path]
+        return None, [path], []
     meta = read_metadata_yaml(path)
     if meta is not None:
         files = [path / Path(p).name for p in meta.get('relative_file_paths', [])]
         files = [f for f in files if f.suffix == '.mcap']
         extra = sorted(set(path.glob('*.mcap')) - set(files), key=_split_index)
-        return meta, files + extra
-    return None, sorted(path.glob('*.mcap'), key=_split_index)
+        left_out = [f for f in extra if not _starts_as_mcap(f)]
+        return meta, files + [f for f in extra if f not in left_out], left_out
+    return None, sorted(path.glob('*.mcap'), key=_split_index), []
+
+
+def _starts_as_mcap(path: Path) -> bool:
+    try:
+        with open(path, 'rb') as f:
+            return f.read(len(MCAP0_MAGIC)) == MCAP0_MAGIC
+    except OSError:
+        return False
+
+
+def bag_dirs(run_dir) -> list:
+    """
+    Return a run directory's bags in the order its learners wrote them: ``bag``, ``bag_1``...
+
+    A learner that restarts, or a run resumed by a second ``train``, writes the next one.
+    """
+    found = [p for p in Path(run_dir).glob('bag*') if p.is_dir()
+             and (p.name == 'bag' or p.name[4:].isdigit() and p.name[3] == '_')]
+    return sorted(found, key=lambda p: int(p.name[4:] or 0))
 
 
 def _split_index(path: Path):
@@ -260,6 +287,9 @@ class BagReader:
     its end, and :attr:`unknown_types` maps each topic whose type is not installed to that
     type (those messages are still yielded, raw, with ``msg`` None), and
     :attr:`decode_errors` counts per topic the messages whose CDR would not deserialise.
+    :attr:`files` are the files read, :attr:`left_out` the ``.mcap`` files beside them
+    that neither ``metadata.yaml`` lists nor start as MCAP; :meth:`check_files` reads them
+    all to tell which are damaged.
     """
 
     def __init__(self, path, warn=True):
@@ -268,7 +298,7 @@ class BagReader:
         if not self.path.exists():
             raise FileNotFoundError(f'no bag at {self.path}')
         self.warn = warn
-        self.metadata, self.files = _find_bag_files(self.path)
+        self.metadata, self.files, self.left_out = _find_bag_files(self.path)
         if not self.files:
             raise FileNotFoundError(f'no .mcap files in {self.path}')
         missing = [str(f) for f in self.files if not f.exists()]
@@ -372,6 +402,23 @@ class BagReader:
         finally:
             for s in scans:
                 self._note(s)
+
+    def check_files(self) -> list:
+        """
+        Read every file to its end, CRCs checked; return the :class:`Damage` of each bad one.
+
+        A listed file that is missing counts too. :attr:`topics` may take its counts from
+        ``metadata.yaml``, which cannot know of damage: this is what tells whether the
+        files hold what it says (``reindex`` makes them agree).
+        """
+        found = [d for d in self.problems if 'missing' in d.reason]
+        for f in self.files:
+            scan = McapScan(f)
+            for _ in scan:
+                pass
+            if scan.damage is not None:
+                found.append(scan.damage)
+        return found
 
     def unknown_topic_types(self) -> dict:
         """Return {topic: type} for the topics whose message type is not installed."""

@@ -18,7 +18,7 @@ import math
 from pathlib import Path
 import re
 import shlex
-from typing import Any, Callable, Dict, Optional, Sequence, Tuple
+from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple
 
 from pg_node.common.paths import check_model
 from pg_node.common.perturbations import PARAM_PREFIX, parse_term, TERMS
@@ -190,7 +190,7 @@ CRITIC_PARAMS: Dict[str, Param] = {
                        choices=('total_return', 'reward_to_go', 'constant_baseline',
                                 'optimal_baseline', 'time_baseline', 'value_baseline',
                                 'td_residual', 'gae')),
-    'gamma': Param(0.9, 'discount factor', low=0.0, high=1.0, live=True),
+    'gamma': Param(0.95, 'discount factor', low=0.0, high=1.0, live=True),
     'gae_lambda': Param(0.95, 'GAE lambda (also of the TD(lambda) value target)',
                         low=0.0, high=1.0, live=True),
     'value_target': Param('td_lambda', 'targets V is fitted to: td_lambda (GAE + V) or mc '
@@ -198,7 +198,7 @@ CRITIC_PARAMS: Dict[str, Param] = {
                           choices=('td_lambda', 'mc')),
     'vf_learning_rate': Param(1e-3, 'learning rate of the value network', **POSITIVE, live=True),
     'vf_coef': Param(0.5, 'weight of the value loss', **POSITIVE, live=True),
-    'vf_epochs': Param(1, 'passes over each batch when fitting V', low=1, live=True),
+    'vf_epochs': Param(10, 'passes over each batch when fitting V', low=1, live=True),
     'vf_batch_size': Param(0, 'minibatch size when fitting V (0: the whole batch)', low=0,
                            live=True),
     'vf_optimizer': Param('adam', 'optimiser of the value network', choices=('rmsprop', 'adam')),
@@ -270,6 +270,22 @@ def _writable_file(path: str) -> None:
         raise ValueError(f'no directory {str(Path(path).expanduser().parent)!r} to write it in')
 
 
+def arm_indices(text: str) -> List[int]:
+    """
+    Return the arm indices in ``text`` (``'0, 3'``; empty: none); ValueError if not.
+
+    >>> arm_indices('0, 3'), arm_indices('')
+    ([0, 3], [])
+    """
+    try:
+        arms = [int(a) for a in text.replace(',', ' ').split()]
+    except ValueError:
+        raise ValueError(f'{text!r} is not arm indices separated by commas') from None
+    if any(a < 0 for a in arms):
+        raise ValueError(f'{text!r}: an arm index is 0 or more')
+    return arms
+
+
 SIM_PARAMS: Dict[str, Param] = {
     'frame_skip': Param(2, 'physics steps per control step', low=1),
     'max_episode_steps': Param(50, 'control steps after which an episode is truncated', low=1),
@@ -300,6 +316,14 @@ SIM_PARAMS: Dict[str, Param] = {
     'marker_spacing': Param(0.7, 'distance in m between arms drawn on the marker grid',
                             low=0.0, live=True),
     'frame_id': Param('world', 'frame of the markers', live=True),
+    'view_arms': Param('0', 'arms shown to ROS tools, indices separated by commas (empty: '
+                            'none): their joint states with plain names on '
+                            'arm<i>/joint_states, their links in pg_node/scene',
+                       validate=lambda text: arm_indices(text), numbers_as_text=True),
+    'scene_rate': Param(4.0, 'pg_node/scene (the view_arms as robot_description shows them, '
+                             'goal, fingertip trail) rate in Hz of wall time while it has a '
+                             'subscriber; 0 turns it off', low=0.0, live=True),
+    'trail_length': Param(50, "fingertip positions in pg_node/scene's trail", low=0),
     'diagnostics_rate': Param(1.0, 'diagnostics rate in Hz of wall time', **POSITIVE, live=True),
     'round_trip_log': Param('', 'lock_step: a .npy file to write every round trip to when the '
                                 'node stops (ns from just before a transition is published to '
@@ -376,6 +400,12 @@ POLICY_PARAMS: Dict[str, Param] = {
                                    'inertia in the model (the other half is slack for the tick '
                                    'and the pose). The value taken is in /diagnostics '
                                    '(max_deceleration_taken)', low=0.0, live=True),
+    'max_position_delta': Param(0.0, 'rad: position interface: each target is kept within '
+                                     "this of the measured angle; 0: the policy card's "
+                                     'max_position_delta (a policy imported with '
+                                     '--position-delta commands changes around the measured '
+                                     'angle, at most that per control step), none for a '
+                                     'policy with absolute targets', low=0.0, live=True),
     'command_message': Param('trajectory', 'trajectory: each command as a one-point '
                                            'trajectory_msgs/JointTrajectory on '
                                            'arm_controller/joint_trajectory (a joint '

@@ -6,6 +6,9 @@ a robot may get, in the policy's control units (its :class:`~pg_node.control.int
 CommandInterface` converts to N m or rad), one control tick at a time. Each guard is a step of
 its own, acting in this order, per arm:
 
+0. **relative targets** (:meth:`CommandGuard.relative`; a policy whose card has a
+   ``max_position_delta``): the action becomes the target ``q + a d`` around the measured
+   angle (:mod:`pg_node.control.position_delta`);
 1. **range** (:meth:`CommandGuard.clip_range`): a non-finite action becomes the hold command; the
    rest is clipped to the actuators' control range;
 2. **ramp** (:meth:`CommandGuard.ramp`): after every hold (activation, stale states, an
@@ -20,6 +23,9 @@ its own, acting in this order, per arm:
 5. **joint limits** (:meth:`CommandGuard.joint_limits`): with the effort interface a joint
    whose braking distance at its speed reaches a limit is braked; with the position
    interface the target is kept ``joint_limit_margin`` inside the range;
+5b. **position change** (:meth:`CommandGuard.bound_change`, position interface): each
+   target within ``max_position_delta`` rad of the measured angle (0: the card's delta;
+   none for a policy with absolute targets);
 6. **over-speed** (:meth:`CommandGuard.over_speed`): an arm with a joint faster than its
    velocity limit gets the hold command.
 
@@ -59,6 +65,7 @@ from dataclasses import dataclass
 from typing import Dict, Optional, Sequence, Tuple
 
 import numpy as np
+from pg_node.control import position_delta
 from pg_node.control.interfaces import (Actuators, CommandInterface, HOLD_LAST_COMMAND,
                                         INTERFACES, LIMIT_INSIDE)
 from pg_node.control.status import GuardEvent
@@ -80,6 +87,7 @@ class GuardSettings:
     hold_damping: float = 0.0
     hold_stiffness: float = 0.0
     max_deceleration: float = 0.0
+    max_position_delta: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -147,13 +155,16 @@ class CommandGuard:
     """Shape and guard a policy's actions for one arm's actuators, tick by tick."""
 
     def __init__(self, act: Actuators, joint_names: Sequence[str], interface: str,
-                 settings: Optional[GuardSettings] = None, period: float = 0.02):
+                 settings: Optional[GuardSettings] = None, period: float = 0.02,
+                 position_delta: Optional[np.ndarray] = None):
         """
         Take the actuators, the limits of their joints and the interface that commands them.
 
         ``joint_names``: the order of the joint angles given to :meth:`__call__` (the
         policy card's); each actuator's joint must be among them. ``period``: the control
         period in s (the braking guard's and the position rate limit's tick).
+        ``position_delta`` (rad per actuator, the card's ``max_position_delta``): the
+        actions are changes around the measured angles (step 0), not absolute targets.
         """
         self.act = act
         self.interface = INTERFACES[interface]
@@ -169,6 +180,10 @@ class CommandGuard:
         self.low, self.high = act.ctrl_low, act.ctrl_high
         span = self.high - self.low
         self.span = np.where(np.isfinite(span), span, 2.0)
+        self.position_delta = (None if position_delta is None
+                               else np.asarray(position_delta, dtype=float))
+        if self.position_delta is not None and self.interface.limit != LIMIT_INSIDE:
+            raise ValueError('a position delta needs the position interface')
         self.previous: Optional[np.ndarray] = None      # the last command sent
         self.pending_ramp: Optional[float] = None        # start_ramp's time, until a tick
         self.held = np.zeros(0, dtype=bool)              # per arm: its last command a hold
@@ -274,16 +289,52 @@ class CommandGuard:
         self.held[:] = False
         hold = self.hold(q, qdot)
         acted = {e: np.zeros(arms, dtype=bool) for e in GuardEvent}
+        action = self.relative(action, q)
         u = self.clip_range(action, hold, acted)
         u = self.ramp(u, hold, now, acted)
         previous = self.previous
         u = self.smooth(u, previous)
         u = self.rate_limit(u, previous, acted)
         u = self.joint_limits(u, q[:, self.cols], qdot[:, self.cols], acted)
+        u = self.bound_change(u, q[:, self.cols], acted)
         u = self.over_speed(u, qdot[:, self.cols], hold, acted)
         self._begin_hold(q, acted[GuardEvent.NONFINITE] | acted[GuardEvent.OVER_SPEED])
         self.previous = u.copy()
         return u, acted
+
+    def relative(self, action: np.ndarray, q: np.ndarray) -> np.ndarray:
+        """
+        Step 0: a relative action as the controls of its target angles (else unchanged).
+
+        With ``position_delta`` ``d``: ``clip(q + clip(a, -1, 1) d)`` within the servos'
+        range (:func:`pg_node.control.position_delta.targets`); a non-finite action stays so.
+        """
+        if self.position_delta is None:
+            return action
+        low, high = self.interface.si_range(self.act)
+        target = position_delta.targets(action, q[:, self.cols], self.position_delta, low,
+                                        high)
+        return self.interface.from_si(self.act, target)
+
+    def bound_change(self, u: np.ndarray, q: np.ndarray, acted) -> np.ndarray:
+        """
+        Step 5b (position): each target within ``max_position_delta`` rad of the measured angle.
+
+        The bound is the parameter, or at 0 the card's delta (none for absolute targets):
+        with it, an old policy's absolute targets (or the ramp from a hold) never ask a
+        joint for more than that change in one tick.
+        """
+        if self.interface.limit != LIMIT_INSIDE:
+            return u
+        given = self.settings.max_position_delta
+        bound = (np.full(len(self.act.names), given) if given > 0 else self.position_delta)
+        if bound is None:
+            return u
+        target = self.interface.to_si(self.act, u)
+        kept = position_delta.bound_change(target, q, bound)
+        changed = kept != target
+        acted[GuardEvent.POSITION_DELTA] = np.any(changed, axis=1)
+        return np.where(changed, self.interface.from_si(self.act, kept), u)
 
     def clip_range(self, action: np.ndarray, hold: np.ndarray, acted) -> np.ndarray:
         """Step 1: the hold command for a non-finite action, the rest clipped to the range."""

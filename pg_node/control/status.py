@@ -29,7 +29,7 @@ class GuardEvent(Enum):
     >>> GuardEvent.OVER_SPEED.key, GuardEvent.OVER_SPEED.severity.name
     ('over_speed', 'WARN')
     >>> [e.key for e in GuardEvent if e.severity is Severity.OK]
-    ['clipped', 'ramped', 'rate_limited']
+    ['clipped', 'ramped', 'rate_limited', 'position_delta']
     """
 
     NONFINITE = ('nonfinite', Severity.WARN,
@@ -42,6 +42,8 @@ class GuardEvent(Enum):
                    'or a target kept inside the range')
     OVER_SPEED = ('over_speed', Severity.WARN,
                   'over-speed guard: a joint is faster than max_velocity, hold command')
+    #: appended (the record's ``guards`` bits number the events in this order)
+    POSITION_DELTA = ('position_delta', Severity.OK, '')
 
     def __init__(self, key: str, severity: Severity, warning: str):
         self.key, self.severity, self.warning = key, severity, warning

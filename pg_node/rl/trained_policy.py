@@ -126,6 +126,12 @@ def make_card(model_name: str, obs_dim: int, act_dim: int, frame_skip: int,
             f'{model_name!r} {layout.size} and {model.nu}')
 
     interfaces = command_card(actuators(model))
+    if spec.position_delta is not None and 'position' in interfaces:
+        # relative targets: what policy_node must do with the action (an old card, without
+        # the key, means absolute targets)
+        interfaces['position']['max_position_delta'] = [float(v) for v in spec.position_delta]
+        interfaces['position']['targets'] = ('relative: measured angle + action x '
+                                             'max_position_delta (rad per control step)')
 
     def bound(values):
         return [float(v) if np.isfinite(v) else None for v in values]

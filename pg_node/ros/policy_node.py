@@ -151,7 +151,7 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 #: the parameters of :class:`pg_node.control.guards.GuardSettings`
 GUARD_PARAMS = ('smoothing', 'max_change', 'joint_limit_margin', 'max_velocity', 'ramp_time',
-                'hold_damping', 'hold_stiffness', 'max_deceleration')
+                'hold_damping', 'hold_stiffness', 'max_deceleration', 'max_position_delta')
 #: /diagnostics levels of the control layer's severities
 LEVELS = {Severity.OK: DiagnosticStatus.OK, Severity.WARN: DiagnosticStatus.WARN,
           Severity.ERROR: DiagnosticStatus.ERROR}
@@ -318,7 +318,11 @@ class PolicyNode(LifecycleNode):
             if reason is not None:
                 return f"robot_description is not the policy's arm: {reason}"
             self.kinematics = f'match robot_description within {1000 * tolerance:g} mm'
-        guard = CommandGuard(arm, joints, interface, self.settings, 1.0 / self.control_rate())
+        # relative position targets (a card with max_position_delta): changes around q
+        delta = (card.get('command_interfaces') or {}).get(interface, {}).get(
+            'max_position_delta')
+        guard = CommandGuard(arm, joints, interface, self.settings, 1.0 / self.control_rate(),
+                             position_delta=delta)
         commanded = arm_joint_names([joints[c] for c in guard.cols], len(index),
                                     joints[0] in self._names)
         reason = self._check_controller(commanded)
@@ -363,7 +367,10 @@ class PolicyNode(LifecycleNode):
             f'configured: policy {policy.describe()} (sha256 {digest[:12]}) loaded in '
             f'{load_seconds:.2f} s, {warm_ms:.2f} ms per call warmed up: {card["model"]} '
             f"(joints {', '.join(joints)}); commands {interface} in {unit}, "
-            f'{_ranges(low, high)} at {self.control_rate():g} Hz; state_timeout '
+            f'{_ranges(low, high)}'
+            + (f' (changes of at most {", ".join(f"{d:g}" for d in delta)} rad per step '
+               'around the measured angles)' if delta else '')
+            + f' at {self.control_rate():g} Hz; state_timeout '
             f'{p["state_timeout"]:g} s; kinematics {self.kinematics}; controller joints '
             f'{self.controller_joints}')
         physics = physics_check.warning(card.get('physics') or {}, p)

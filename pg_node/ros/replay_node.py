@@ -50,7 +50,9 @@ in a warning at start.
 
 Damage: a truncated or corrupted file plays up to the damage; the node then logs the file,
 the byte offset and the reason, and the log time of the last message played, and exits
-with status 3 (0 when the bag played to its end, 1 when nothing could be played).
+with status 3 (0 when the bag played to its end, 1 when there is no bag or nothing could be
+played, 2 for a bad option or parameter: the codes docs/troubleshooting.md lists).
+``--info`` reads every file to its end too, names a damaged one and exits with 3.
 
 Services (``std_srvs``; rosbag2's own player uses ``rosbag2_interfaces``, which pg_node
 does not depend on): ``~/set_pause`` (``SetBool``: true pauses, false resumes; the same
@@ -70,7 +72,7 @@ import threading
 import time
 
 from pg_node.bag import ros_types
-from pg_node.bag.reader import BagReader
+from pg_node.bag.reader import bag_dirs, BagReader, NOT_MCAP
 from pg_node.ros import runtime
 from rcl_interfaces.msg import ParameterDescriptor, ParameterType
 import rclpy
@@ -82,7 +84,10 @@ from rclpy.qos import HistoryPolicy, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from std_srvs.srv import SetBool, Trigger
 
-EXIT_OK, EXIT_NOTHING, EXIT_DAMAGED = 0, 1, 3
+#: the exit statuses docs/troubleshooting.md lists: played to the end (--info: every file
+#: whole); no bag there or nothing played; a bad option or parameter; a damaged file (played
+#: up to the damage; --info: named)
+EXIT_OK, EXIT_NOTHING, EXIT_USAGE, EXIT_DAMAGED = 0, 1, 2, 3
 
 #: (name, default, ROS parameter type, description)
 PARAMETERS = (
@@ -528,6 +533,12 @@ def resolve_bag(path: str) -> str:
     return str(Path(path) / 'bag') if (Path(path) / 'bag').is_dir() else path
 
 
+def bags_of(path: str) -> list:
+    """Return the bags ``path`` names: a run directory's (``bag``, ``bag_1``, ...), or itself."""
+    from pathlib import Path
+    return [str(b) for b in bag_dirs(path)] if (Path(path) / 'bag').is_dir() else [path]
+
+
 def is_command_topic(name: str) -> bool:
     """
     Return whether a topic carries commands a controller would act on.
@@ -579,22 +590,43 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def print_info(path) -> int:
-    """Print what ``ros2 bag info`` would, in short; return the exit status."""
-    try:
-        reader = BagReader(path, warn=False)
-    except (ValueError, OSError) as exc:
-        print(f'replay: {exc}', file=sys.stderr)
-        return EXIT_NOTHING
-    topics = reader.topics
-    width = max((len(n) for n in topics), default=5)
-    print(f'bag: {reader.path}  files: {len(reader.files)}')
-    for name, info in sorted(topics.items()):
-        qos = merge_qos(info.offered_qos_profiles)
-        installed = ros_types.message_class(info.msg_type) is not None
-        print(f'  {name:<{width}}  {info.msg_type:<40} {info.message_count:>8}  '
-              f'{qos["reliability"]}/{qos["durability"]}/depth {qos["depth"]}'
-              + ('' if installed else '  (type not installed)'))
-    return EXIT_OK
+    """
+    Print what ``ros2 bag info`` would, in short, and the damage; return the exit status.
+
+    A run directory stands for all its bags (``bag``, ``bag_1`` after a resume or a learner
+    restart). Every file is read to its end: a damaged one is named, with where and why it
+    stops, and the status is :data:`EXIT_DAMAGED`.
+    """
+    status = EXIT_OK
+    for bag in bags_of(path):
+        try:
+            reader = BagReader(bag, warn=False)
+        except (ValueError, OSError) as exc:
+            print(f'replay: {exc}', file=sys.stderr)
+            return EXIT_NOTHING
+        topics = reader.topics
+        width = max((len(n) for n in topics), default=5)
+        print(f'bag: {reader.path}  files: {len(reader.files)}')
+        for name, info in sorted(topics.items()):
+            qos = merge_qos(info.offered_qos_profiles)
+            installed = ros_types.message_class(info.msg_type) is not None
+            print(f'  {name:<{width}}  {info.msg_type:<40} {info.message_count:>8}  '
+                  f'{qos["reliability"]}/{qos["durability"]}/depth {qos["depth"]}'
+                  + ('' if installed else '  (type not installed)'))
+        for f in reader.left_out:
+            print(f'  not read: {f} (not listed in metadata.yaml, not an MCAP file)')
+        damage = reader.check_files()
+        for d in damage:
+            print(f'  damaged: {d}')
+        if any(d.reason != NOT_MCAP for d in damage):
+            counted = ' (the counts above are what metadata.yaml says)' if (
+                reader.metadata is not None and reader.metadata.get(
+                    'topics_with_message_count')) else ''
+            print(f'  {len(damage)} damaged file(s){counted}; python -m pg_node reindex '
+                  f'{reader.path} keeps what is before the damage and makes the bag whole')
+        if damage:
+            status = EXIT_DAMAGED
+    return status
 
 
 def main(args=None) -> int:
@@ -608,9 +640,13 @@ def main(args=None) -> int:
     if opts.info:
         if not opts.bag:
             print('--info needs a bag', file=sys.stderr)
-            return 2
-        return print_info(resolve_bag(opts.bag))
+            return EXIT_USAGE
+        return print_info(opts.bag)
     if opts.bag:
+        bags = bags_of(opts.bag)
+        if len(bags) > 1:       # a resumed run, or one whose learner restarted
+            print(f'replay: {opts.bag} holds {len(bags)} bags ({", ".join(bags)}); playing '
+                  f'the first, give another to play it', file=sys.stderr)
         opts.bag = resolve_bag(opts.bag)
     values = {'bag': opts.bag, 'rate': opts.rate, 'start_offset': opts.start_offset,
               'topics': opts.topics, 'remap': opts.remap, 'commands': opts.commands,
@@ -632,9 +668,12 @@ def main(args=None) -> int:
         try:
             try:
                 node = ReplayNode(parameter_overrides=overrides)
-            except (ValueError, FileNotFoundError, OSError) as exc:
+            except OSError as exc:          # no bag there, no .mcap file in it
                 print(f'replay_node: {exc}', file=sys.stderr)
                 return EXIT_NOTHING
+            except ValueError as exc:       # a parameter it does not take
+                print(f'replay_node: {exc}', file=sys.stderr)
+                return EXIT_USAGE
             executor = SingleThreadedExecutor()
             executor.add_node(node)
             node.start()

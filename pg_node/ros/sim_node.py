@@ -7,8 +7,14 @@ Topics published:
 
 * ``/joint_states`` (``sensor_msgs/JointState``), every control step while it has a
   subscriber, one message for all arms: names ``arm<i>/<joint>`` (``<joint>`` the model's
-  joint name, ``i`` from 0, for every ``num_envs`` including 1), position (rad), velocity
-  (rad/s), effort (actuator torque, N m), stamped with simulated time;
+  joint name, ``i`` from 0) for several arms, the plain ``<joint>`` for one (the names of
+  ``robot_description``), position (rad), velocity (rad/s), effort (actuator torque, N m),
+  stamped with simulated time;
+* ``/arm<i>/joint_states`` for each arm ``i`` in ``view_arms`` (default ``0``): the same for
+  that arm alone, with plain names, so that ``robot_state_publisher`` can draw it;
+* ``/robot_description`` (``std_msgs/String``, reliable, transient local, once at start):
+  the arm's URDF (:func:`pg_node.sim.urdf_export.robot_description`: the vendor's for an
+  imported arm, else one written from the MuJoCo model with its kinematics);
 * ``/clock`` (``rosgraph_msgs/Clock``): simulated time, ``control steps * dt``, every
   control step while it has a subscriber; it never goes back, not even on a world reset;
 * ``/target`` (``geometry_msgs/PointStamped``): one message per arm whenever its target
@@ -53,13 +59,14 @@ In real-time mode with ``command_interface`` ``effort`` or ``position`` (the rob
 stand-in) it also subscribes ``arm_controller/joint_trajectory``
 (``trajectory_msgs/JointTrajectory``, what ``policy_node`` sends by default) and follows it
 as Jazzy's joint trajectory controller with zero gains would
-(:class:`pg_node.control.jtc.JtcFollower`): joints ``arm<i>/<joint>`` of each arm's
-actuated joints, in N m or rad; a message JTC rejects is dropped with an error naming the
-rule (counted ``trajectories_rejected``); an accepted point is applied at its
-``time_from_start`` and held, and ``jtc_cmd_timeout`` s after the last point the controller's
-hold: zero effort, or the positions measured then (counted ``trajectory_timeouts``), until the
-next accepted message. Once a trajectory was accepted it sets the command, and
-``command_timeout`` no longer applies.
+(:class:`pg_node.control.jtc.JtcFollower`): each arm's actuated joints, named as in
+``/joint_states`` (plain for one arm, ``arm<i>/<joint>`` for several), in N m or rad; a
+message JTC rejects is dropped with an error naming the rule (counted
+``trajectories_rejected``); an accepted point is applied at its ``time_from_start`` and
+held, and ``jtc_cmd_timeout`` s after the last point the controller's hold: zero effort, or
+the positions measured then (counted ``trajectory_timeouts``), until the next accepted
+message. Once a trajectory was accepted it sets the command, and ``command_timeout`` no
+longer applies.
 
 No node subscribes ``joint_states``: it is an output for tools (RViz, Foxglove, the bag);
 the simulator takes input only on ``pg_node/commands`` (training's own name, never a real
@@ -110,12 +117,13 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Point, PointStamped
 import numpy as np
 from pg_node.bag.ros_types import float64_field
-from pg_node.common.params import ConfigError, params_for
+from pg_node.common.params import arm_indices, ConfigError, params_for
 from pg_node.common.paths import resolve_model
 from pg_node.common.perturbations import from_params
 from pg_node.common.run import COMMANDS, CONTROLLER_TRAJECTORY
 from pg_node.control import interfaces
 from pg_node.control import jtc
+from pg_node.control.joint_map import arm_joint_names
 from pg_node.ros import command
 from pg_node.ros import table_msg
 from pg_node.ros import transition
@@ -124,12 +132,13 @@ from pg_node.ros.run_protocol import EndWithLearner, RANDOMIZATION, RunGuard
 from pg_node.ros.runtime import params_help, run
 from pg_node.sim.actuation import actuators
 from pg_node.sim.arm_task import arm_groups, ArmTask
+from pg_node.sim.urdf_export import robot_description, UrdfExportError
 from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Float64MultiArray
+from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import SetBool, Trigger
 from trajectory_msgs.msg import JointTrajectory
 from visualization_msgs.msg import Marker, MarkerArray
@@ -180,7 +189,9 @@ class SimNode(Node):
                             max_episode_steps=p['max_episode_steps'],
                             reward_dist_weight=p['reward_dist_weight'],
                             reward_control_weight=p['reward_control_weight'],
-                            randomization=from_params(p))
+                            randomization=from_params(p),
+                            # a robot's stand-in gets absolute angles from policy_node
+                            relative_actions=p['command_interface'] == 'control')
         self.params = p
         self.interface = p['command_interface']
         self.actuators = actuators(self.task.model)
@@ -191,7 +202,12 @@ class SimNode(Node):
         self.run = RunGuard(self, p['run_id'])
         self.end_with_learner = EndWithLearner(self, self.run)   # ros2 run: end with it
         n, spec = self.task.num_envs, self.task.spec
-        self.joint_names = [f'arm{i}/{name}' for i in range(n) for name in spec.joint_names]
+        # one arm: the model's plain names, as robot_description has them; several: arm<i>/
+        self.joint_names = arm_joint_names(spec.joint_names, n, plain=n == 1)
+        self.view_arms = arm_indices(p['view_arms'])
+        if any(i >= n for i in self.view_arms):
+            raise ConfigError(f"parameter 'sim_node.view_arms': {p['view_arms']!r} names an arm "
+                              f'beyond the {n} simulated (0..{n - 1})')
         self.offsets = self.grid_offsets(p['marker_spacing'])
         self.counters = {'steps': 0, 'commands_received': 0, 'commands_dropped_size': 0,
                          'commands_dropped_nonfinite': 0, 'commands_dropped_absurd': 0,
@@ -222,6 +238,18 @@ class SimNode(Node):
         targets_qos = QoSProfile(depth=n, reliability=ReliabilityPolicy.RELIABLE,
                                  durability=DurabilityPolicy.TRANSIENT_LOCAL)
         self.pub_joints = self.create_publisher(JointState, 'joint_states', 10)
+        # per shown arm, plain names: what robot_state_publisher takes with robot_description
+        self.pub_arm_joints = {i: self.create_publisher(JointState, f'arm{i}/joint_states', 10)
+                               for i in self.view_arms}
+        latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        self.pub_description = self.create_publisher(String, 'robot_description', latched)
+        try:
+            urdf, origin = robot_description(self.task.model)
+            self.pub_description.publish(String(data=urdf))
+            self.get_logger().info(f'robot_description: {origin}')
+        except UrdfExportError as exc:          # the arm trains; ROS tools lack its URDF
+            self.get_logger().warning(f'no robot_description: {exc}')
         self.pub_clock = self.create_publisher(Clock, 'clock', 10)
         self.pub_target = self.create_publisher(
             PointStamped, 'target', targets_qos,
@@ -243,7 +271,7 @@ class SimNode(Node):
             # each arm's actuated joints, in actuator order
             self.actuated = [spec.joint_names.index(j) for j in self.actuators.joints]
             self.follower = jtc.JtcFollower(
-                [f'arm{i}/{j}' for i in range(n) for j in self.actuators.joints],
+                arm_joint_names(self.actuators.joints, n, plain=n == 1),
                 self.interface, p['jtc_cmd_timeout'])
             self.create_subscription(JointTrajectory, CONTROLLER_TRAJECTORY,
                                      self.on_trajectory, 10)
@@ -448,8 +476,7 @@ class SimNode(Node):
                 self.sent_ns[g] = time.perf_counter_ns()       # its round trip starts again
                 self.pub_transition.publish(msg)
                 self.counters['transitions_resent'] += 1
-            if self.pub_joints.get_subscription_count():
-                self.pub_joints.publish(self.joint_state_msg(sim_stamp(self.sim_time)))
+            self.publish_joint_states(sim_stamp(self.sim_time))
             self.last_sent = time.monotonic()
 
     # --- stepping and publishing ----------------------------------------------------------
@@ -529,8 +556,8 @@ class SimNode(Node):
         stamp = sim_stamp(self.sim_time)
         if last and self.pub_clock.get_subscription_count():
             self.pub_clock.publish(Clock(clock=stamp))
-        if last and self.pub_joints.get_subscription_count():
-            self.pub_joints.publish(self.joint_state_msg(stamp))
+        if last:
+            self.publish_joint_states(stamp)
         if not self.watch_target_readers(stamp) and self.target_readers:
             new = np.flatnonzero(tr.episode_step == 0)
             if new.size:
@@ -576,6 +603,21 @@ class SimNode(Node):
                                  stamp if stamp is not None else sim_stamp(self.sim_time))
         self.target_readers = readers
         return joined
+
+    def publish_joint_states(self, stamp: Time):
+        """Publish the joint states, combined and per shown arm, where someone subscribes."""
+        if self.pub_joints.get_subscription_count():
+            self.pub_joints.publish(self.joint_state_msg(stamp))
+        readers = [i for i, pub in self.pub_arm_joints.items() if pub.get_subscription_count()]
+        if readers:
+            pos, vel, eff = self.task.joint_state()
+            for i in readers:
+                js = JointState(name=list(self.task.spec.joint_names))
+                js.header.stamp = stamp
+                js.position = float64_field(pos[i])
+                js.velocity = float64_field(vel[i])
+                js.effort = float64_field(eff[i])
+                self.pub_arm_joints[i].publish(js)
 
     def joint_state_msg(self, stamp: Time) -> JointState:
         """Return every arm's joint state as one ``JointState`` stamped ``stamp``."""

@@ -16,7 +16,9 @@ MJCF that follows these conventions can be used instead:
   ``pg_init_qvel_noise`` (0.005), ``pg_init_qpos`` (the arm joints' start pose, one angle
   per arm joint; default the model's ``qpos0``) and ``pg_target_points`` (x y z of goals
   the arm can reach, 3 numbers a point, mocap targets only: each goal is one of them, drawn
-  uniformly, in place of the ball; ``python -m pg_node arm import`` writes them).
+  uniformly, in place of the ball; ``python -m pg_node arm import`` writes them) and
+  ``pg_position_delta`` (position servos only: rad per control step, one or one per arm
+  joint; the actions are then changes around the joints' angles, below).
 
 Episode start (as ``Reacher-v5.reset_model`` draws it, in the same order, so that an env
 seeded like a Gymnasium env draws the same numbers):
@@ -26,7 +28,10 @@ seeded like a Gymnasium env draws the same numbers):
 with ``pg_target_points`` the point of index ``integers(n_points)``;
 ``qvel = U(-b, b)`` over all ``nv`` with the target's velocities zeroed; then ``mj_forward``.
 
-One control step applies ``act`` as ``ctrl`` (MuJoCo clamps it to ``ctrlrange``) for
+One control step applies ``act`` as ``ctrl`` (MuJoCo clamps it to ``ctrlrange``); with
+``pg_position_delta`` ``d`` the servos' targets are ``clip(q + clip(act, -1, 1) d)`` within
+the angles their control range reaches, ``q`` the angles at the step's start
+(:mod:`pg_node.control.position_delta`), held for
 ``frame_skip`` physics steps, then reads
 
 * observation ``[cos q, sin q, target, qdot, (fingertip - target)[:k]]`` with ``q``, ``qdot``
@@ -65,8 +70,10 @@ import mujoco
 import numpy as np
 from pg_node.common.params import ConfigError
 from pg_node.common.perturbations import parse_terms
+from pg_node.control import position_delta
+from pg_node.control.interfaces import INTERFACES
 from pg_node.control.obs_layout import ObsLayout
-from pg_node.sim.actuation import ctrl_range
+from pg_node.sim.actuation import actuators, ctrl_range
 from pg_node.sim.randomization import Randomizer
 
 FINGERTIP_SITE = 'fingertip'
@@ -139,6 +146,9 @@ class ArmSpec:
     link_parents: np.ndarray
     init_qpos: Optional[np.ndarray] = None
     target_points: Optional[np.ndarray] = None
+    #: rad per control step per arm joint: actions are changes around the measured angle
+    #: (``pg_position_delta``, :mod:`pg_node.control.position_delta`); None: absolute
+    position_delta: Optional[np.ndarray] = None
 
     @property
     def obs_layout(self) -> ObsLayout:
@@ -213,6 +223,18 @@ class ArmSpec:
         chain = sorted({int(model.jnt_bodyid[j]) for j in joint_ids}
                        | {int(model.site_bodyid[site])})
         ctrl_low, ctrl_high = ctrl_range(model)
+        delta = None
+        numeric = position_delta.MODEL_NUMERIC
+        if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_NUMERIC, numeric) >= 0:
+            try:
+                delta = position_delta.deltas(_custom_numeric(model, numeric, []),
+                                              len(joint_ids))
+            except ValueError as exc:
+                raise NotAnArm(str(exc)) from None
+            kinds = set(actuators(model).kind)
+            if delta is not None and kinds != {'position'}:
+                raise NotAnArm(f'{numeric} needs position servos; the '
+                               f'actuators are {", ".join(sorted(kinds))}')
         return cls(
             joint_names=names,
             joint_ids=joint_ids,
@@ -237,6 +259,7 @@ class ArmSpec:
             link_parents=model.body_parentid[chain].copy(),
             init_qpos=init_qpos,
             target_points=points,
+            position_delta=delta,
         )
 
 
@@ -266,7 +289,8 @@ class ArmTask:
                  frame_skip: int = 2, max_episode_steps: Optional[int] = 50,
                  reward_dist_weight: float = 1.0, reward_control_weight: float = 1.0,
                  num_threads: Optional[int] = None,
-                 randomization: Optional[Mapping[str, object]] = None):
+                 randomization: Optional[Mapping[str, object]] = None,
+                 relative_actions: bool = True):
         """
         Load the model and make ``num_envs`` simulations of it; call ``reset`` next.
 
@@ -274,6 +298,9 @@ class ArmTask:
         ``THREADS_FROM_ENVS`` envs, else the number of CPUs (at most 4).
         ``randomization`` maps terms of :mod:`pg_node.common.perturbations` to their strings
         (or :class:`~pg_node.common.perturbations.TermSpec`); empty or None: the nominal arm.
+        ``relative_actions``: with a model's ``pg_position_delta``, actions are changes
+        around the joints' angles (:mod:`pg_node.control.position_delta`); False takes them
+        as absolute targets (a stand-in robot that gets its angles from ``policy_node``).
         """
         if (num_envs < 1 or frame_skip < 1
                 or (max_episode_steps is not None and max_episode_steps < 1)):
@@ -287,6 +314,9 @@ class ArmTask:
         self.reward_dist_weight = float(reward_dist_weight)
         self.reward_control_weight = float(reward_control_weight)
         self.datas = [mujoco.MjData(self.model) for _ in range(self.num_envs)]
+        #: rad per control step per joint when actions are relative (else None)
+        self.position_delta = self.spec.position_delta if relative_actions else None
+        self._servos = actuators(self.model) if self.position_delta is not None else None
         # Each ``d.qpos``-style attribute access builds a new numpy view; the views stay
         # valid for the life of their MjData, so take them once and gather with one
         # ``np.array`` per field.
@@ -498,9 +528,16 @@ class ArmTask:
                              f'{(hi - lo, self.act_dim)}')
         n, datas, ctrl, models = self.frame_skip, self.datas, self._views['ctrl'], self.models
         applied, r = act, self.randomizer
+        if self.position_delta is not None:
+            # the action is a change around the joint's angle: the servo gets the target
+            servo = INTERFACES['position']
+            low, high = servo.si_range(self._servos)       # the angles the servos reach
+            q = self._gather('qpos', sl)[:, self.spec.qpos_adr]
+            target = position_delta.targets(act, q, self.position_delta, low, high)
+            applied = servo.from_si(self._servos, target)
         if r is not None:
             r.before_step(lo, hi)
-            applied = r.applied_action(act, lo, hi)
+            applied = r.applied_action(applied, lo, hi)
 
         def advance(envs):
             for i in envs:

@@ -28,10 +28,10 @@ for it and then edits the compiled :class:`mujoco.MjSpec` into pg_node's convent
   for another timestep); each arm joint's damping is the URDF's ``<dynamics damping>``
   (or ``damping``, if given). ``velocity_damping`` makes it ``effort / velocity limit``
   (the URDF's ``<limit velocity>``), so that the full torque drives the joint at no more
-  than its velocity limit: on by default for servo actuators (``position``, whose joint
-  the drive's own loop slows) and off for ``motor`` (torque) actuators, because a robot in
-  torque mode enforces no such damping (a Franka faults on over-speed instead): the
-  policy would learn to lean on a brake the robot lacks. An undamped torque arm at 0.02 s
+  than its velocity limit: off by default (issue 46; servo imports had it on before),
+  because a robot in torque mode enforces no such damping (a Franka faults on over-speed
+  instead), so the policy would learn to lean on a brake the robot lacks, and a servo's
+  own loop is its actuator (``kv``), not a joint damping. An undamped torque arm at 0.02 s
   blows up under full torque (seen: UR5 and Panda of example-robot-data past 10^5 rad/s,
   MuJoCo resetting them), so ``motor`` without damping gets ``timestep`` 0.002 s by default
   (:func:`with_defaults`; stable for both, frame_skip 20), and every import is tried with
@@ -126,8 +126,11 @@ class ImportOptions:
     integrator: str = 'implicitfast'
     armature: Optional[float] = None
     damping: Optional[float] = None
-    #: None: :func:`with_defaults` (on for servo actuators without ``damping``, off for motor)
+    #: None: :func:`with_defaults` (off)
     velocity_damping: Optional[bool] = None
+    #: position actuators: rad per control step; the actions are changes around the
+    #: measured angle (``pg_position_delta``); None: absolute targets over the range
+    position_delta: Optional[float] = None
     home: Optional[Sequence[float]] = None
     targets: int = 1000
     target_min_height: Optional[float] = 0.0
@@ -171,8 +174,8 @@ def with_defaults(opts: ImportOptions) -> ImportOptions:
     """
     Return ``opts`` with ``velocity_damping`` and ``timestep`` decided where they are None.
 
-    ``velocity_damping``: off for ``motor`` actuators (a torque-mode robot has no such
-    damping) and wherever ``damping`` is given; on for servo actuators. ``timestep``:
+    ``velocity_damping``: off (a torque-mode robot has no such damping, and a servo's own
+    loop is its actuator's ``kv``, not a joint damping). ``timestep``:
     :data:`UNDAMPED_TIMESTEP` for motors with neither, else :data:`TIMESTEP`.
 
     >>> o = with_defaults(ImportOptions(tip='tool0'))
@@ -180,11 +183,11 @@ def with_defaults(opts: ImportOptions) -> ImportOptions:
     (False, 0.002)
     >>> o = with_defaults(ImportOptions(tip='tool0', actuator='position'))
     >>> o.velocity_damping, o.timestep
-    (True, 0.02)
+    (False, 0.02)
     """
     velocity = opts.velocity_damping
     if velocity is None:
-        velocity = opts.actuator != 'motor' and opts.damping is None
+        velocity = False
     timestep = opts.timestep
     if timestep is None:
         undamped = opts.actuator == 'motor' and not velocity and opts.damping is None
@@ -741,6 +744,11 @@ def import_urdf(urdf_path, opts: ImportOptions, out_path=None, command: str = ''
     arm, coupled = _couplings(chain, joints)
     if opts.actuator not in ('motor', 'position'):
         raise UrdfImportError(f'unknown actuator {opts.actuator!r}; use motor or position')
+    if opts.position_delta is not None and (opts.actuator != 'position'
+                                            or not opts.position_delta > 0):
+        raise UrdfImportError('--position-delta needs --actuator position and a positive '
+                              f'angle in rad, got {opts.position_delta:g} with --actuator '
+                              f'{opts.actuator}')
     if opts.home is not None and len(opts.home) != len(arm):
         raise UrdfImportError(f'--home needs {len(arm)} angles (the arm joints '
                               f'{", ".join(arm)}), got {len(opts.home)}')
@@ -892,10 +900,15 @@ def _build(robot, urdf_path, opts, base, arm, coupled, joints, warnings, command
     for name, data in (('pg_init_qpos', home),
                        ('pg_init_qpos_noise', [opts.init_qpos_noise]),
                        ('pg_init_qvel_noise', [opts.init_qvel_noise]),
-                       ('pg_target_points', points.ravel())):
+                       ('pg_target_points', points.ravel()),
+                       *((('pg_position_delta', [opts.position_delta]),)
+                         if opts.position_delta is not None else ())):
         spec.add_numeric(name=name, data=list(np.asarray(data, dtype=float)))
     if command:
         spec.add_text(name='pg_import_command', data=command)
+    if Path(urdf_path).suffix == '.urdf' and Path(urdf_path).is_file():
+        # robot_description of the imported arm: the vendor's URDF (pg_node.sim.urdf_export)
+        spec.add_text(name='pg_source_urdf', data=str(Path(urdf_path).resolve()))
     said = assumptions(opts)
     if said:
         spec.add_text(name='pg_physics_assumptions', data='\n'.join(said))

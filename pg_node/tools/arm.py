@@ -55,6 +55,10 @@ def parser() -> argparse.ArgumentParser:
                    help='position actuators: stiffness in N m/rad (default: %(default)s)')
     p.add_argument('--kv', type=positive_float, default=10.0,
                    help='position actuators: damping in N m s/rad (default: %(default)s)')
+    p.add_argument('--position-delta', type=positive_float, metavar='RAD',
+                   help='position actuators: the action is a change of at most RAD per '
+                        'control step around the measured angle, not a target anywhere in '
+                        'the joint range (default: absolute targets)')
     p.add_argument('--effort-scale', type=positive_float, default=1.0,
                    help='multiplies every URDF effort limit (default: %(default)s)')
     p.add_argument('--gravity-compensation', action=argparse.BooleanOptionalAction,
@@ -108,7 +112,7 @@ def options(args):
         tip_offset=tuple(args.tip_offset), package_paths=args.package_path,
         visual_meshes=not args.no_visual_meshes, contacts=args.contacts,
         timestep=args.timestep, integrator=args.integrator, armature=args.armature,
-        damping=args.damping, home=args.home,
+        damping=args.damping, home=args.home, position_delta=args.position_delta,
         velocity_damping=args.velocity_damping,
         targets=args.targets,
         target_min_height=args.target_min_height,
@@ -173,6 +177,10 @@ def report(result, opts, out) -> list:
     lines.append(f'physics: timestep {opts.timestep:g} s ({opts.integrator}), {damping}, '
                  f'gravity compensation {"on" if opts.gravity_compensation else "off"}, '
                  f'{opts.actuator} actuators')
+    if opts.position_delta is not None:
+        lines.append(f'actions: changes of at most {opts.position_delta:g} rad per control '
+                     'step around the measured angle (pg_position_delta; policy_node does the '
+                     'same)')
     if result.mesh_files:
         converted = (f' ({result.converted_meshes} converted to STL)'
                      if result.converted_meshes else '')

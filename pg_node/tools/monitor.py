@@ -15,6 +15,10 @@ the graph every half second, so metrics that appear later are picked up), to
 
 ``--duration S`` quits after S seconds; ``--once`` listens for ``--duration`` seconds
 (default 3) and prints the view once, without the live screen, for scripts and tests.
+Without a terminal (output to a file or a pipe) the live view cannot redraw: the monitor
+prints one plain line every ``--every`` seconds instead. When it has heard no run and no
+node after ``--wait`` seconds (``--once``: after listening), it says so, naming the
+``ROS_DOMAIN_ID`` it listened on, and exits with code 1.
 Works as well on a bag replayed with ``python -m pg_node replay``.
 
 Runs (:mod:`pg_node.common.run`): a run's topics are ``/<run_id>/pg_node/...``. ``--run
@@ -26,6 +30,7 @@ nodes of no run (``policy_node``).
 import argparse
 from collections import deque
 import math
+import os
 import sys
 import threading
 import time
@@ -144,6 +149,46 @@ class MonitorState:
             self.run = run
             self.statuses.clear()
 
+    def heard_nothing(self) -> bool:
+        """Whether no run's topic and no node's diagnostics were heard."""
+        with self.lock:
+            return not self.runs and not self.statuses
+
+    def line(self, now: float = None) -> str:
+        """
+        Return the view as one plain line, for output that is not a terminal.
+
+        >>> state = MonitorState()
+        >>> state.runs, state.run = {'exp1'}, 'exp1'
+        >>> state.on_metric('env_steps', 4096, now=0.0)
+        >>> state.on_metric('episode_return', -12.25, now=0.0)
+        >>> print(*state.line(now=1.0).split('; '), sep=';' + chr(10))
+        run exp1: /exp1/pg_node/...: episode_return -12.25, env_steps 4096;
+        0 episodes;
+        no node statuses
+        """
+        now = now if now is not None else time.monotonic()
+        with self.lock:
+            metrics = {k: v[-1][1] for k, v in self.metrics.items() if v}
+            returns = list(self.episode_returns)
+            episodes, cut = self.episodes, self.cut_short
+            statuses = dict(self.statuses)
+        names = [n for n in ORDER if n in metrics] + sorted(set(metrics) - set(ORDER))
+        text = self.choice()
+        if names:
+            text += ': ' + ', '.join(f'{n} {_fmt(metrics[n])}' for n in names)
+        text += f'; {episodes} episodes'
+        if returns:
+            text += f' (mean return {sum(returns) / len(returns):.3f} of the recent ones'
+            text += f', {cut} cut short)' if cut else ')'
+        levels = {}
+        for level, _, _, t in statuses.values():
+            name = LEVELS.get(3 if now - t > self.stale else level, (str(level),))[0]
+            levels[name] = levels.get(name, 0) + 1
+        text += '; nodes ' + ', '.join(f'{n} {name}' for name, n in levels.items()) if (
+            levels) else '; no node statuses'
+        return text
+
     def render(self, now: float = None):
         """Return the view as a rich renderable."""
         from rich.console import Group
@@ -249,6 +294,12 @@ def main(argv=None) -> int:
                         help='screen updates per second')
     parser.add_argument('--run', type=run_id_arg,
                         help='the run to watch (default: the only one on the graph)')
+    parser.add_argument('--wait', type=positive_float, default=10.0,
+                        help='seconds to wait for a run or a node before giving up (exit '
+                             'code 1; default 10)')
+    parser.add_argument('--every', type=positive_float, default=5.0,
+                        help='without a terminal: print one plain line every this many '
+                             'seconds (default 5)')
     args = parser.parse_args(argv)
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
@@ -261,19 +312,38 @@ def main(argv=None) -> int:
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(mon.node)
     duration = args.duration if args.duration is not None else (3.0 if args.once else None)
-    end = None if duration is None else time.monotonic() + duration
+    start = time.monotonic()
+    end = None if duration is None else start + duration
+    give_up = start + args.wait         # nothing heard by then: wrong domain, or no run
     console = Console()
+    silent = False
     try:
         if args.once:
             while time.monotonic() < end:
                 executor.spin_once(timeout_sec=0.05)
             console.print(state.render())
+            silent = state.heard_nothing()
+        elif not console.is_terminal:
+            # a file or a pipe: a live view would print nothing until the end
+            next_line = start + args.every
+            while end is None or time.monotonic() < end:
+                executor.spin_once(timeout_sec=0.05)
+                now = time.monotonic()
+                if now >= give_up and state.heard_nothing():
+                    silent = True
+                    break
+                if now >= next_line:
+                    print(f'{now - start:6.1f} s  {state.line(now)}', flush=True)
+                    next_line = now + args.every
         else:
             with Live(state.render(), console=console, refresh_per_second=args.refresh,
                       screen=False) as live:
                 next_draw = 0.0
                 while end is None or time.monotonic() < end:
                     executor.spin_once(timeout_sec=0.05)
+                    if time.monotonic() >= give_up and state.heard_nothing():
+                        silent = True
+                        break
                     if time.monotonic() >= next_draw:
                         live.update(state.render())
                         next_draw = time.monotonic() + 1.0 / max(args.refresh, 0.1)
@@ -282,6 +352,14 @@ def main(argv=None) -> int:
     finally:
         mon.node.destroy_node()
         rclpy.try_shutdown(context=context)
+    if silent:
+        waited = time.monotonic() - start
+        domain = os.environ.get('ROS_DOMAIN_ID', '').strip() or '0'
+        print(f'monitor: no pg_node run and no node heard on ROS domain {domain} '
+              f'(ROS_DOMAIN_ID={domain}) in {waited:.0f} s: is a training running, with '
+              'the same ROS_DOMAIN_ID (and ROS_AUTOMATIC_DISCOVERY_RANGE) as here?',
+              file=sys.stderr)
+        return 1
     if state.ambiguous():
         # also when one was picked as the only run and another showed up later: which one
         # the view showed depended on discovery's timing

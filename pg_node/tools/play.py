@@ -17,8 +17,9 @@ simulator published: the angles from ``cos q``/``sin q``, the goal from the targ
 The two nodes run in a namespace of their own (``/play_<pid>``), where ``policy_node``
 publishes ``arm_controller/joint_trajectory`` as on a robot (efforts in N m, ramped in from
 zero over its ``ramp_time``; ``autostart``, on simulated time) and the simulator, the robot's
-stand-in, takes them there as a joint trajectory controller would
-(``command_interface:=effort``; ``arm_controller/commands`` too, for
+stand-in, takes them there as a joint trajectory controller would (``command_interface``
+the card's: effort for motors, else the servos' position or velocity;
+``arm_controller/commands`` too, for
 ``command_message:=forward``); and on this machine only
 (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` unless the environment sets it): a real
 controller on the lab network never hears them.
@@ -268,6 +269,9 @@ def play(args, card, source: Path, perturbation, log_dir: Path, temporary: bool)
     procs = {}
     code = shown = 0
     keep = interrupted = False
+    # the card's interface (effort where the actuators take it): the one the policy learned
+    offered = list(card.get('command_interfaces') or ['effort'])
+    interface = 'effort' if 'effort' in offered else offered[0]
     on = f' perturbed ({" ".join(args.perturb)})' if args.perturb else ''
     logs = (f'logs in {log_dir} (removed at the end unless a node fails; --log-dir keeps '
             'them)' if temporary else f'logs in {log_dir}')
@@ -283,7 +287,8 @@ def play(args, card, source: Path, perturbation, log_dir: Path, temporary: bool)
                      '-p', 'autostart:=true', '-p', 'use_sim_time:=true',
                      # its joint states come from the sim, started next; the sim is its own
                      # robot, with no controller node whose joints parameter could be read
-                     '-p', 'configure_timeout:=120.0', '-p', 'controller_timeout:=0.0'],
+                     '-p', 'configure_timeout:=120.0', '-p', 'controller_timeout:=0.0',
+                     '-p', f'command_interface:={interface}'],
                     log_dir / 'policy_node.log', env)
                 # the simulator starts once the policy is loaded (torch's import alone can
                 # take seconds)
@@ -294,7 +299,7 @@ def play(args, card, source: Path, perturbation, log_dir: Path, temporary: bool)
                 procs['sim_node'] = processes.start_logged(
                     [sys.executable, '-m', 'pg_node.ros.sim_node', '--ros-args',
                      '-r', f'__ns:={namespace}', '-r', f'{COMMANDS}:={CONTROLLER_COMMANDS}',
-                     '-p', 'mode:=real_time', '-p', 'command_interface:=effort',
+                     '-p', 'mode:=real_time', '-p', f'command_interface:={interface}',
                      '-p', f'num_envs:={args.arms}', '-p',
                      f'seed:={args.seed}', '-p', f'model:={model}',
                      '-p', f'real_time_factor:={args.real_time_factor}', *perturb_params],

@@ -9,8 +9,9 @@ The return is ``/pg_node/metrics/episode_return`` (the mean over recent episodes
 learner reports) against ``/pg_node/metrics/env_steps`` logged at the same time; a bag
 without those metrics is plotted from its ``/pg_node/episode`` summaries instead (each
 episode's return against the steps of all episodes summarised so far, with a moving
-average). A run directory holds ``bag/`` (and ``bag_1/``, ... after learner restarts, read
-as one) and may hold ``summary.json``, whose ``eval_return`` is drawn as a horizontal line.
+average). A run directory holds ``bag/`` (and ``bag_1/``, ... after a resume or a learner
+restart, read as one, each curve broken between them: no line across the pause) and may
+hold ``summary.json``, whose ``eval_return`` is drawn as a horizontal line.
 Wall time is the bag's log time, in minutes from its first message. Drawn with
 matplotlib's Agg backend (no display needed).
 
@@ -40,7 +41,7 @@ class RunData:
 
     def __init__(self, path):
         """Read ``path``: a bag directory, an ``.mcap`` file or a run directory."""
-        from pg_node.bag.reader import BagReader
+        from pg_node.bag.reader import bag_dirs, BagReader
         from pg_node.bag.recorder import EPISODE_TOPIC, METRICS_PREFIX, parse_episode
         path = Path(path)
         self.path = path
@@ -50,23 +51,29 @@ class RunData:
         if (path / 'bag').exists():
             if (path / 'summary.json').is_file():
                 self.summary = json.loads((path / 'summary.json').read_text())
-            # a restarted learner goes on in bag_1, bag_2, ... beside bag/
-            extra = sorted((p for p in path.glob('bag_*') if p.name[4:].isdigit()),
-                           key=lambda p: int(p.name[4:]))
-            bags = [path / 'bag'] + extra
+            # a restarted learner, or a resumed run, goes on in bag_1, bag_2, ... beside bag/
+            bags = bag_dirs(path)
         self.bag = bags[0]
+        self.bags = bags
         self.metrics: Dict[str, tuple] = {}
         self.episodes = []
         self.problems = []
         series = {}
         self.t0 = None
+        #: the first log time of each bag after the first: where a session starts again
+        self.breaks = []
         for bag in bags:
             reader = BagReader(bag, warn=False)
+            first = None
             wanted = [t for t in reader.topics
                       if t.startswith(METRICS_PREFIX) or t == EPISODE_TOPIC]
             for m in reader.messages(topics=wanted, deserialize=True):
                 if self.t0 is None or m.log_time_ns < self.t0:
                     self.t0 = m.log_time_ns
+                if first is None:
+                    first = m.log_time_ns
+                    if bag != bags[0]:
+                        self.breaks.append(first)
                 if m.msg is None:
                     continue
                 if m.topic == EPISODE_TOPIC:
@@ -116,6 +123,19 @@ class RunData:
             return False
         return not path.is_file() or path.read_bytes() == shipped.read_bytes()
 
+    def broken(self, t_ns, *columns):
+        """
+        Return ``columns`` (matched to the log times ``t_ns``) with NaN where a session ends.
+
+        A run resumed (or a learner restarted) goes on in a new bag, after a pause of wall
+        time, from its last checkpoint's steps: a NaN row between the sessions keeps a line
+        from being drawn across the pause.
+        """
+        t = np.asarray(t_ns)
+        cut = np.searchsorted(t, self.breaks, side='left')
+        cut = [int(k) for k in np.unique(cut) if 0 < k < len(t)]
+        return tuple(np.insert(np.asarray(c, dtype=float), cut, np.nan) for c in columns)
+
     def minutes(self, t_ns):
         """Return log times as minutes from the first message."""
         return (np.asarray(t_ns) - (self.t0 or 0)) / 60e9
@@ -137,17 +157,23 @@ class RunData:
         From the ``episode_return`` metric when it was recorded, else from the episode
         summaries (not cut short).
         """
+        curve = self.timed_returns()
+        return None if curve is None else curve[:4]
+
+    def timed_returns(self):
+        """Return :meth:`returns` with a fifth item, each point's log time (ns), or None."""
         curve = self.against_steps('episode_return')
         if curve is not None:
             t, _ = self.metrics['episode_return']
-            k = np.searchsorted(self.metrics['env_steps'][0], t, side='right') - 1
-            return curve[0], self.minutes(t[k >= 0]), curve[1], "training episodes' mean return"
+            t = t[np.searchsorted(self.metrics['env_steps'][0], t, side='right') >= 1]
+            return (curve[0], self.minutes(t), curve[1], "training episodes' mean return", t)
         eps = [e for e in self.episodes if not e.get('cut_short')]
         if not eps:
             return None
         steps = np.cumsum([e.get('length', 0) for e in eps])
-        return (steps, self.minutes([e['log_time_ns'] for e in eps]),
-                np.array([e['return'] for e in eps]), 'episode return (summaries)')
+        t = np.array([e['log_time_ns'] for e in eps], dtype=np.int64)
+        return (steps, self.minutes(t), np.array([e['return'] for e in eps]),
+                'episode return (summaries)', t)
 
 
 def _recorded_model(reader) -> Optional[str]:
@@ -226,17 +252,18 @@ def draw_runs(runs, width=1500, height=800, dpi=100, title=None):
         ax.set_ylabel('return')
         drawn = False
         for data, name, colour in zip(runs, names, colours):
-            ret = data.returns()
+            ret = data.timed_returns()
             if ret is None:
                 continue
             drawn = True
-            x, y = ret[xi], ret[2]
+            x, y = data.broken(ret[4], ret[xi], ret[2])
             label = name if many else ret[3]
             if ret[3].startswith('episode return'):
                 ax.plot(x, y, '.', ms=3, alpha=0.4, color=colour,
                         label=None if many else label)
-                ax.plot(x, _moving_average(y, max(1, len(y) // 20)), color=colour,
-                        label=label if many else 'moving average')
+                n = max(1, len(ret[2]) // 20)
+                (average,) = data.broken(ret[4], _moving_average(ret[2], n))
+                ax.plot(x, average, color=colour, label=label if many else 'moving average')
             else:
                 ax.plot(x, y, color=colour, label=label)
             eval_return = _eval_return(data)
@@ -257,7 +284,7 @@ def draw_runs(runs, width=1500, height=800, dpi=100, title=None):
     for data, colour in zip(runs, colours):
         if 'steps_per_second' in data.metrics:
             t, v = data.metrics['steps_per_second']
-            ax.plot(data.minutes(t), v, color=colour)
+            ax.plot(*data.broken(t, data.minutes(t), v), color=colour)
             drawn = True
     if drawn:
         ax.set_xlabel('wall time (min)')
@@ -270,11 +297,13 @@ def draw_runs(runs, width=1500, height=800, dpi=100, title=None):
         for data, colour in zip(runs, colours):
             curve = data.against_steps(name)
             if curve is not None:
-                ax.plot(curve[0], curve[1], lw=0.8, color=colour)
+                t = data.metrics[name][0]
+                t = t[np.searchsorted(data.metrics['env_steps'][0], t, side='right') >= 1]
+                ax.plot(*data.broken(t, *curve), lw=0.8, color=colour)
                 _steps_axis(ax)
             elif name in data.metrics:
                 t, v = data.metrics[name]
-                ax.plot(data.minutes(t), v, lw=0.8, color=colour)
+                ax.plot(*data.broken(t, data.minutes(t), v), lw=0.8, color=colour)
                 ax.set_xlabel('wall time (min)')
             else:
                 continue

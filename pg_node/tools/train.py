@@ -34,6 +34,7 @@ import sys
 import time
 from typing import List, Optional
 
+from pg_node.bag.reader import bag_dirs
 from pg_node.common.params import ConfigError, load_config, SHARED
 from pg_node.common.paths import preset_names
 from pg_node.common.run import pair_namespace, run_id_for_dir, run_namespace
@@ -230,13 +231,6 @@ def node_commands(params: Path, cfg: dict, compose: bool = False, part: str = 'a
 
 #: a restarted simulator's seed moves on by this much per restart: it draws new episodes
 RESTART_SEED_STRIDE = 1_000_003
-
-
-def bag_dirs(run_dir: Path) -> list:
-    """Return a run's bags in the order its learners wrote them: ``bag``, ``bag_1``, ..."""
-    found = [p for p in Path(run_dir).glob('bag*') if p.is_dir()
-             and (p.name == 'bag' or p.name[4:].isdigit() and p.name[3] == '_')]
-    return sorted(found, key=lambda p: int(p.name[4:] or 0))
 
 
 def make_bags_whole(bags) -> list:
@@ -730,6 +724,7 @@ def main(argv=None) -> int:
     if start is not None:
         print(f"resumed from policy version {start['version']} ({start['env_steps']} steps "
               f"learned, {start['checkpoint']})", flush=True)
+    bags_before = bag_dirs(run_dir)     # a resumed run's learner writes the next: bag_1, ...
     compose = not args.separate
     sup = Supervisor(run_dir, node_commands(params, cfg, compose, args.part), args.max_restarts,
                      total, sim_seeds(cfg, compose), learner_process(compose), env=discovery,
@@ -737,17 +732,20 @@ def main(argv=None) -> int:
     view = ProgressView(run_dir / 'progress.csv', total, start, bar=not args.no_progress)
     interrupts = Interrupts()
     with interrupts.handled():  # SIGTERM / SIGHUP stop the nodes as Ctrl-C does
-        return supervise_and_report(args, cfg, sup, view, start, announcer, interrupts)
+        return supervise_and_report(args, cfg, sup, view, start, announcer, interrupts,
+                                    bags_before)
 
 
 def supervise_and_report(args, cfg: dict, sup: Supervisor, view: 'ProgressView',
-                         start: Optional[dict], announcer, interrupts: Interrupts) -> int:
+                         start: Optional[dict], announcer, interrupts: Interrupts,
+                         bags_before: list) -> int:
     """
     Run the graph until done, failed or interrupted; evaluate, write and print the summary.
 
     The first Ctrl-C stops the nodes (and says how to skip the evaluation); the second,
     while they stop or during the evaluation, skips it (``summary.json``'s ``evaluation``:
     ``skipped``); further ones change nothing: the summary and the curve are written.
+    ``bags_before``: the run's bag folders before this session (a resume writes the next).
     """
     run_dir = sup.run_dir
     t0 = view.t0
@@ -791,6 +789,11 @@ def supervise_and_report(args, cfg: dict, sup: Supervisor, view: 'ProgressView',
                'bringup_seconds': view.bringup_seconds,
                'restarts': sup.restarts,
                'nodes': sup.usage()}
+    bags = bag_dirs(run_dir)
+    # every bag of the run, in order (plot and replay --info read them all), and this
+    # session's: a resumed run's are new folders beside the first
+    summary['bags'] = [b.name for b in bags]
+    summary['session_bags'] = [b.name for b in bags if b not in bags_before]
     summary['steps_per_second'] = view.steps_per_second(last) if last else float('nan')
     summary['evaluation'] = 'no checkpoint'
     if any((run_dir / 'checkpoints').glob('ckpt_*.pt')):
@@ -837,10 +840,13 @@ def supervise_and_report(args, cfg: dict, sup: Supervisor, view: 'ProgressView',
     print('nodes (peak memory, CPU in training): ' + '; '.join(
         f"{name} {_rate(u['peak_rss_mb'])} MB, {u['cpu_seconds_training']:.1f} s"
         for name, u in summary['nodes'].items()))
-    files = [('run dir', run_dir), ('bag', run_dir / 'bag'),
-             ('checkpoint', Path(summary.get('checkpoint', run_dir / 'no checkpoint'))),
-             ('summary', run_dir / 'summary.json'), ('curve', png)]
-    print('\n'.join(f'{label + ":":<11} {path}' for label, path in files if path.exists()))
+    this = ' (this session)' if bags_before else ''
+    files = [('run dir', run_dir, '')] + [
+        ('bag', b, this if b.name in summary['session_bags'] else '') for b in bags] + [
+        ('checkpoint', Path(summary.get('checkpoint', run_dir / 'no checkpoint')), ''),
+        ('summary', run_dir / 'summary.json', ''), ('curve', png, '')]
+    print('\n'.join(f'{label + ":":<11} {path}{note}'
+                    for label, path, note in files if path.exists()))
     return 1 if state == 'failed' else 0
 
 

@@ -1,0 +1,126 @@
+"""
+Position targets relative to the measured angle: a bounded change per control step (issue 46).
+
+``pg_node.control.position_delta`` (pure), an arm imported with ``--position-delta``: the
+simulator turns an action into the target ``q + a d`` at every control step, the card records
+``max_position_delta``, and ``CommandGuard`` (policy_node's) does the same with the measured
+angles; a card without it (absolute targets) is commanded as before, and the parameter
+``max_position_delta`` bounds the change of such a policy's targets too.
+"""
+from pathlib import Path
+
+from control_records import POSITION_SERVOS
+import numpy as np
+from pg_node.control.guards import CommandGuard, GuardSettings
+from pg_node.control.position_delta import bound_change, deltas, targets
+from pg_node.control.status import GuardEvent
+from pg_node.sim.arm_task import ArmTask, NotAnArm
+from pg_node.tools import arm
+import pytest
+
+TWO_LINK = Path(__file__).parent / 'fixtures' / 'urdf' / 'two_link.urdf'
+JOINTS = ['joint0', 'joint1']
+
+
+def test_targets_stay_within_the_delta_and_the_range():
+    rng = np.random.default_rng(0)
+    a = rng.uniform(-3, 3, (200, 2))
+    q = rng.uniform(-3, 3, (200, 2))
+    d = np.array([0.1, 0.3])
+    t = targets(a, q, d, np.full(2, -3.0), np.full(2, 3.0))
+    assert np.all(np.abs(t - q) <= d + 1e-12) and np.all(np.abs(t) <= 3.0)
+    inside = np.all(np.abs(a) <= 1, axis=1) & np.all(np.abs(q + a * d) <= 3, axis=1)
+    np.testing.assert_allclose(t[inside], (q + a * d)[inside])
+    assert np.isnan(targets(np.array([np.nan, 0.0]), np.zeros(2), d, -3, 3)[0])
+    np.testing.assert_allclose(bound_change(np.array([2.0, -2.0]), np.zeros(2), d), [0.1, -0.3])
+    with pytest.raises(ValueError, match='one positive number or one per arm joint'):
+        deltas([0.1, 0.2, 0.3], 2)
+
+
+def import_arm(tmp_path, capsys, *extra):
+    out = tmp_path / 'arm.xml'
+    code = arm.main(['import', str(TWO_LINK), '--tip', 'fingertip', '--actuator', 'position',
+                     '-o', str(out), *map(str, extra)])
+    stdout, err = capsys.readouterr()
+    return code, out, stdout, err
+
+
+def test_an_import_with_a_delta_moves_at_most_the_delta_per_step(tmp_path, capsys):
+    """A full action moves each joint's target d from where it is, step after step."""
+    code, out, stdout, err = import_arm(tmp_path, capsys, '--position-delta', 0.05)
+    assert code == 0, err
+    assert 'changes of at most 0.05 rad per control step' in stdout
+    task = ArmTask(out, seed=0)
+    assert task.spec.position_delta.tolist() == [0.05, 0.05]
+    task.reset()
+    for _ in range(5):
+        q0 = task.joint_state()[0][0].copy()
+        task.step(np.ones((1, 2)))
+        # the servo's target was q0 + 0.05: the targets the step applied
+        want = INTERFACE_TARGET(task, q0 + 0.05)
+        np.testing.assert_allclose(task.datas[0].ctrl, want, atol=1e-12)
+    # absolute targets for the stand-in robot (policy_node sends the angles)
+    absolute = ArmTask(out, seed=0, relative_actions=False)
+    absolute.reset()
+    absolute.step(np.full((1, 2), 0.5))
+    np.testing.assert_allclose(absolute.datas[0].ctrl, [0.5, 0.5])
+    # and no delta: the actions are absolute, as before
+    code, plain, _, _ = import_arm(tmp_path, capsys)
+    assert code == 0 and ArmTask(plain).spec.position_delta is None
+
+
+def INTERFACE_TARGET(task, target):
+    from pg_node.control.interfaces import INTERFACES
+    from pg_node.sim.actuation import actuators
+    return INTERFACES['position'].from_si(actuators(task.model), target)
+
+
+def test_a_delta_needs_position_servos(tmp_path, capsys):
+    out = tmp_path / 'arm.xml'
+    code = arm.main(['import', str(TWO_LINK), '--tip', 'fingertip', '--position-delta', '0.1',
+                     '-o', str(out)])
+    err = capsys.readouterr().err
+    assert code == 1 and '--position-delta needs --actuator position' in err
+    assert len(err.strip().splitlines()) == 1
+    code, good, _, _ = import_arm(tmp_path, capsys, '--position-delta', 0.1)
+    xml = good.read_text().replace('biasprm="0 -100 -10"', '')
+    with pytest.raises(NotAnArm, match='pg_position_delta needs position servos'):
+        ArmTask(_write(tmp_path, xml))
+
+
+def _write(tmp_path, xml):
+    path = tmp_path / 'motor_with_delta.xml'
+    path.write_text(xml)
+    return path
+
+
+def test_the_guard_commands_changes_around_the_measured_angle():
+    """Relative card: action a -> q + a d (rad); absolute card: as before, bounded if asked."""
+    q = np.array([[0.3, -1.0]])
+    qd = np.zeros((1, 2))
+    a = np.array([[1.0, -0.5]])
+    rel = CommandGuard(POSITION_SERVOS, JOINTS, 'position', GuardSettings(max_change=1.0),
+                       position_delta=[0.1, 0.1])
+    u, acted = rel(a, q, qd, 0.0)
+    np.testing.assert_allclose(rel.interface.to_si(POSITION_SERVOS, u), [[0.4, -1.05]])
+    assert not acted[GuardEvent.POSITION_DELTA].any()
+    # absolute targets (an old card): 3 u rad, as before; bounded by the parameter
+    old = CommandGuard(POSITION_SERVOS, JOINTS, 'position', GuardSettings(max_change=1.0))
+    u, acted = old(a, q, qd, 0.0)
+    np.testing.assert_allclose(old.interface.to_si(POSITION_SERVOS, u), [[3.0, -1.5]])
+    bounded = CommandGuard(POSITION_SERVOS, JOINTS, 'position',
+                           GuardSettings(max_change=1.0, max_position_delta=0.2))
+    u, acted = bounded(a, q, qd, 0.0)
+    np.testing.assert_allclose(bounded.interface.to_si(POSITION_SERVOS, u), [[0.5, -1.2]])
+    assert acted[GuardEvent.POSITION_DELTA].all()
+
+
+def test_the_card_records_the_delta(tmp_path, capsys):
+    from pg_node.rl.trained_policy import make_card
+    code, out, _, _ = import_arm(tmp_path, capsys, '--position-delta', 0.05)
+    card = make_card(str(out), 12, 2, 2, {})
+    pos = card['command_interfaces']['position']
+    assert pos['max_position_delta'] == [0.05, 0.05] and pos['targets'].startswith('relative')
+    code, out, _, _ = import_arm(tmp_path, capsys)
+    assert 'max_position_delta' not in make_card(str(out), 12, 2, 2, {})[
+        'command_interfaces']['position']
