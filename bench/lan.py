@@ -67,6 +67,10 @@ class Host:
         self.lan.procs.append(proc)
         return proc
 
+    def pids(self) -> List[int]:
+        """Return the pids of the processes running in this host (``ip netns pids``)."""
+        return [int(p) for p in _ip('netns', 'pids', self.name, check=False).stdout.split()]
+
     def link_down(self):
         """Cut this host off the network (its cable pulled)."""
         _ip('link', 'set', self.link, 'down')
@@ -88,17 +92,35 @@ class Host:
 
 
 class Lan:
-    """``n`` hosts on one bridge; a context manager that removes all of it on exit."""
+    """
+    ``n`` hosts on one bridge; a context manager that removes all of it on exit.
 
-    def __init__(self, n: int):
-        self.prefix = f'pgn{os.getpid() % 100000}'
-        self.subnet = os.getpid() % 250 + 1
+    ``prefix`` and ``subnet`` default to this process's (``pgn<pid>``); a LAN that outlives
+    its process (``scripts/lan_hosts.py``, by hand) names its own and uses :meth:`build`
+    and :meth:`remove`.
+    """
+
+    def __init__(self, n: int, prefix: Optional[str] = None, subnet: Optional[int] = None):
+        self.prefix = prefix or f'pgn{os.getpid() % 100000}'
+        self.subnet = subnet if subnet is not None else os.getpid() % 250 + 1
         self.bridge = f'{self.prefix}b'
         self.hosts = [Host(self, i) for i in range(n)]
         self.procs: List[subprocess.Popen] = []
 
+    @classmethod
+    def existing(cls, prefix: str, subnet: int) -> 'Lan':
+        """Return the LAN of ``prefix`` as the namespaces on this machine are (maybe none)."""
+        found = [n for n in _ip('netns', 'list').stdout.split()
+                 if n.startswith(f'{prefix}h') and n[len(prefix) + 1:].isdigit()]
+        return cls(max((int(n[len(prefix) + 1:]) + 1 for n in found), default=0), prefix,
+                   subnet)
+
     def __enter__(self) -> 'Lan':
-        self.remove()                             # a killed test of this pid left them
+        return self.build()
+
+    def build(self) -> 'Lan':
+        """Make the bridge and the hosts (what a killed process of this prefix left first)."""
+        self.remove()
         try:
             # no IGMP snooping: multicast is flooded to every port whose mcast_flood is on
             _ip('link', 'add', self.bridge, 'type', 'bridge', 'mcast_snooping', '0')
