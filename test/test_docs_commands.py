@@ -178,6 +178,7 @@ class Scratch:
     def __init__(self, root: Path):
         self.root = root
         self.done: Dict[str, subprocess.CompletedProcess] = {}
+        self.wrote: Dict[str, List[str]] = {}      # command -> the files it made, relative
         self.env = dict(os.environ, PYTHONPATH=str(REPO), ROS_DOMAIN_ID=str(DOMAIN_ID),
                         AMENT_PREFIX_PATH=os.environ.get('AMENT_PREFIX_PATH', sys.prefix),
                         PATH=f'{Path(sys.executable).parent}{os.pathsep}{os.environ["PATH"]}')
@@ -187,6 +188,7 @@ class Scratch:
         """Run ``command`` (sized) in bash here, once; return what it did."""
         line = sized(command)
         if line not in self.done:
+            before = self.files()
             words = shlex.split(line, comments=True)
             timeout = TIMEOUT.get(words[3] if len(words) > 3 else '', DEFAULT_TIMEOUT)
             # a session of its own: a command that times out is stopped with all it started
@@ -201,7 +203,13 @@ class Scratch:
                 out, err = proc.communicate()
                 err += f'\n(timed out after {timeout} s)'
             self.done[line] = subprocess.CompletedProcess(line, proc.returncode, out, err)
+            self.wrote[line] = sorted(self.files() - before)
         return self.done[line]
+
+    def files(self) -> set:
+        """Return the files here, relative (the linked folders and runs not entered)."""
+        return {os.path.relpath(os.path.join(folder, name), self.root)
+                for folder, _, names in os.walk(self.root) for name in names}
 
 
 def failure(block: Block, done: subprocess.CompletedProcess, why: str) -> str:
@@ -287,3 +295,35 @@ def test_the_commands_of_a_block_run(block, scratch):
         printed = [line.rstrip() for line in (done.stdout + done.stderr).splitlines()]
         missing = [line for line in shown if line not in printed]
         assert missing == [], failure(block, done, f'it did not print {missing[0]!r}')
+
+
+def ignored_by_git(paths: List[str]) -> List[str]:
+    """Return those of ``paths`` (relative to a checkout) that .gitignore covers."""
+    done = subprocess.run(['git', 'check-ignore', '--no-index', '--stdin'], cwd=REPO,
+                          input='\n'.join(paths), capture_output=True, text=True)
+    assert done.returncode in (0, 1), done.stderr       # 1: none of them
+    return done.stdout.splitlines()
+
+
+def test_git_ignore_is_asked_as_a_clone_would_be():
+    assert ignored_by_git(['runs/reach/bag/x.mcap', 'runs/reach.gif', 'reach.gif',
+                           'bags/mine/metadata.yaml']) == ['runs/reach/bag/x.mcap',
+                                                           'runs/reach.gif',
+                                                           'bags/mine/metadata.yaml']
+
+
+@pytest.mark.slow
+@pytest.mark.e2e
+def test_the_readme_tour_writes_only_where_git_ignores(scratch):
+    """A clone stays clean after the tour: its runs, curves, GIFs and ONNX go under runs/."""
+    written = []
+    for block in BLOCKS:
+        if block.page == 'README.md' and block.runs:
+            for command, _ in steps(block):
+                scratch.run(command)
+                written += scratch.wrote[sized(command)]
+    assert 'runs/reach/summary.json' in written, written
+    assert [p for p in written if p.endswith(('.png', '.gif', '.onnx', '.json'))
+            and not p.startswith('runs/reach/')], written       # the tour's own outputs
+    ignored = set(ignored_by_git(written))
+    assert [path for path in written if path not in ignored] == []

@@ -86,7 +86,8 @@ def test_ctrl_c_stops_play_and_a_second_one_skips_the_gif(onnx, tmp_path):
     gif, log, tmp = tmp_path / 'play.gif', tmp_path / 'out.txt', tmp_path / 'tmp'
     with open(log, 'w') as out:
         proc = subprocess.Popen([sys.executable, '-m', 'pg_node', 'play', str(onnx),
-                                 '--episodes', '1000', '--gif', str(gif)], env=environment(tmp),
+                                 '--episodes', '1000', '--arms', '2', '--gif', str(gif)],
+                                env=environment(tmp),
                                 cwd=REPO, stdout=out, stderr=subprocess.STDOUT,
                                 start_new_session=True)
     try:
