@@ -151,7 +151,8 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 #: the parameters of :class:`pg_node.control.guards.GuardSettings`
 GUARD_PARAMS = ('smoothing', 'max_change', 'joint_limit_margin', 'max_velocity', 'ramp_time',
-                'hold_damping', 'hold_stiffness', 'max_deceleration', 'max_position_delta')
+                'hold_damping', 'hold_stiffness', 'max_deceleration', 'max_position_delta',
+                'max_acceleration')
 #: /diagnostics levels of the control layer's severities
 LEVELS = {Severity.OK: DiagnosticStatus.OK, Severity.WARN: DiagnosticStatus.WARN,
           Severity.ERROR: DiagnosticStatus.ERROR}
