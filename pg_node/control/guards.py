@@ -354,7 +354,9 @@ class CommandGuard:
 
         The bound is the parameter, or at 0 the card's delta (none for absolute targets):
         with it, an old policy's absolute targets (or the ramp from a hold) never ask a
-        joint for more than that change in one tick.
+        joint for more than that change in one tick. The control range still holds: a
+        joint beyond what its servo reaches (an unlimited joint spun past it) gets the
+        range's end.
         """
         if self.interface.limit != LIMIT_INSIDE:
             return u
@@ -366,7 +368,9 @@ class CommandGuard:
         kept = position_delta.bound_change(target, q, bound)
         changed = kept != target
         acted[GuardEvent.POSITION_DELTA] = np.any(changed, axis=1)
-        return np.where(changed, self.interface.from_si(self.act, kept), u)
+        # the range wins: a joint outside what its servo reaches gets the nearest target
+        return np.where(changed, np.clip(self.interface.from_si(self.act, kept), self.low,
+                                         self.high), u)
 
     def clip_range(self, action: np.ndarray, hold: np.ndarray, acted) -> np.ndarray:
         """Step 1: the hold command for a non-finite action, the rest clipped to the range."""
