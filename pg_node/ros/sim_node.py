@@ -37,10 +37,11 @@ Subscribed: ``pg_node/commands`` (``std_msgs/Float64MultiArray``, as ros2_contro
 forward_command_controller): ``num_envs * n_actuators`` values, arm-major (arm 0's
 actuators in model order, then arm 1's...), in the policy's control units, or with
 ``command_interface`` ``effort`` / ``position`` / ``velocity`` in N m / rad / rad/s as a
-robot's controller takes
-them (``policy_node`` sends those; :mod:`pg_node.control.interfaces` maps them back), taken as
-serialised bytes (``raw=True``) and decoded into numpy; bytes that do not decode count as
-a message of another size. A message of another size, with a non-finite value or with an
+robot's controller takes them (``policy_node`` sends those, absolute angles even for a
+policy of relative targets, :mod:`pg_node.control.position_delta`;
+:mod:`pg_node.control.interfaces` maps them back), taken as serialised bytes
+(``raw=True``) and decoded into numpy; bytes that do not decode count as a message of
+another size. A message of another size, with a non-finite value or with an
 absurd one (beyond ``ABSURD_COMMAND``, e.g. 1e300) is dropped, counted and warned about
 (at most once a second); other values outside the actuators' control range are clipped to
 it, counted (``commands_clipped``) and warned about.
@@ -51,8 +52,7 @@ another publisher's, an untagged one or a late duplicate is ignored and counted
 (``commands_ignored``). In real-time mode any valid command is held, tag or not.
 
 In real-time mode with ``command_interface`` ``effort``, ``position`` or ``velocity`` (the
-robot's
-stand-in) it also subscribes ``arm_controller/joint_trajectory``
+robot's stand-in) it also subscribes ``arm_controller/joint_trajectory``
 (``trajectory_msgs/JointTrajectory``, what ``policy_node`` sends by default) and follows it
 as Jazzy's joint trajectory controller with zero gains would
 (:class:`pg_node.control.jtc.JtcFollower`): joints ``arm<i>/<joint>`` of each arm's
