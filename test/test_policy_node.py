@@ -684,7 +684,7 @@ def test_bad_policy_parameter_is_one_line(tmp_path):
                           ([], 'is required'),
                           (['-p', 'control_rate:=-1.0'], 'control_rate'),
                           (['-p', 'smoothing:=1.5'], "'policy_node.smoothing'"),
-                          (['-p', 'command_interface:=velocity'], 'command_interface')):
+                          (['-p', 'command_interface:=acceleration'], 'command_interface')):
         res = subprocess.run([sys.executable, '-m', 'pg_node.ros.policy_node', '--ros-args',
                               '-p', 'autostart:=true', *params],
                              env=processes.child_env(DOMAIN_ID), capture_output=True, text=True,

@@ -52,11 +52,14 @@ Published:
 * ``arm_controller/joint_trajectory`` (``trajectory_msgs/JointTrajectory``, the default
   ``command_message:=trajectory``), from a timer at ``control_rate`` Hz of steady time (0:
   one per control step of the policy), in SI units (REP-103), ``command_interface``
-  ``effort`` (N m, from the model's gear: motor actuators) or ``position`` (rad, from the
-  joint range: position actuators), :mod:`pg_node.control.interfaces`: each command as the
+  ``effort`` (N m, from the model's gear: motor actuators), ``position`` (rad, from the
+  joint range: position actuators; a card with ``max_position_delta`` makes the action a
+  change around the measured angle, :mod:`pg_node.control.position_delta`) or
+  ``velocity`` (rad/s: velocity actuators), :mod:`pg_node.control.interfaces`: each command as the
   message Jazzy's joint trajectory controller accepts and applies at once (stamp 0, one
   point at ``time_from_start`` 0; effort: the torques with the measured angles as
-  positions and no velocities; position: the angles alone; :mod:`pg_node.control.composers`,
+  positions and no velocities; position: the angles alone; velocity: the speeds with the
+  measured angles as positions; :mod:`pg_node.control.composers`,
   the controller's rules :mod:`pg_node.control.jtc`). The controller holds each point until
   the next, and ``cmd_timeout`` after the last one its own hold (zero effort, or the angles
   measured then): the stop that holds if this node dies. ``command_message:=forward`` sends
@@ -79,7 +82,8 @@ Published:
 Safety: the **hold** command is an active stop (:mod:`pg_node.control.guards`): with the
 effort interface a damping torque ``-hold_damping x qdot`` (and ``hold_stiffness`` back to
 where the hold began) from the newest joint state at every tick, with the position interface
-the last commanded angles (never a stale measured one). When the newest joint state is older
+the last commanded angles (never a stale measured one), with the velocity interface zero
+velocity. When the newest joint state is older
 than ``state_timeout`` s, since it arrived or by its ``header.stamp`` (the node's clock: give
 ``use_sim_time:=true`` with a simulator; :mod:`pg_node.control.watchdog`), the hold command
 is published at every control tick (never one message only: a forward command controller
@@ -151,7 +155,8 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 #: the parameters of :class:`pg_node.control.guards.GuardSettings`
 GUARD_PARAMS = ('smoothing', 'max_change', 'joint_limit_margin', 'max_velocity', 'ramp_time',
-                'hold_damping', 'hold_stiffness', 'max_deceleration', 'max_position_delta')
+                'hold_damping', 'hold_stiffness', 'max_deceleration', 'max_position_delta',
+                'max_acceleration')
 #: /diagnostics levels of the control layer's severities
 LEVELS = {Severity.OK: DiagnosticStatus.OK, Severity.WARN: DiagnosticStatus.WARN,
           Severity.ERROR: DiagnosticStatus.ERROR}

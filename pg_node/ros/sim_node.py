@@ -42,10 +42,12 @@ Topics published:
 Subscribed: ``pg_node/commands`` (``std_msgs/Float64MultiArray``, as ros2_control's
 forward_command_controller): ``num_envs * n_actuators`` values, arm-major (arm 0's
 actuators in model order, then arm 1's...), in the policy's control units, or with
-``command_interface`` ``effort`` / ``position`` in N m / rad as a robot's controller takes
-them (``policy_node`` sends those; :mod:`pg_node.control.interfaces` maps them back), taken as
-serialised bytes (``raw=True``) and decoded into numpy; bytes that do not decode count as
-a message of another size. A message of another size, with a non-finite value or with an
+``command_interface`` ``effort`` / ``position`` / ``velocity`` in N m / rad / rad/s as a
+robot's controller takes them (``policy_node`` sends those, absolute angles even for a
+policy of relative targets, :mod:`pg_node.control.position_delta`;
+:mod:`pg_node.control.interfaces` maps them back), taken as serialised bytes
+(``raw=True``) and decoded into numpy; bytes that do not decode count as a message of
+another size. A message of another size, with a non-finite value or with an
 absurd one (beyond ``ABSURD_COMMAND``, e.g. 1e300) is dropped, counted and warned about
 (at most once a second); other values outside the actuators' control range are clipped to
 it, counted (``commands_clipped``) and warned about.
@@ -55,8 +57,8 @@ that answers the current transition is accepted (its layout's tag, :mod:`pg_node
 another publisher's, an untagged one or a late duplicate is ignored and counted
 (``commands_ignored``). In real-time mode any valid command is held, tag or not.
 
-In real-time mode with ``command_interface`` ``effort`` or ``position`` (the robot's
-stand-in) it also subscribes ``arm_controller/joint_trajectory``
+In real-time mode with ``command_interface`` ``effort``, ``position`` or ``velocity`` (the
+robot's stand-in) it also subscribes ``arm_controller/joint_trajectory``
 (``trajectory_msgs/JointTrajectory``, what ``policy_node`` sends by default) and follows it
 as Jazzy's joint trajectory controller with zero gains would
 (:class:`pg_node.control.jtc.JtcFollower`): each arm's actuated joints, named as in
@@ -266,13 +268,14 @@ class SimNode(Node):
         self.pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self.create_subscription(Float64MultiArray, COMMANDS, self.on_command, 10, raw=True)
         self.follower = None
-        if self.mode == 'real_time' and self.interface in ('effort', 'position'):
+        if self.mode == 'real_time' and self.interface in jtc.FOLLOWED_FIELD:
             # the robot's joint trajectory controller (pg_node.control.jtc): its joints are
             # each arm's actuated joints, in actuator order
             self.actuated = [spec.joint_names.index(j) for j in self.actuators.joints]
             self.follower = jtc.JtcFollower(
                 arm_joint_names(self.actuators.joints, n, plain=n == 1),
-                self.interface, p['jtc_cmd_timeout'])
+                self.interface, p['jtc_cmd_timeout'],
+                flags=dict(jtc.SHIPPED_FLAGS.get(self.interface, {})))
             self.create_subscription(JointTrajectory, CONTROLLER_TRAJECTORY,
                                      self.on_trajectory, 10)
         self.create_service(Trigger, '~/reset_world', self.on_reset_world)
@@ -455,8 +458,8 @@ class SimNode(Node):
             self.get_logger().warning(
                 f'{CONTROLLER_TRAJECTORY}: aborted due to command timeout (no '
                 f"trajectory for jtc_cmd_timeout {self.params['jtc_cmd_timeout']:g} s): "
-                + ('zero effort' if self.interface == 'effort' else
-                   'holding the positions measured now'))
+                + {'effort': 'zero effort', 'velocity': 'zero velocity'}.get(
+                    self.interface, 'holding the positions measured now'))
         if si is not None:
             ctrl = interfaces.INTERFACES[self.interface].from_si(
                 self.actuators, si.reshape(self.task.num_envs, -1))
