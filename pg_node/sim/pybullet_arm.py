@@ -327,3 +327,13 @@ def urdf_of(model_text: Optional[str]) -> Optional[str]:
         return None
     rest = words[words.index('import') + 1:]
     return next((w for w in rest if not w.startswith('-')), None)
+
+
+def model_urdf(model) -> Optional[str]:
+    """Return the URDF an ``arm import`` model (``mujoco.MjModel``) was made from, or None."""
+    import mujoco
+    i = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_TEXT, 'pg_import_command')
+    if i < 0:
+        return None
+    adr, size = model.text_adr[i], model.text_size[i]
+    return urdf_of(bytes(model.text_data[adr:adr + size - 1]).decode())

@@ -117,14 +117,8 @@ def _in_pybullet(args, state, model: str, mj_model, frame_skip: int):
     """Return :func:`evaluate_in_pybullet`'s result, or None after saying why it cannot run."""
     from pg_node.rl.evaluate import evaluate_in_pybullet
     from pg_node.rl.learner import policy_from_checkpoint
-    from pg_node.sim.pybullet_arm import PybulletError, urdf_of
-    import mujoco
-    urdf = args.urdf
-    if urdf is None:
-        i = mujoco.mj_name2id(mj_model, mujoco.mjtObj.mjOBJ_TEXT, 'pg_import_command')
-        if i >= 0:
-            adr, size = mj_model.text_adr[i], mj_model.text_size[i]
-            urdf = urdf_of(bytes(mj_model.text_data[adr:adr + size - 1]).decode())
+    from pg_node.sim.pybullet_arm import model_urdf, PybulletError
+    urdf = args.urdf or model_urdf(mj_model)
     if urdf is None:
         print(f'eval: --engine pybullet needs --urdf: {model} was not made by arm import',
               file=sys.stderr)
