@@ -453,6 +453,26 @@ POLICY_PARAMS: Dict[str, Param] = {
                                       'physics', choices=('', 'robot', 'policy')),
 }
 
+#: pybullet_node: the robot's stand-in on PyBullet (issue 45; not part of the training graph)
+PYBULLET_PARAMS: Dict[str, Param] = {
+    'model': SHARED_PARAMS['model'],
+    'seed': Param(0, 'seed of the episodes: starts and goals drawn as sim_node draws them'),
+    'urdf': Param('', "the robot's URDF as shipped (empty: the one arm import made the model "
+                      'from, named in its pg_import_command)'),
+    'package_path': Param('', 'a folder package:// meshes are looked up in, after '
+                              'AMENT_PREFIX_PATH (empty: none)'),
+    'frame_skip': Param(2, "the control period is frame_skip x the model's timestep", low=1),
+    'max_episode_steps': Param(50, 'control steps after which a new episode starts', low=1),
+    'command_interface': Param('effort', 'what the controllers take: effort (N m) or position '
+                                         '(rad)', choices=('effort', 'position')),
+    'gravity_compensation': Param(True, "the robot cancels the arm's weight (a torque robot's "
+                                        'firmware does); false: the commands must hold it'),
+    'jtc_cmd_timeout': Param(0.2, 'the cmd_timeout of the joint trajectory controller on '
+                                  'arm_controller/joint_trajectory (s after the last point '
+                                  'before its hold)', **POSITIVE),
+    'real_time_factor': Param(1.0, 'simulated seconds per wall second', **POSITIVE),
+}
+
 SCHEMA: Dict[str, Dict[str, Param]] = {
     'sim_node': SIM_PARAMS,
     'actor_node': ACTOR_PARAMS,
