@@ -425,6 +425,13 @@ POLICY_PARAMS: Dict[str, Param] = {
                              choices=('trajectory', 'forward')),
     'base_frame': Param('base_link', "frame_id of targets in the arm's base frame (an empty "
                                      'frame_id is taken as this one too)'),
+    'marker_rate': Param(10.0, '~/markers (the goal the policy acts on, the fingertip coloured '
+                               'by the state: commanding, hold, e-stop, waiting) rate in Hz of '
+                               'wall time while it has a subscriber; 0 turns it off', low=0.0,
+                         live=True),
+    'marker_frame': Param('', 'frame of ~/markers; empty: base_frame for one arm (plain joint '
+                              "names), arm<i> for several (sim_node's frames); with sim_node "
+                              'in RViz: world'),
     'record': Param('', 'bag directory to record every control tick into (MCAP; empty: none)'),
     'configure_timeout': Param(10.0, 'seconds configure waits for the first joint_states (and '
                                      'robot_description when require_robot_description), '

@@ -33,6 +33,11 @@ Topics published:
   (``LINE_LIST``, ns ``links``), the fingertips and the targets (``SPHERE_LIST``, ns
   ``fingertips`` and ``targets``); arm ``i`` is drawn shifted by its place on a square
   grid with ``marker_spacing`` between arms (frame ``arm<i>`` is ``frame_id`` shifted so);
+* ``/pg_node/scene`` (``visualization_msgs/MarkerArray``) at ``scene_rate`` Hz of wall time
+  while it has a subscriber: each arm of ``view_arms`` as ``robot_description`` draws it
+  (its geoms at their world poses), its goal, fingertip and the fingertip's trail over the
+  last ``trail_length`` control steps of the episode, all in ``frame_id`` with arm ``i``
+  shifted as in ``pg_node/markers`` (:mod:`pg_node.sim.scene`, :mod:`pg_node.ros.scene_msg`);
 * ``/diagnostics`` (``diagnostic_msgs/DiagnosticArray``) at ``diagnostics_rate`` Hz: mode,
   paused, steps, simulated time, steps per second, commands received / dropped (wrong size,
   non-finite, absurd) / clipped / ignored, lock-step timeouts; in lock-step also the round
@@ -132,8 +137,10 @@ from pg_node.ros import transition
 from pg_node.ros.parameters import declare_params
 from pg_node.ros.run_protocol import EndWithLearner, RANDOMIZATION, RunGuard
 from pg_node.ros.runtime import params_help, run
+from pg_node.ros.scene_msg import scene_markers
 from pg_node.sim.actuation import actuators
 from pg_node.sim.arm_task import arm_groups, ArmTask
+from pg_node.sim.scene import Scene
 from pg_node.sim.urdf_export import robot_description, UrdfExportError
 from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.node import Node
@@ -259,6 +266,10 @@ class SimNode(Node):
         self.pub_transition = self.create_publisher(Float64MultiArray, 'pg_node/transition',
                                                     reliable_latched)
         self.pub_markers = self.create_publisher(MarkerArray, 'pg_node/markers', 1)
+        # the view_arms as robot_description shows them, in frame_id (pg_node.sim.scene)
+        self.scene = Scene(self.task.model, self.view_arms, self.offsets, p['trail_length'])
+        self.scene_watched = False      # the trail is recorded only while someone watches
+        self.pub_scene = self.create_publisher(MarkerArray, 'pg_node/scene', 1)
         self.pub_draws = None
         if self.task.randomizer is not None:
             # every arm's drawn terms when they change (the learner writes them to the bag)
@@ -283,6 +294,7 @@ class SimNode(Node):
         self.create_service(Trigger, '~/step_simulation', self.on_step_simulation)
         self.timers_by_param = {
             'marker_rate': self.create_timer(1.0, self.publish_markers),
+            'scene_rate': self.create_timer(1.0, self.publish_scene),
             'diagnostics_rate': self.create_timer(1.0, self.publish_diagnostics)}
         if self.mode == 'real_time':
             self.timers_by_param['real_time_factor'] = self.create_timer(
@@ -311,11 +323,14 @@ class SimNode(Node):
     def on_parameter(self, name: str, value) -> None:
         """Apply a live parameter: the timers' periods and the marker grid follow it."""
         periods = {'marker_rate': lambda v: 1.0 / v if v > 0 else None,
+                   'scene_rate': lambda v: 1.0 / v if v > 0 else None,
                    'diagnostics_rate': lambda v: 1.0 / v,
                    'real_time_factor': lambda v: self.task.dt / v,
                    'lock_step_timeout': lambda v: min(0.1, v / 2)}
         if name == 'marker_spacing':
             self.offsets = self.grid_offsets(value)
+            if hasattr(self, 'scene'):
+                self.scene.offsets = self.offsets
         timer = self.timers_by_param.get(name)
         if timer is not None:
             period = periods[name](value)
@@ -497,6 +512,8 @@ class SimNode(Node):
         last = g == len(self.groups) - 1
         if last:
             self.counters['steps'] += 1      # a control step: every group has stepped
+            if self.scene_watched:
+                self.scene.record(self.task.datas, self.task.episode_step)
         self.publish_state(g, self.group_transition(g, obs, reward, terminated, truncated,
                                                     info['final_obs']), last)
         self.publish_draws()
@@ -658,6 +675,14 @@ class SimNode(Node):
             marker.points = [Point(x=x, y=y, z=z) for x, y, z in points.tolist()]
             out.markers.append(marker)
         self.pub_markers.publish(out)
+
+    def publish_scene(self):
+        """Publish the view_arms' links, goals and fingertip trails while someone watches."""
+        self.scene_watched = bool(self.pub_scene.get_subscription_count())
+        if self.scene_watched:
+            self.pub_scene.publish(scene_markers(self.scene.views(self.task.datas),
+                                                 sim_stamp(self.sim_time),
+                                                 self.params['frame_id']))
 
     def _marker(self, stamp, ns: str, i: int, kind: int, rgb, size: float) -> Marker:
         """Return a marker with the common fields filled in."""
