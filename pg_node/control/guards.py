@@ -457,7 +457,7 @@ class CommandGuard:
 
         ``s`` is the distance left to ``limit - joint_limit_margin`` and ``a``
         ``max_deceleration``: the joint can still stop there; zero at the margin and
-        beyond it (no speed outward is refused, none inward granted). Continuous in ``q``.
+        beyond it. A speed away from the limit is never capped. Continuous in ``q``.
         """
         margin = self.settings.joint_limit_margin
         decel = self.limits().max_deceleration
