@@ -5,7 +5,9 @@ Each configuration trains ``--steps`` environment steps per seed through the gra
 pg_node train --seed S [overrides]``, the four nodes, lock-step), one run at a time; the table
 gives, per configuration and seed, the deterministic evaluation over 100 episodes (return, mean
 final distance of the fingertip to the target, share of episodes that end within 2 cm) and the
-run's training seconds (first update to last) and whole-command seconds. A configuration is
+run's training seconds (first update to last), the CPU seconds its nodes spent in training
+(all processes; less sensitive to the machine's load than the seconds) and the whole
+command's seconds. A configuration is
 ``LABEL=OVERRIDES``, the overrides as ``train`` takes them, separated by spaces; ``default`` (no
 overrides) is what ``make train`` runs.
 
@@ -14,6 +16,7 @@ overrides) is what ``make train`` runs.
 """
 import argparse
 from pathlib import Path
+import shlex
 import subprocess
 import sys
 import tempfile
@@ -48,6 +51,7 @@ def row_of(label: str, seed: int, summary: Dict) -> Dict:
             'distance_cm': 100 * summary['eval_final_distance'],
             'within_2cm': 100 * summary['eval_reached'],
             'training_s': summary['session_training_seconds'],
+            'cpu_s': sum(u['cpu_seconds_training'] for u in summary['nodes'].values()),
             'total_s': summary['wall_seconds_total']}
 
 
@@ -56,17 +60,18 @@ def table(rows: Sequence[Dict]) -> str:
     Return the rows as a markdown table.
 
     >>> print(table([{'config': 'default', 'seed': 0, 'return': -3.8, 'distance_cm': 0.72,
-    ...               'within_2cm': 96.0, 'training_s': 101.4, 'total_s': 130.2}]))
-    | config | seed | return | final distance cm | within 2 cm | training s | command s |
-    |---|---|---|---|---|---|---|
-    | default | 0 | -3.80 | 0.72 | 96% | 101 | 130 |
+    ...               'within_2cm': 96.0, 'training_s': 101.4, 'cpu_s': 150.3,
+    ...               'total_s': 130.2}]))
+    | config | seed | return | final distance cm | within 2 cm | training s | CPU s | command s |
+    |---|---|---|---|---|---|---|---|
+    | default | 0 | -3.80 | 0.72 | 96% | 101 | 150 | 130 |
     """
-    lines = ['| config | seed | return | final distance cm | within 2 cm | training s | '
-             'command s |', '|---|---|---|---|---|---|---|']
+    lines = ['| config | seed | return | final distance cm | within 2 cm | training s | CPU s | '
+             'command s |', '|---|---|---|---|---|---|---|---|']
     for r in rows:
         lines.append(f"| {r['config']} | {r['seed']} | {r['return']:.2f} | "
                      f"{r['distance_cm']:.2f} | {r['within_2cm']:.0f}% | "
-                     f"{r['training_s']:.0f} | {r['total_s']:.0f} |")
+                     f"{r['training_s']:.0f} | {r['cpu_s']:.0f} | {r['total_s']:.0f} |")
     return '\n'.join(lines)
 
 
@@ -91,7 +96,7 @@ def main(argv=None) -> int:
                 summary = run_graph(root / f'c{k}_s{seed}', args.steps, seed, overrides)
                 rows.append(row_of(label, seed, summary))
                 print(f'{label} seed {seed}: {rows[-1]}', file=sys.stderr, flush=True)
-    print(f'`{" ".join(["bench/bench_reach.py", *sys.argv[1:]])}` at {commit}, '
+    print(f'`{shlex.join(["bench/bench_reach.py", *sys.argv[1:]])}` at {commit}, '
           f'{args.steps:,} steps per run, deterministic evaluation over 100 episodes\n')
     print(table(rows))
     return 0

@@ -308,6 +308,23 @@ def test_bench_presets_table_from_fixed_numbers():
     assert row.endswith('| 9,000, 9,000, 9,000 | 0.0120 (0.02) |'), row
 
 
+def test_bench_reach_row_reads_a_runs_summary_in_cm_and_percent():
+    """bench_reach's row: metres to cm, the reached fraction to %, CPU summed over nodes."""
+    import argparse
+    from bench.bench_reach import parse_config, row_of, table
+    summary = {'eval_return': -3.79, 'eval_final_distance': 0.0072, 'eval_reached': 0.96,
+               'session_training_seconds': 88.4, 'wall_seconds_total': 96.0,
+               'nodes': {'sim_and_actor': {'cpu_seconds_training': 58.7},
+                         'critic_and_learner': {'cpu_seconds_training': 73.5}}}
+    row = row_of('default', 0, summary)
+    assert row['distance_cm'] == pytest.approx(0.72) and row['within_2cm'] == pytest.approx(96)
+    assert row['cpu_s'] == pytest.approx(132.2)
+    assert table([row]).splitlines()[-1] == '| default | 0 | -3.79 | 0.72 | 96% | 88 | 132 | 96 |'
+    assert parse_config('old=gamma=0.9 vf_epochs=1') == ('old', ['gamma=0.9', 'vf_epochs=1'])
+    with pytest.raises(argparse.ArgumentTypeError, match='LABEL=OVERRIDES'):
+        parse_config('gamma')
+
+
 def test_curves_plot_two_panels_with_a_band_per_row(tmp_path, monkeypatch):
     """Algorithms and estimators in two panels; each drawn row a mean line and a std band."""
     import matplotlib

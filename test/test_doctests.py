@@ -8,7 +8,8 @@ MODULES = ['pg_node.rl.rollout', 'pg_node.rl.returns', 'pg_node.rl.baselines', '
            'pg_node.ros.command', 'pg_node.rl.natural_gradient',
            'pg_node.ros.policy_node', 'bench.tax', 'pg_node.tools.hosts',
            'pg_node.tools.train', 'pg_node.tools.play', 'pg_node.rl.actor_sync',
-           'pg_node.rl.critic_batching', 'pg_node.rl.learner_gate', 'pg_node.ros.replay_node']
+           'pg_node.rl.critic_batching', 'pg_node.rl.learner_gate', 'pg_node.ros.replay_node',
+           'bench.bench_reach']
 
 
 @pytest.mark.parametrize('name', MODULES)

@@ -8,6 +8,7 @@ settings: the arm, the seed, the run's bookkeeping and the simulator stay the de
 ``--config`` and the launch file's ``preset:=`` take a preset's name as well as a path.
 """
 from pathlib import Path
+import re
 import subprocess
 import sys
 
@@ -70,6 +71,31 @@ def test_a2c_preset_is_the_default_job():
         table = SHARED_PARAMS if section == SHARED else SCHEMA[node]
         for key, value in values.items():
             assert table[key].default == pytest.approx(value), (section, key)
+
+
+def test_readme_headline_is_the_default_job_and_says_how_close_it_reaches():
+    """
+    The README's first result is of the shipped defaults, and says where the arm ends up.
+
+    Issue 48: a return alone hid a policy that left 9% of episodes within 2 cm. The headline
+    gives the final distance and the share within 2 cm (at least 80%, the issue's bar), and
+    names the critic settings it was measured with, which must be the defaults that ship:
+    change them and the headline has to be measured again.
+    """
+    results = (REPO / 'README.md').read_text().split('## Results', 1)[1]
+    first = results.split('\n- ', 1)[1].split('\n- ', 1)[0]
+    line = ' '.join(first.split())
+    assert line.startswith('**The default job** (`make train`'), line
+    assert re.search(r'return \*\*-\d+\.\d+ \+/- \d+\.\d+\*\*', line), line
+    distance = re.search(r'final distance \*\*(\d+\.\d+) cm\*\*', line)
+    share = re.search(r'\*\*(\d+)%\*\* of (?:the )?episodes within 2 cm', line)
+    assert distance and share, line
+    assert int(share.group(1)) >= 80 and float(distance.group(1)) < 2.0, line
+    critic = defaults('critic_node')
+    for key in ('gamma', 'vf_epochs'):
+        named = re.search(rf'`{key}` (\S+?)[,;)]', line)
+        assert named, f'the headline does not name {key}: {line}'
+        assert yaml.safe_load(named.group(1)) == critic[key], (key, named.group(1))
 
 
 @pytest.mark.parametrize('name', ['ppo', 'npg', 'trpo'])

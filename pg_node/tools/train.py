@@ -17,8 +17,8 @@ policy is evaluated over ``--eval-episodes`` episodes, and ``summary.json`` and
 ``learning_curve.png`` are written next to ``checkpoints/``, ``bag/`` and ``progress.csv``.
 
 ``--config`` takes a parameter file's path or a preset's name: ``--config ppo`` is the
-package's ``config/ppo.yaml`` (tuned PPO), ``--config a2c`` its ``config/a2c.yaml`` (the
-design's A2C, the same values as the default ``config/pg_node.yaml``). A preset names only
+package's ``config/ppo.yaml`` (tuned PPO), ``--config a2c`` its ``config/a2c.yaml`` (A2C
+tuned for reacher2, the same values as the default ``config/pg_node.yaml``). A preset names only
 the values of its algorithm; every other value is the default.
 """
 import argparse
@@ -58,7 +58,7 @@ def parse_args(argv):
                         help='override any parameter (node.key=value for one node only)')
     parser.add_argument('--config', help='ROS 2 parameter file, or the name of a preset in the '
                                          f"package's config/: {', '.join(preset_names())} "
-                                         "(default: config/pg_node.yaml, the design's A2C)")
+                                         '(default: config/pg_node.yaml, A2C)')
     parser.add_argument('--total-steps', type=int, help='environment steps to learn')
     parser.add_argument('--seed', type=int, help='seed of everything')
     parser.add_argument('--run-dir', help='where the run writes everything '
