@@ -37,6 +37,7 @@ setup(
             'learner_node = pg_node.ros.learner_node:main',
             'replay_node = pg_node.ros.replay_node:main',
             'policy_node = pg_node.ros.policy_node:main',
+            'pybullet_node = pg_node.ros.pybullet_node:main',
             'sim_and_actor = pg_node.ros.sim_and_actor:main',
             'critic_and_learner = pg_node.ros.critic_and_learner:main',
             # python -m pg_node as an executable: ros2 run pg_node pg_node train, and the

@@ -9,8 +9,8 @@ default, explained) and the topic remaps that wire it to the robot. Arguments:
   ``.onnx`` with its card); empty (the default): the parameter file's. The launch stops
   with one line when neither gives one;
 - ``params_file``: a copy of ``config/policy_node.yaml`` with your values;
-- ``command_interface`` (``effort``, ``position``), ``command_message`` (``forward``,
-  ``trajectory``) and ``controller_name`` (the controller whose ``joints`` configure
+- ``command_interface`` (``effort``, ``position``, ``velocity``), ``command_message``
+  (``forward``, ``trajectory``) and ``controller_name`` (the controller whose ``joints`` configure
   checks): empty (the default): the parameter file's values;
 - ``commands_topic``, ``trajectory_topic``, ``joint_states_topic``: where the robot's
   controller takes commands and where its joint states are; the node's own names
@@ -98,7 +98,8 @@ def generate_launch_description():
         ('policy', '', 'the policy: a run directory, a ckpt_*.pt file or an exported .onnx '
                        'file (empty: from params_file)'),
         ('params_file', default_params, "policy_node's parameter file"),
-        ('command_interface', '', 'effort (N m) or position (rad) (empty: from params_file)'),
+        ('command_interface', '', 'effort (N m), position (rad) or velocity (rad/s) (empty: '
+                                  'from params_file)'),
         ('command_message', '', 'forward (Float64MultiArray) or trajectory (JointTrajectory) '
                                 '(empty: from params_file)'),
         ('controller_name', '', 'the controller whose joints parameter configure checks, '

@@ -26,3 +26,5 @@ def record(gain, b1, b2, gear, affine=(True, True)) -> Actuators:
 REACHER2 = record(gain=1.0, b1=0.0, b2=0.0, gear=200.0)
 #: reacher2 with position servos (test_safety.POSITION_XML): u is the angle 3 u rad
 POSITION_SERVOS = record(gain=150.0, b1=-50.0, b2=-5.0, gear=1.0)
+#: reacher2 with velocity servos (kv 10): u is the speed 2 u rad/s
+VELOCITY_SERVOS = record(gain=20.0, b1=0.0, b2=-10.0, gear=1.0)

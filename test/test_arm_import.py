@@ -21,6 +21,8 @@ import mujoco
 import numpy as np
 from pg_node.common.params import load_config
 from pg_node.common.paths import resolve_model
+from pg_node.control.interfaces import card
+from pg_node.sim.actuation import actuators
 from pg_node.sim.arm_task import ArmTask
 from pg_node.sim.urdf_import import (import_urdf, ImportOptions, read_urdf, resolve_mesh,
                                      training_settings, UrdfImportError)
@@ -881,3 +883,34 @@ def test_torque_defaults_of_vendor_arms_are_stable_or_said_not_to_be(
     dofs = model.jnt_dofadr[model.actuator_trnid[:, 0]]
     np.testing.assert_allclose(model.dof_damping[dofs], urdf_damping)
     assert model.opt.timestep == 0.002
+
+
+def test_velocity_servos_take_the_urdf_velocity_limits(tmp_path, capsys):
+    """--actuator velocity: u is u x the URDF velocity limit (rad/s), gain effort / limit."""
+    out = tmp_path / 'vel.xml'
+    code, stdout, err = run_import(capsys, TWO_LINK, '--tip', 'fingertip', '--actuator',
+                                   'velocity', '--armature', 0.1, '-o', out)
+    assert code == 0 and not err, err
+    assert 'velocity actuators' in stdout and "the URDF's damping (no velocity" in stdout
+    model = mujoco.MjModel.from_xml_path(str(out))
+    act = actuators(model)
+    assert list(act.kind) == ['velocity', 'velocity']
+    assert card(act) == {'velocity': {'unit': 'rad/s', 'low': [-10.0, -10.0],
+                                      'high': [10.0, 10.0]}}
+    np.testing.assert_allclose(model.actuator_biasprm[:, 2], -200.0 / 10.0)
+    data = mujoco.MjData(model)
+    data.ctrl[:] = 0.5                      # 5 rad/s, less the URDF damping's share
+    for _ in range(10):                     # 0.2 s: joint1 stays inside its +-3 rad
+        mujoco.mj_step(model, data)
+    np.testing.assert_allclose(data.qvel[:2], 5.0 * 20.0 / 21.0, rtol=0.02)
+    # the light links without armature chatter under the clamped force: warned of
+    code, _, err = run_import(capsys, TWO_LINK, '--tip', 'fingertip', '--actuator',
+                              'velocity', '-o', out)
+    assert code == 0 and 'faster than 3 times its velocity limit' in err
+    # a joint without a velocity limit is refused in one line
+    urdf = tmp_path / 'no_limit.urdf'
+    urdf.write_text(TWO_LINK.read_text().replace('velocity="10"', 'velocity="0"'))
+    code, _, err = run_import(capsys, urdf, '--tip', 'fingertip', '--actuator', 'velocity',
+                              '-o', out)
+    assert code == 1 and '--actuator velocity needs a <limit velocity>' in err
+    assert len(err.strip().splitlines()) == 1

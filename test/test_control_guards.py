@@ -251,7 +251,8 @@ def test_events_that_warn_and_the_diagnostics_level():
     assert all(e.warning for e in GuardEvent if e.severity is Severity.WARN)
     # appended, never renumbered: a record's guards bits number them in this order
     assert [e.key for e in GuardEvent] == ['nonfinite', 'clipped', 'ramped', 'rate_limited',
-                                           'joint_limit', 'over_speed', 'position_delta']
+                                           'joint_limit', 'over_speed', 'position_delta',
+                                           'acceleration_limited']
     assert diagnostic_level(NodeState.COMMANDING) is Severity.OK
     # commanding degraded (no subscriber on the command topic, the controller's joints
     # unread: issue 44) is WARN; the ERROR faults (stale, e-stop) stop commanding

@@ -46,8 +46,8 @@ def test_kinds_card_and_refusals_in_one_line():
         'position)')
     assert 'needs motor actuators' in check(POSITION_SERVOS, 'effort')
     assert 'use command_interface position' in check(POSITION_SERVOS, 'effort')
-    assert check(REACHER2, 'velocity') == ("unknown command interface 'velocity' (choose one "
-                                           'of effort, position)')
+    assert check(REACHER2, 'acceleration') == ("unknown command interface 'acceleration' "
+                                               '(choose one of effort, position, velocity)')
     other = replace(REACHER2, affine=np.array([True, False]))
     assert other.kind.tolist() == ['motor', 'other'] and card(other) == {}
     assert 'joint1 (other)' in check(other, 'effort')

@@ -166,6 +166,9 @@ SHIPPED = {
     'forward_effort.yaml': ('effort_controllers/JointGroupEffortController', 'effort'),
     'forward_position.yaml': ('position_controllers/JointGroupPositionController',
                               'position'),
+    'jtc_velocity.yaml': ('joint_trajectory_controller/JointTrajectoryController', 'velocity'),
+    'forward_velocity.yaml': ('velocity_controllers/JointGroupVelocityController',
+                              'velocity'),
 }
 
 
@@ -195,8 +198,16 @@ def test_controller_yaml_is_complete_and_keeps_the_rules(name):
     assert section['cmd_timeout'] > section['constraints']['goal_time']
     assert section['cmd_timeout'] > 0
     for flag, default in FLAGS.items():                 # the flags it relies on, said
-        assert section[flag] is default
-    if interface == 'effort':
+        assert section[flag] is jtc.SHIPPED_FLAGS.get(interface, {}).get(flag, default)
+    if interface == 'velocity':
+        # the PID adapter sends velocity x ff_velocity_scale + PID (jtc.cpp:412-425): the
+        # speed passes through with scale 1 and zero gains; the default 0 would send 0
+        assert section['open_loop_control'] is False
+        assert list(section['gains']) == joints
+        for gains in section['gains'].values():
+            assert all(gains[k] == 0.0 for k in ('p', 'i', 'd'))
+            assert gains['ff_velocity_scale'] == 1.0
+    elif interface == 'effort':
         # zero gains: the point's effort passes through (jtc.cpp:416-426)
         assert list(section['gains']) == joints
         for gains in section['gains'].values():
@@ -259,8 +270,8 @@ def test_what_jtc_passes_unchecked_the_stand_in_refuses():
     assert 'non-finite' in follower.receive(msg({'positions': [0, 0],
                                                  'effort': [np.inf, 1.0]}), 0.0)
     assert follower.points is None
-    with pytest.raises(ValueError, match="no JTC stand-in for command interface 'velocity'"):
-        JtcFollower(J, 'velocity', cmd_timeout=0.2)
+    with pytest.raises(ValueError, match="no JTC stand-in for command interface 'accel"):
+        JtcFollower(J, 'acceleration', cmd_timeout=0.2)
 
 
 def test_points_take_effect_at_their_time_and_the_timeout_counts_from_the_last():
@@ -272,3 +283,17 @@ def test_points_take_effect_at_their_time_and_the_timeout_counts_from_the_last()
     np.testing.assert_array_equal(follower.command(0.2, np.zeros(2)), [1.0, 1.0])
     np.testing.assert_array_equal(follower.command(0.69, np.zeros(2)), [2.0, 2.0])
     np.testing.assert_array_equal(follower.command(0.71, np.zeros(2)), [0.0, 0.0])
+
+
+def test_velocity_is_applied_at_once_held_then_zero_after_cmd_timeout():
+    """The velocity JTC: the point's speeds pass through, 0 rad/s after cmd_timeout."""
+    follower = JtcFollower(J, 'velocity', cmd_timeout=0.2,
+                           flags=jtc.SHIPPED_FLAGS['velocity'])
+    moving = msg({'positions': [0.1, 0.2], 'velocities': [0.5, -0.3]})
+    assert follower.receive(moving, 0.0) is None
+    np.testing.assert_array_equal(follower.command(0.1, np.zeros(2)), [0.5, -0.3])
+    np.testing.assert_array_equal(follower.command(0.3, np.ones(2)), [0.0, 0.0])
+    assert follower.timeouts == 1
+    # with Jazzy's default flags the same message is refused (rule 5)
+    assert JtcFollower(J, 'velocity', cmd_timeout=0.2).receive(moving, 0.0).startswith(
+        'rule 5:')

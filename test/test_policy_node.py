@@ -684,7 +684,7 @@ def test_bad_policy_parameter_is_one_line(tmp_path):
                           ([], 'is required'),
                           (['-p', 'control_rate:=-1.0'], 'control_rate'),
                           (['-p', 'smoothing:=1.5'], "'policy_node.smoothing'"),
-                          (['-p', 'command_interface:=velocity'], 'command_interface')):
+                          (['-p', 'command_interface:=acceleration'], 'command_interface')):
         res = subprocess.run([sys.executable, '-m', 'pg_node.ros.policy_node', '--ros-args',
                               '-p', 'autostart:=true', *params],
                              env=processes.child_env(DOMAIN_ID), capture_output=True, text=True,
@@ -1420,3 +1420,59 @@ def test_configure_warns_in_one_line_when_the_settings_contradict_the_cards_phys
     assert ("the parameters contradict the policy card's physics: control_rate 100 Hz, the "
             'policy was trained at 50 Hz (control period 0.02 s); gravity_compensation '
             'robot, the policy was trained with no gravity compensation') in said[0]
+
+
+def test_markers_show_the_clamped_goal_and_the_fingertip_coloured_by_the_hold(
+        tmp_path, client, trained):
+    """
+    ``~/markers``: the goal the policy acts on, clamped onto the reach, and the fingertip.
+
+    The fingertip sits where the policy's model puts it for the joint state sent, green
+    while the node commands; with no fresh joint state it holds, and the fingertip turns
+    orange (:data:`pg_node.ros.policy_markers.COLOURS`).
+    """
+    from pg_node.control.status import NodeState
+    from pg_node.ros.policy_markers import COLOURS
+    from visualization_msgs.msg import MarkerArray
+    markers = []
+
+    def on_markers(msg):
+        with client.lock:
+            markers.append(msg)
+    client.node.create_subscription(MarkerArray, '/policy_node/markers', on_markers, 10)
+
+    def tip_colour():
+        with client.lock:
+            last = markers[-1].markers if markers else []
+        tips = [m for m in last if m.id == 1]
+        return tuple(round(v, 3) for v in (tips[0].color.r, tips[0].color.g, tips[0].color.b,
+                                           tips[0].color.a)) if tips else None
+
+    pol = start_policy(tmp_path, f'policy:={trained["onnx"]}', 'state_timeout:=0.3',
+                       'marker_rate:=20.0')
+    q, qd = np.array([0.3, -1.2]), np.zeros(2)
+    try:
+        client.feed_while_loading(q=q, qd=qd)
+        client.send_target('base_link', [5.0, 5.0, 0.01])
+        feed_until_commanded(client, q, qd)
+        deadline = time.monotonic() + 10.0
+        while tip_colour() != COLOURS[NodeState.COMMANDING]:
+            assert time.monotonic() < deadline, f'no green fingertip: {tip_colour()}'
+            client.send_state(PLAIN, q, qd)
+            time.sleep(0.02)
+        with client.lock:
+            goal, tip = sorted(markers[-1].markers, key=lambda m: m.id)
+        client.wait(lambda: tip_colour() == COLOURS[NodeState.STALE], timeout=10.0,
+                    what='an orange fingertip (hold on stale joint states)')
+    finally:
+        code, log = processes.stop_logged(pol)
+    assert code == 0, log[-2000:]
+    builder = ObservationBuilder(mujoco.MjModel.from_xml_string(
+        trained['policy'].card['model_xml']))
+    base, reach = builder.reach()
+    far = np.array([5.0, 5.0, 0.01])
+    want_goal = base + (far - base) * reach / np.linalg.norm(far - base)
+    for marker, want in ((goal, want_goal), (tip, builder.fingertips(q[None])[0])):
+        assert marker.header.frame_id == 'base_link' and marker.ns == 'arm0'
+        np.testing.assert_allclose([marker.pose.position.x, marker.pose.position.y,
+                                    marker.pose.position.z], want, atol=1e-9)

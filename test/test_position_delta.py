@@ -124,3 +124,71 @@ def test_the_card_records_the_delta(tmp_path, capsys):
     code, out, _, _ = import_arm(tmp_path, capsys)
     assert 'max_position_delta' not in make_card(str(out), 12, 2, 2, {})[
         'command_interfaces']['position']
+
+
+@pytest.mark.e2e
+def test_policy_node_commands_changes_around_the_measured_angle(tmp_path):
+    """
+    A relative card through policy_node against sim_node (position interface), a few s.
+
+    Sampled actions (std about 1 after one update) ask for big changes; policy_node's record
+    shows joint1's commands within the card's 0.1 rad of the angle they were computed from
+    (read back from the observation's cos q, sin q), and every command within the servos'
+    range.
+    """
+    import sys
+    import time
+    from domains import ros_domain
+    from mcap_ros2.reader import read_ros2_messages
+    from pg_node.common.params import load_config
+    from pg_node.rl.train_inprocess import train_inprocess
+    from pg_node.ros.policy_node import tick_from_msg
+    from pg_node.tools import processes
+    from test_interface_training import RELATIVE_XML
+    domain = ros_domain(base=170, spread=20)
+    model = tmp_path / 'reacher2_relative.xml'
+    model.write_text(RELATIVE_XML)
+    cfg = load_config(None, [f'model={model}', 'num_envs=4', 'n_steps=8', 'seed=0'])
+    train_inprocess(cfg, 32, eval_episodes=1)['learner'].save(tmp_path / 'checkpoints')
+
+    def start(module, *params):
+        args = [sys.executable, '-m', module, '--ros-args']
+        for param in params:
+            args += ['-p', param]
+        return processes.start_logged(args, tmp_path / f'{module}.log',
+                                      processes.child_env(domain))
+    sim = start('pg_node.ros.sim_node', 'mode:=real_time', 'command_interface:=position',
+                f'model:={model}', 'num_envs:=1', 'seed:=3')
+    pol = start('pg_node.ros.policy_node', f'policy:={tmp_path}', 'autostart:=true',
+                'use_sim_time:=true', 'controller_timeout:=0.0', 'command_interface:=position',
+                'ramp_time:=0.0', 'deterministic:=false', 'max_change:=1.0',
+                f'record:={tmp_path / "ticks"}')
+    try:
+        deadline = time.monotonic() + 90
+        while 'commanding' not in (tmp_path / 'pg_node.ros.policy_node.log').read_text() \
+                and time.monotonic() < deadline and pol.poll() is None:
+            time.sleep(0.2)
+        time.sleep(2.0)
+    finally:
+        code, log = processes.stop_logged(pol)
+        processes.stop_logged(sim)
+    assert code == 0, log[-2000:]
+    assert 'changes of at most 0.1, 0.1 rad per step around the measured angles' in log
+    ticks = [tick_from_msg(m.ros_msg) for m in read_ros2_messages(
+        str(next((tmp_path / 'ticks').glob('*.mcap'))))]
+    moved, sent = [], []
+    for _, fields in ticks:
+        obs = fields['observation'][0]
+        sent.append(fields['command_si'][0])
+        if np.isnan(obs).any():
+            continue                                # a hold tick
+        # joint1 ([-3, 3], the servo's range; joint0 is unlimited, its angle read back from
+        # cos and sin only modulo 2 pi), where the margin guard leaves its target alone
+        q = np.arctan2(obs[3], obs[1])              # reacher2: [cos q, sin q, ...]
+        if abs(q) < 2.9:
+            moved.append(fields['command_si'][0][1] - q)
+    moved = np.abs(np.array(moved))
+    assert len(moved) >= 20, len(ticks)
+    assert moved.max() <= 0.1 + 1e-6
+    assert moved.max() > 0.05                       # changes of the bound's size were asked
+    assert np.abs(np.array(sent)).max() <= 3.0     # never beyond the servos' range

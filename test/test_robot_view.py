@@ -3,7 +3,8 @@ What ROS tools see of sim_node: robot_description and joint states they can take
 
 ``robot_description`` is latched (a subscriber that joins late gets it) and has the model's
 kinematics; ``arm<i>/joint_states`` carries arm ``i``'s row of ``/joint_states`` with the
-plain joint names of that description; one arm's ``/joint_states`` has plain names too.
+plain joint names of that description; one arm's ``/joint_states`` has plain names too;
+``pg_node/scene`` draws the ``view_arms`` in the fixed frame.
 """
 import mujoco
 import numpy as np
@@ -14,6 +15,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from test_sim_node import Client, start_node, stop_node
+from visualization_msgs.msg import MarkerArray
 
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -31,7 +33,11 @@ def test_description_and_per_arm_joint_states(tmp_path):
         description = []        # joins after the node published it: latched
         client.node.create_subscription(String, '/robot_description', description.append,
                                         LATCHED)
-        client.spin_until(lambda: description and per_arm[0] and per_arm[2])
+        scene = []
+        client.node.create_subscription(MarkerArray, '/pg_node/scene', scene.append, 10)
+        client.spin_until(lambda: description and per_arm[0] and per_arm[2] and scene)
+        assert {m.ns for m in scene[-1].markers} == {'arm0', 'arm2'}
+        assert {m.header.frame_id for m in scene[-1].markers} == {'world'}
         model = mujoco.MjModel.from_xml_path(str(resolve_model('reacher2')))
         assert compare_kinematics(model, description[0].data, tolerance=1e-6) is None
         client.step([0.3, -0.2] * 3)

@@ -296,18 +296,18 @@ SIM_PARAMS: Dict[str, Param] = {
                                'clock', choices=('lock_step', 'real_time')),
     'command_interface': Param('control', 'what pg_node/commands carries: control (the '
                                           "policy's units, what the actor sends), or as a "
-                                          "robot's controller takes them: effort (N m) or "
-                                          'position (rad)',
-                               choices=('control', 'effort', 'position')),
+                                          "robot's controller takes them: effort (N m), "
+                                          'position (rad) or velocity (rad/s)',
+                               choices=('control', 'effort', 'position', 'velocity')),
     'lock_step_timeout': Param(1.0, 'seconds without a command before the last transition '
                                     'is re-sent (lock_step)', **POSITIVE, live=True),
     'command_timeout': Param(0.5, 'seconds after which a held command drops to zero torque '
                                   '(real_time)', **POSITIVE, live=True),
-    'jtc_cmd_timeout': Param(0.2, 'real_time, command_interface effort or position: the '
-                                  'cmd_timeout of the joint trajectory controller the node '
-                                  'stands in for on arm_controller/joint_trajectory (s after '
-                                  'the last point before its hold: zero effort, or the '
-                                  'positions measured then)', **POSITIVE),
+    'jtc_cmd_timeout': Param(0.2, 'real_time, command_interface effort, position or velocity: '
+                                  'the cmd_timeout of the joint trajectory controller the '
+                                  'node stands in for on arm_controller/joint_trajectory (s '
+                                  'after the last point before its hold: zero effort, the '
+                                  'positions measured then, or zero velocity)', **POSITIVE),
     'real_time_factor': Param(1.0, 'simulated seconds per wall second (real_time)', **POSITIVE,
                               live=True),
     'start_paused': Param(False, 'start paused (step with ~/step_simulation)'),
@@ -358,8 +358,9 @@ POLICY_PARAMS: Dict[str, Param] = {
     'autostart': Param(False, 'configure and activate at start (what play does); false: a '
                               'managed node that waits for its lifecycle transitions'),
     'command_interface': Param('effort', 'what the commands are: joint efforts in N m (motor '
-                                         'actuators) or joint positions in rad (position '
-                                         'actuators)', choices=('effort', 'position')),
+                                         'actuators), joint positions in rad (position '
+                                         'actuators) or joint velocities in rad/s (velocity '
+                                         'actuators)', choices=('effort', 'position', 'velocity')),
     'ramp_time': Param(0.5, 'seconds over which commands ramp in from the hold command after '
                             'every hold (activation, stale states, an e-stop reset, '
                             'over-speed; 0: at once)', low=0.0, live=True),
@@ -406,6 +407,11 @@ POLICY_PARAMS: Dict[str, Param] = {
                                      '--position-delta commands changes around the measured '
                                      'angle, at most that per control step), none for a '
                                      'policy with absolute targets', low=0.0, live=True),
+    'max_acceleration': Param(0.0, 'rad/s^2: velocity interface: the commanded speed changes by '
+                                   'at most this per second (holds and ramps included); 0: '
+                                   "half of each joint's torque over its largest inertia in "
+                                   'the model. The value taken is in /diagnostics '
+                                   '(max_acceleration_taken)', low=0.0, live=True),
     'command_message': Param('trajectory', 'trajectory: each command as a one-point '
                                            'trajectory_msgs/JointTrajectory on '
                                            'arm_controller/joint_trajectory (a joint '
@@ -419,6 +425,13 @@ POLICY_PARAMS: Dict[str, Param] = {
                              choices=('trajectory', 'forward')),
     'base_frame': Param('base_link', "frame_id of targets in the arm's base frame (an empty "
                                      'frame_id is taken as this one too)'),
+    'marker_rate': Param(10.0, '~/markers (the goal the policy acts on, the fingertip coloured '
+                               'by the state: commanding, hold, e-stop, waiting) rate in Hz of '
+                               'wall time while it has a subscriber; 0 turns it off', low=0.0,
+                         live=True),
+    'marker_frame': Param('', 'frame of ~/markers; empty: base_frame for one arm (plain joint '
+                              "names), arm<i> for several (sim_node's frames); with sim_node "
+                              'in RViz: world'),
     'record': Param('', 'bag directory to record every control tick into (MCAP; empty: none)'),
     'configure_timeout': Param(10.0, 'seconds configure waits for the first joint_states (and '
                                      'robot_description when require_robot_description), '
@@ -445,6 +458,26 @@ POLICY_PARAMS: Dict[str, Param] = {
                                       'Configure warns in one line where it, control_rate or '
                                       "an effort interface contradicts the policy card's "
                                       'physics', choices=('', 'robot', 'policy')),
+}
+
+#: pybullet_node: the robot's stand-in on PyBullet (issue 45; not part of the training graph)
+PYBULLET_PARAMS: Dict[str, Param] = {
+    'model': SHARED_PARAMS['model'],
+    'seed': Param(0, 'seed of the episodes: starts and goals drawn as sim_node draws them'),
+    'urdf': Param('', "the robot's URDF as shipped (empty: the one arm import made the model "
+                      'from, named in its pg_import_command)'),
+    'package_path': Param('', 'a folder package:// meshes are looked up in, after '
+                              'AMENT_PREFIX_PATH (empty: none)'),
+    'frame_skip': Param(2, "the control period is frame_skip x the model's timestep", low=1),
+    'max_episode_steps': Param(50, 'control steps after which a new episode starts', low=1),
+    'command_interface': Param('effort', 'what the controllers take: effort (N m) or position '
+                                         '(rad)', choices=('effort', 'position')),
+    'gravity_compensation': Param(True, "the robot cancels the arm's weight (a torque robot's "
+                                        'firmware does); false: the commands must hold it'),
+    'jtc_cmd_timeout': Param(0.2, 'the cmd_timeout of the joint trajectory controller on '
+                                  'arm_controller/joint_trajectory (s after the last point '
+                                  'before its hold)', **POSITIVE),
+    'real_time_factor': Param(1.0, 'simulated seconds per wall second', **POSITIVE),
 }
 
 SCHEMA: Dict[str, Dict[str, Param]] = {

@@ -20,11 +20,14 @@ The point's fields per command interface are :data:`POINT_FIELDS`, one row per i
   would make the command NaN. Velocities stay empty: Jazzy rejects a last point with a
   non-zero velocity (rule 5, ``allow_nonzero_velocity_at_trajectory_end`` false,
   jtc.cpp:1717-1730), and an empty field is a desired velocity of 0;
-* ``position``: ``positions`` = the commanded angles, nothing else.
-
-A velocity interface would be one more row, ``(('positions', MEASURED), ('velocities',
-COMMAND))``, with ``allow_nonzero_velocity_at_trajectory_end: true`` and
-``ff_velocity_scale: 1.0`` in its controller (without the latter JTC sends 0 velocity).
+* ``position``: ``positions`` = the commanded angles, nothing else;
+* ``velocity``: ``velocities`` = the speeds, ``positions`` = the measured angles (required,
+  rule 8). JTC on a velocity command interface alone runs its PID adapter (jtc.cpp:890-895)
+  and sends ``velocity * ff_velocity_scale + PID(position error, velocity error)``
+  (jtc.cpp:412-425, 434-439); ``config/controllers/jtc_velocity.yaml`` sets
+  ``ff_velocity_scale: 1.0`` (its default 0.0 would send 0, params.yaml:174-178) and zero
+  gains, so the speed passes through; and ``allow_nonzero_velocity_at_trajectory_end:
+  true``, without which rule 5 rejects every command that moves.
 The forward controllers' ``Float64MultiArray`` is :func:`pg_node.ros.command.to_msg`.
 """
 from typing import Dict, List, Tuple
@@ -39,6 +42,7 @@ COMMAND, MEASURED = 'command', 'measured'
 POINT_FIELDS: Dict[str, Tuple[Tuple[str, str], ...]] = {
     'effort': (('positions', MEASURED), ('effort', COMMAND)),
     'position': (('positions', COMMAND),),
+    'velocity': (('positions', MEASURED), ('velocities', COMMAND)),
 }
 
 

@@ -20,9 +20,14 @@ its own, acting in this order, per arm:
    ``u = s * previous + (1 - s) * u`` with ``s = smoothing`` (0: off);
 4. **rate limit** (:meth:`CommandGuard.rate_limit`): each actuator changes by at most
    ``max_change`` of its control range per tick;
+4b. **acceleration** (:meth:`CommandGuard.accelerate`, velocity interface): the commanded
+   speed changes by at most ``max_acceleration`` rad/s^2 (from the model: half the joint's
+   torque over its largest inertia);
 5. **joint limits** (:meth:`CommandGuard.joint_limits`): with the effort interface a joint
    whose braking distance at its speed reaches a limit is braked; with the position
-   interface the target is kept ``joint_limit_margin`` inside the range;
+   interface the target is kept ``joint_limit_margin`` inside the range; with the velocity
+   interface the speed towards a limit is capped at ``sqrt(2 max_deceleration s)``, ``s``
+   the distance left to the margin;
 5b. **position change** (:meth:`CommandGuard.bound_change`, position interface): each
    target within ``max_position_delta`` rad of the measured angle (0: the card's delta;
    none for a policy with absolute targets);
@@ -57,6 +62,11 @@ compensates gravity floats and coasts on zero torque.
   joint_trajectory_controller/src/joint_trajectory_controller.cpp:2063-2086).
 * position: the last commanded angles, which the guard remembers (what it sent), never the
   measured angles of a stale state; before any command, the measured angles.
+* velocity: a speed of zero (the robot's velocity loop brakes the joint); JTC's hold after
+  ``cmd_timeout`` is zero velocity too (ros2_controllers (jazzy ed360c97d)
+  joint_trajectory_controller.cpp:2063-2086, with the zero PID gains of
+  ``config/controllers/jtc_velocity.yaml``), and JointGroupVelocityController writes 0 on
+  deactivate (velocity_controllers/src/joint_group_velocity_controller.cpp:54-70).
 
 Defaults from the model (:func:`model_limits`): a parameter at 0 takes its value from the
 actuators' record, per actuator, and :meth:`CommandGuard.describe` says which was taken.
@@ -67,7 +77,8 @@ from typing import Dict, Optional, Sequence, Tuple
 import numpy as np
 from pg_node.control import position_delta
 from pg_node.control.interfaces import (Actuators, CommandInterface, HOLD_LAST_COMMAND,
-                                        INTERFACES, LIMIT_INSIDE)
+                                        HOLD_ZERO_VELOCITY, INTERFACES, LIMIT_INSIDE,
+                                        LIMIT_VELOCITY_CAP)
 from pg_node.control.status import GuardEvent
 
 #: the share of the actuator's torque the braking guard plans with (the rest is slack for
@@ -88,6 +99,7 @@ class GuardSettings:
     hold_stiffness: float = 0.0
     max_deceleration: float = 0.0
     max_position_delta: float = 0.0
+    max_acceleration: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -99,6 +111,7 @@ class Limits:
     hold_damping: np.ndarray        # N m s/rad
     max_deceleration: np.ndarray    # rad/s^2
     from_model: Tuple[str, ...]     # the names taken from the model
+    max_acceleration: np.ndarray = None     # rad/s^2 (velocity interface)
 
 
 def effort_limit(act: Actuators, interface: CommandInterface) -> np.ndarray:
@@ -125,7 +138,10 @@ def model_limits(act: Actuators, interface: CommandInterface, settings: GuardSet
     * ``max_change``: effort: ``inertia * max_deceleration`` as a share of the range (a
       step of the braking torque per tick: a switch to braking in a few ticks); position:
       ``max_velocity * period`` as a share of the range (the target never runs ahead of
-      what the joint can follow); at most 1.
+      what the joint can follow); velocity: ``max_acceleration * period``; at most 1;
+    * ``max_acceleration`` (velocity interface): as ``max_deceleration``;
+    * ``max_velocity`` of the velocity interface: the largest speed its range commands
+      (``arm import --actuator velocity``: the URDF's velocity limit).
     """
     tau = effort_limit(act, interface)
     taken = []
@@ -139,16 +155,25 @@ def model_limits(act: Actuators, interface: CommandInterface, settings: GuardSet
 
     with np.errstate(divide='ignore', invalid='ignore'):
         damping = pick('hold_damping', act.damping)
-        velocity = pick('max_velocity', np.where(act.damping > 0, tau / act.damping, np.inf))
-        decel = pick('max_deceleration', BRAKING_SHARE * tau / act.inertia)
         low, high = interface.si_range(act)
+        if interface.limit == LIMIT_VELOCITY_CAP:
+            # a velocity servo's range is the robot's velocity limit (the URDF's)
+            speed = np.maximum(np.abs(low), np.abs(high))
+        else:
+            speed = np.where(act.damping > 0, tau / act.damping, np.inf)
+        velocity = pick('max_velocity', speed)
+        decel = pick('max_deceleration', BRAKING_SHARE * tau / act.inertia)
+        accel = (pick('max_acceleration', BRAKING_SHARE * tau / act.inertia)
+                 if interface.limit == LIMIT_VELOCITY_CAP else np.full(len(act.names), np.inf))
         span = high - low
         if interface.limit == LIMIT_INSIDE:
             share = velocity * period / span
+        elif interface.limit == LIMIT_VELOCITY_CAP:
+            share = accel * period / span
         else:
             share = act.inertia * decel / span
         change = pick('max_change', np.minimum(np.nan_to_num(share, nan=1.0, posinf=1.0), 1.0))
-    return Limits(change, velocity, damping, decel, tuple(taken))
+    return Limits(change, velocity, damping, decel, tuple(taken), accel)
 
 
 class CommandGuard:
@@ -199,7 +224,10 @@ class CommandGuard:
         lim = self.limits()
         out = {}
         for name, unit in (('max_change', 'of the range per tick'), ('max_velocity', 'rad/s'),
-                           ('hold_damping', 'N m s/rad'), ('max_deceleration', 'rad/s^2')):
+                           ('hold_damping', 'N m s/rad'), ('max_deceleration', 'rad/s^2'),
+                           ('max_acceleration', 'rad/s^2')):
+            if name == 'max_acceleration' and self.interface.hold != HOLD_ZERO_VELOCITY:
+                continue
             values = ', '.join(f'{v:.4g}' for v in getattr(lim, name))
             how = 'from the model' if name in lim.from_model else 'parameter'
             out[f'{name}_taken'] = f'{values} {unit} ({how})'
@@ -232,6 +260,9 @@ class CommandGuard:
         (before any) the measured ``q``.
         """
         self._arms(len(q))
+        if self.interface.hold == HOLD_ZERO_VELOCITY:
+            stop = self.interface.from_si(self.act, np.zeros((len(q), len(self.act.names))))
+            return np.clip(stop, self.low, self.high)
         if self.interface.hold == HOLD_LAST_COMMAND:
             last = self.previous if self.previous is not None else self._measured(q)
             return np.where(np.isnan(self.anchor_u), last, self.anchor_u)
@@ -295,6 +326,7 @@ class CommandGuard:
         previous = self.previous
         u = self.smooth(u, previous)
         u = self.rate_limit(u, previous, acted)
+        u = self.accelerate(u, previous, acted)
         u = self.joint_limits(u, q[:, self.cols], qdot[:, self.cols], acted)
         u = self.bound_change(u, q[:, self.cols], acted)
         u = self.over_speed(u, qdot[:, self.cols], hold, acted)
@@ -322,7 +354,9 @@ class CommandGuard:
 
         The bound is the parameter, or at 0 the card's delta (none for absolute targets):
         with it, an old policy's absolute targets (or the ramp from a hold) never ask a
-        joint for more than that change in one tick.
+        joint for more than that change in one tick. The control range still holds: a
+        joint beyond what its servo reaches (an unlimited joint spun past it) gets the
+        range's end.
         """
         if self.interface.limit != LIMIT_INSIDE:
             return u
@@ -334,7 +368,9 @@ class CommandGuard:
         kept = position_delta.bound_change(target, q, bound)
         changed = kept != target
         acted[GuardEvent.POSITION_DELTA] = np.any(changed, axis=1)
-        return np.where(changed, self.interface.from_si(self.act, kept), u)
+        # the range wins: a joint outside what its servo reaches gets the nearest target
+        return np.where(changed, np.clip(self.interface.from_si(self.act, kept), self.low,
+                                         self.high), u)
 
     def clip_range(self, action: np.ndarray, hold: np.ndarray, acted) -> np.ndarray:
         """Step 1: the hold command for a non-finite action, the rest clipped to the range."""
@@ -397,6 +433,8 @@ class CommandGuard:
             kept = np.clip(target, inside_low, inside_high)
             acted[GuardEvent.JOINT_LIMIT] = np.any(kept != target, axis=1)
             return np.where(kept != target, self.interface.from_si(self.act, kept), u)
+        if self.interface.limit == LIMIT_VELOCITY_CAP:
+            return self._velocity_cap(u, q, acted)
         torque = self.interface.to_si(self.act, u)
         lim = self.limits()
         inertia, tau = self.act.inertia, effort_limit(self.act, self.interface)
@@ -413,6 +451,27 @@ class CommandGuard:
         return np.where(changed, np.clip(self.interface.from_si(self.act, kept), self.low,
                                          self.high), u)
 
+    def _velocity_cap(self, u: np.ndarray, q: np.ndarray, acted) -> np.ndarray:
+        """
+        Step 5 (velocity): the speed towards a limit at most ``sqrt(2 a s)``.
+
+        ``s`` is the distance left to ``limit - joint_limit_margin`` and ``a``
+        ``max_deceleration``: the joint can still stop there; zero at the margin and
+        beyond it. A speed away from the limit is never capped. Continuous in ``q``.
+        """
+        margin = self.settings.joint_limit_margin
+        decel = self.limits().max_deceleration
+        with np.errstate(invalid='ignore'):
+            up = np.sqrt(2 * decel * np.maximum(self.q_high - margin - q, 0.0))
+            down = np.sqrt(2 * decel * np.maximum(q - self.q_low - margin, 0.0))
+        v = self.interface.to_si(self.act, u)
+        kept = np.minimum(np.maximum(v, np.nan_to_num(-down, nan=-np.inf)),
+                          np.nan_to_num(up, nan=np.inf))
+        changed = kept != v
+        acted[GuardEvent.JOINT_LIMIT] = np.any(changed, axis=1)
+        return np.where(changed, np.clip(self.interface.from_si(self.act, kept), self.low,
+                                         self.high), u)
+
     def over_speed(self, u: np.ndarray, qdot: np.ndarray, hold: np.ndarray,
                    acted) -> np.ndarray:
         """Step 6: the hold command for an arm with a joint faster than its velocity limit."""
@@ -420,6 +479,26 @@ class CommandGuard:
         u = np.where(fast[:, None], hold, u)
         acted[GuardEvent.OVER_SPEED] = fast
         return u
+
+    def accelerate(self, u: np.ndarray, previous: Optional[np.ndarray], acted) -> np.ndarray:
+        """
+        Step 4b (velocity): the commanded speed changes by at most ``max_acceleration`` per s.
+
+        ``|v - v_previous| <= max_acceleration x period`` rad/s per tick, holds included (the
+        ramp from a hold too; the first command from rest); the joint-limit cap and the
+        over-speed hold act after it.
+        """
+        if self.interface.hold != HOLD_ZERO_VELOCITY:
+            return u
+        step = self.limits().max_acceleration * self.period
+        if previous is None:                    # the first command: from rest
+            previous = self.interface.from_si(self.act, np.zeros_like(u))
+        v, before = self.interface.to_si(self.act, u), self.interface.to_si(self.act, previous)
+        kept = np.clip(v, before - step, before + step)
+        changed = kept != v
+        acted[GuardEvent.ACCELERATION_LIMITED] = np.any(changed, axis=1)
+        return np.where(changed, np.clip(self.interface.from_si(self.act, kept), self.low,
+                                         self.high), u)
 
     def rate_limit(self, u: np.ndarray, previous: Optional[np.ndarray], acted) -> np.ndarray:
         """Step 4: at most ``max_change`` of the control range per tick (holds included)."""

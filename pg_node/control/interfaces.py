@@ -12,9 +12,13 @@ law of MuJoCo's actuators (no activation dynamics)::
   ``effort`` interface;
 * a **position servo** (``b1 = -kp < 0``, as ``arm import --actuator position`` writes, the
   target angle mapped from ``ctrl`` over the joint range): the force vanishes at rest at
-  ``q* = (gain * ctrl + b0) / -b1`` rad, the ``position`` interface.
+  ``q* = (gain * ctrl + b0) / -b1`` rad, the ``position`` interface;
+* a **velocity servo** (``b1 = 0``, ``b2 = -kv < 0``, as ``arm import --actuator velocity``
+  writes, the target speed mapped from ``ctrl`` over the URDF's velocity limits, MuJoCo's
+  ``<velocity>`` actuator): the force vanishes at ``qdot* = (gain * ctrl + b0) / -b2``
+  rad/s, the ``velocity`` interface.
 
-Both maps are affine and invertible, so an interface turns controls into SI commands
+The maps are affine and invertible, so an interface turns controls into SI commands
 (``policy_node``) and SI commands back into controls (``sim_node`` as the robot's stand-in)
 exactly. :data:`INTERFACES` holds one :class:`CommandInterface` per name, with all that
 differs between them (unit, actuator kind, hold, trajectory field, the maps); an arm whose
@@ -60,10 +64,12 @@ class Actuators:
 
     @property
     def kind(self) -> np.ndarray:
-        """Return each actuator's kind: ``motor``, ``position`` (a servo) or ``other``."""
+        """Return each actuator's kind: ``motor``, ``position``, ``velocity`` or ``other``."""
         return np.where(~self.affine, 'other',
                         np.where((self.b1 == 0) & (self.b2 == 0), 'motor',
-                                 np.where(self.b1 < 0, 'position', 'other')))
+                                 np.where(self.b1 < 0, 'position',
+                                          np.where((self.b1 == 0) & (self.b2 < 0), 'velocity',
+                                                   'other'))))
 
     @property
     def zero_effort(self) -> np.ndarray:
@@ -78,10 +84,14 @@ class Actuators:
 #: friction") zero torque lets it float and coast.
 HOLD_DAMPING = 'damping'
 HOLD_LAST_COMMAND = 'last commanded angles'
+#: the velocity interface's hold: a target speed of zero, the servo brakes the joint
+HOLD_ZERO_VELOCITY = 'zero velocity'
 #: what the joint-limit guard does near a limit: brake a joint whose braking distance
 #: reaches the limit, or keep a target angle inside the range
 LIMIT_BRAKING = 'braking distance'
 LIMIT_INSIDE = 'target kept inside'
+#: ... or cap the speed towards a limit so that the joint can still stop before it
+LIMIT_VELOCITY_CAP = 'speed capped by the braking distance'
 
 
 @dataclass(frozen=True)
@@ -90,8 +100,9 @@ class CommandInterface:
     One command interface: what a controller of that name takes, and how controls map to it.
 
     ``actuator``: the actuator kind that has it; ``hold``: the command that stops the arm
-    where it is (:data:`HOLD_DAMPING` or :data:`HOLD_LAST_COMMAND`); ``limit``: the
-    joint-limit guard's rule (:data:`LIMIT_BRAKING` or :data:`LIMIT_INSIDE`);
+    where it is (:data:`HOLD_DAMPING`, :data:`HOLD_LAST_COMMAND` or
+    :data:`HOLD_ZERO_VELOCITY`); ``limit``: the joint-limit guard's rule
+    (:data:`LIMIT_BRAKING`, :data:`LIMIT_INSIDE` or :data:`LIMIT_VELOCITY_CAP`);
     ``trajectory_field``: the ``trajectory_msgs/JointTrajectoryPoint`` field that carries
     it; ``to_si`` and ``from_si``: the maps between controls ``(..., nu)`` and SI commands,
     inverse to each other.
@@ -128,6 +139,14 @@ def _position_from_si(act: Actuators, command) -> np.ndarray:
     return (-act.b1 * np.asarray(command, dtype=float) - act.b0) / act.gain
 
 
+def _velocity_to_si(act: Actuators, ctrl) -> np.ndarray:
+    return (act.gain * np.asarray(ctrl, dtype=float) + act.b0) / -act.b2
+
+
+def _velocity_from_si(act: Actuators, command) -> np.ndarray:
+    return (-act.b2 * np.asarray(command, dtype=float) - act.b0) / act.gain
+
+
 #: the SI command interfaces by name (a new one is one entry here)
 INTERFACES: Dict[str, CommandInterface] = {
     'effort': CommandInterface('effort', 'N m', 'motor', HOLD_DAMPING, LIMIT_BRAKING,
@@ -135,6 +154,9 @@ INTERFACES: Dict[str, CommandInterface] = {
     'position': CommandInterface('position', 'rad', 'position', HOLD_LAST_COMMAND,
                                  LIMIT_INSIDE, 'positions', _position_to_si,
                                  _position_from_si),
+    'velocity': CommandInterface('velocity', 'rad/s', 'velocity', HOLD_ZERO_VELOCITY,
+                                 LIMIT_VELOCITY_CAP, 'velocities', _velocity_to_si,
+                                 _velocity_from_si),
 }
 
 
@@ -146,7 +168,9 @@ def check(act: Actuators, interface: str) -> Optional[str]:
     want = INTERFACES[interface].actuator
     wrong = [f'{n} ({k})' for n, k in zip(act.names, act.kind) if k != want]
     if wrong:
-        other = ' or '.join(name for name in INTERFACES if name != interface)
+        # the interface these actuators take, if they are all of one kind that has one
+        fits = [name for name, i in INTERFACES.items() if {i.actuator} == set(act.kind)]
+        other = fits[0] if fits else ' or '.join(n for n in INTERFACES if n != interface)
         return (f"command_interface {interface} needs {want} actuators; this arm's are "
                 f"{', '.join(wrong[:4])}{', ...' if len(wrong) > 4 else ''} "
                 f'(use command_interface {other}, or an arm imported with '

@@ -238,7 +238,10 @@ def parameter_keys(section: Mapping, joints: Sequence[str], prefix: str = '') ->
 
 
 #: the stand-in's command interfaces: per interface, the point field it writes
-FOLLOWED_FIELD = {'effort': 'effort', 'position': 'positions'}
+FOLLOWED_FIELD = {'effort': 'effort', 'position': 'positions', 'velocity': 'velocities'}
+#: the ``allow_*`` flags each interface's shipped controller sets (config/controllers/
+#: jtc_<interface>.yaml), where they differ from :data:`FLAGS`
+SHIPPED_FLAGS = {'velocity': {'allow_nonzero_velocity_at_trajectory_end': True}}
 
 
 @dataclass
@@ -260,8 +263,9 @@ class JtcFollower:
     * past the last point, the last point is held (trajectory.cpp:208-253), empty efforts
       as 0;
     * ``cmd_timeout`` s after the last point's time, JTC's hold (jtc.cpp:350-369,
-      2063-2086): effort 0, or the positions measured at that moment; held until the next
-      accepted message. A ``cmd_timeout`` not above ``goal_time`` is off (jtc.cpp:1231-1250).
+      2063-2086): effort 0, velocity 0 (with zero gains; ``ff_velocity_scale`` times the hold
+      point's 0), or the positions measured at that moment; held until the next accepted
+      message. A ``cmd_timeout`` not above ``goal_time`` is off (jtc.cpp:1231-1250).
 
     Beyond JTC, the stand-in refuses what JTC would pass on unchecked (no hardware to spare):
     non-finite values (JTC has no check, jtc.cpp:1671-1816) and efforts of another size
@@ -320,8 +324,8 @@ class JtcFollower:
         end = self.points[-1][0]
         if not self.holding and self.timeout_used > 0 and t - end > self.timeout_used:
             # "Aborted due to command timeout": the hold point, now (jtc.cpp:350-369)
-            hold = (np.zeros(len(self.joints)) if self.interface == 'effort'
-                    else np.array(measured, dtype=float))
+            hold = (np.array(measured, dtype=float) if self.interface == 'position'
+                    else np.zeros(len(self.joints)))
             self.points, self.start, self.holding = [(0.0, hold)], now, True
             self.timeouts += 1
             t = 0.0

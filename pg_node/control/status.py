@@ -29,7 +29,7 @@ class GuardEvent(Enum):
     >>> GuardEvent.OVER_SPEED.key, GuardEvent.OVER_SPEED.severity.name
     ('over_speed', 'WARN')
     >>> [e.key for e in GuardEvent if e.severity is Severity.OK]
-    ['clipped', 'ramped', 'rate_limited', 'position_delta']
+    ['clipped', 'ramped', 'rate_limited', 'position_delta', 'acceleration_limited']
     """
 
     NONFINITE = ('nonfinite', Severity.WARN,
@@ -44,6 +44,8 @@ class GuardEvent(Enum):
                   'over-speed guard: a joint is faster than max_velocity, hold command')
     #: appended (the record's ``guards`` bits number the events in this order)
     POSITION_DELTA = ('position_delta', Severity.OK, '')
+    #: the velocity interface's acceleration limit (``max_acceleration``) acted
+    ACCELERATION_LIMITED = ('acceleration_limited', Severity.OK, '')
 
     def __init__(self, key: str, severity: Severity, warning: str):
         self.key, self.severity, self.warning = key, severity, warning

@@ -65,9 +65,8 @@ def target_array(targets: Dict[object, np.ndarray], num_arms: int, plain: bool
     Return the goals ``(arms, 3)``, or the name of an arm without one.
 
     ``targets``: :data:`BASE` or an arm index -> goal; an arm's own goal wins over the base's.
-    One arm with plain joint names takes the base's, else ``arm0``'s: ``sim_node`` names one
-    arm's joints plainly (as its ``robot_description`` does) and stamps its goal ``arm0``, a
-    frame that is then the base's.
+    One arm with plain joint names is arm 0 (``sim_node`` names one arm's joints plainly and
+    sends its goal in ``arm0``).
 
     >>> target_array({'base': np.ones(3), 1: np.zeros(3)}, 2, plain=False).tolist()
     [[1.0, 1.0, 1.0], [0.0, 0.0, 0.0]]
@@ -76,8 +75,7 @@ def target_array(targets: Dict[object, np.ndarray], num_arms: int, plain: bool
     """
     out = np.empty((num_arms, 3))
     for i in range(num_arms):
-        point = (targets.get(BASE, targets.get(0)) if plain
-                 else targets.get(i, targets.get(BASE)))
+        point = targets.get(i, targets.get(BASE))
         if point is None:
             return 'the arm' if plain else f'arm{i}'
         out[i] = point

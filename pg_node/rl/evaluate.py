@@ -23,11 +23,12 @@ REACHED = 0.02
 
 def evaluate_policy(policy, model: str, n_episodes: int = 100, seed: int = 0,
                     max_episode_steps: int = 50,
-                    perturbation: Optional[Mapping] = None) -> Dict[str, float]:
+                    perturbation: Optional[Mapping] = None,
+                    frame_skip: int = 2) -> Dict[str, float]:
     """Run ``n_episodes`` episodes of ``policy.mean_action`` side by side; return statistics."""
     task = ArmTask(resolve_model(model), num_envs=n_episodes,
                    seed=seed + EVAL_SEED_OFFSET, max_episode_steps=max_episode_steps,
-                   randomization=perturbation)
+                   randomization=perturbation, frame_skip=frame_skip)
     try:
         obs = task.reset()
         returns = np.full(n_episodes, np.nan)
@@ -47,3 +48,79 @@ def evaluate_policy(policy, model: str, n_episodes: int = 100, seed: int = 0,
             'eval_final_distance': float(np.mean(final)),
             'eval_reached': float(np.mean(final <= REACHED)),
             'eval_final_distances': final.tolist()}
+
+
+def evaluate_in_pybullet(policy, model: str, urdf, n_episodes: int = 100, seed: int = 0,
+                         max_episode_steps: int = 50, frame_skip: int = 2,
+                         gravity_compensation: Optional[bool] = None,
+                         package_paths=(), max_timestep: Optional[float] = None
+                         ) -> Dict[str, float]:
+    """
+    Run :func:`evaluate_policy`'s episodes with the arm in PyBullet, read from ``urdf``.
+
+    The starts and goals are drawn by the MuJoCo task exactly as :func:`evaluate_policy`
+    draws them (same seeds); each episode then runs in a
+    :class:`pg_node.sim.pybullet_arm.PybulletArm` of the robot's URDF, lock-step: the
+    observation is rebuilt from PyBullet's joint angles and velocities with the model's
+    forward kinematics (:class:`pg_node.sim.observation.ObservationBuilder`, as
+    ``policy_node`` builds it on a robot), ``u = mu(s)`` clipped to the control range is
+    turned into N m (motor actuators) or rad (servos) by the model's actuators
+    (:mod:`pg_node.control.interfaces`) and held for a control period of ``frame_skip`` x
+    the model's timestep. The reward and the distance are the task's, with the fingertip
+    where PyBullet puts it (the tip link's frame plus the model's fingertip offset).
+    ``gravity_compensation``: None follows the model (its links' ``gravcomp``).
+    The result also holds ``pybullet_timestep`` and ``pybullet_warnings``.
+    """
+    from pg_node.control.interfaces import check, INTERFACES
+    from pg_node.sim.actuation import actuators
+    from pg_node.sim.observation import ObservationBuilder
+    from pg_node.sim.pybullet_arm import PybulletArm
+    from pg_node.sim.training_physics import gravity_compensation as who_compensates
+    task = ArmTask(resolve_model(model), num_envs=n_episodes, seed=seed + EVAL_SEED_OFFSET,
+                   max_episode_steps=max_episode_steps, frame_skip=frame_skip)
+    task.reset()
+    q0, qd0, _ = task.joint_state()
+    goals = task.target_pos()
+    task.close()
+    m, s = task.model, task.spec
+    act = actuators(m)
+    interface = 'effort' if check(act, 'effort') is None else 'position'
+    why = check(act, interface)
+    if why:
+        raise ValueError(why)
+    to_si = INTERFACES[interface].to_si
+    if gravity_compensation is None:
+        gravity_compensation = who_compensates(m, s.link_bodies) == 'robot'
+    tip_link = m.body(int(m.site_bodyid[s.fingertip_site])).name
+    tip_offset = m.site_pos[s.fingertip_site].copy()
+    obs_of = ObservationBuilder(m)
+    arm = PybulletArm(urdf, s.joint_names, control_period=task.dt, max_timestep=max_timestep,
+                      gravity_compensation=gravity_compensation, package_paths=package_paths)
+    returns, final = np.empty(n_episodes), np.empty(n_episodes)
+    lo, hi = s.ctrl_low, s.ctrl_high
+    try:
+        with torch.no_grad():
+            for i in range(n_episodes):
+                arm.set_state(q0[i], qd0[i])
+                ret = 0.0
+                for _ in range(max_episode_steps):
+                    q, qd, _ = arm.state()
+                    obs = obs_of(q[None], qd[None], goals[i][None])
+                    u = policy.mean_action(torch.as_tensor(obs, dtype=torch.float32)).numpy()
+                    u = u[0].astype(np.float64)
+                    arm.step(to_si(act, np.clip(u, lo, hi)), mode=interface)
+                    dist = float(np.linalg.norm(arm.link_position(tip_link, tip_offset)
+                                                - goals[i]))
+                    # the task's reward: the unclipped action in the penalty (ArmTask.step)
+                    ret += -task.reward_dist_weight * dist \
+                        - task.reward_control_weight * float(np.square(u).sum())
+                returns[i], final[i] = ret, dist
+        timestep, warnings = arm.timestep, list(arm.warnings)
+    finally:
+        arm.close()
+    return {'eval_return': float(np.mean(returns)), 'eval_return_std': float(np.std(returns)),
+            'eval_episodes': int(n_episodes), 'eval_returns': returns.tolist(),
+            'eval_final_distance': float(np.mean(final)),
+            'eval_reached': float(np.mean(final <= REACHED)),
+            'eval_final_distances': final.tolist(),
+            'pybullet_timestep': timestep, 'pybullet_warnings': warnings}

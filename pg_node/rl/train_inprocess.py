@@ -89,7 +89,8 @@ def train_inprocess(cfg: Dict[str, Dict], total_steps: int,
     wall = time.perf_counter() - t0
     summary = {'total_steps': steps, 'wall_seconds': wall, 'steps_per_second': steps / wall,
                'policy_version': learner.version}
-    summary.update(evaluate_policy(policy, shared['model'], eval_episodes, shared['seed']))
+    summary.update(evaluate_policy(policy, shared['model'], eval_episodes, shared['seed'],
+                                   frame_skip=cfg['sim_node']['frame_skip']))
     summary['learner'] = learner
     summary['critic'] = critic
     return summary

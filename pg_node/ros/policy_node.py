@@ -52,11 +52,14 @@ Published:
 * ``arm_controller/joint_trajectory`` (``trajectory_msgs/JointTrajectory``, the default
   ``command_message:=trajectory``), from a timer at ``control_rate`` Hz of steady time (0:
   one per control step of the policy), in SI units (REP-103), ``command_interface``
-  ``effort`` (N m, from the model's gear: motor actuators) or ``position`` (rad, from the
-  joint range: position actuators), :mod:`pg_node.control.interfaces`: each command as the
+  ``effort`` (N m, from the model's gear: motor actuators), ``position`` (rad, from the
+  joint range: position actuators; a card with ``max_position_delta`` makes the action a
+  change around the measured angle, :mod:`pg_node.control.position_delta`) or
+  ``velocity`` (rad/s: velocity actuators), :mod:`pg_node.control.interfaces`: each command as the
   message Jazzy's joint trajectory controller accepts and applies at once (stamp 0, one
   point at ``time_from_start`` 0; effort: the torques with the measured angles as
-  positions and no velocities; position: the angles alone; :mod:`pg_node.control.composers`,
+  positions and no velocities; position: the angles alone; velocity: the speeds with the
+  measured angles as positions; :mod:`pg_node.control.composers`,
   the controller's rules :mod:`pg_node.control.jtc`). The controller holds each point until
   the next, and ``cmd_timeout`` after the last one its own hold (zero effort, or the angles
   measured then): the stop that holds if this node dies. ``command_message:=forward`` sends
@@ -74,12 +77,16 @@ Published:
   lifecycle and state (commanding, or why not), achieved command rate,
   the age of the joint state each command was computed from (median and p99), stale
   events, e-stops, each guard's acting, dropped states, CPU share, the policy's source and
-  sha256.
+  sha256;
+* ``~/markers`` (``visualization_msgs/MarkerArray``) at ``marker_rate`` Hz while it has a
+  subscriber: the goal the policy acts on (clamped) and the fingertip, coloured by what the
+  node does, holds included (:mod:`pg_node.ros.policy_markers`).
 
 Safety: the **hold** command is an active stop (:mod:`pg_node.control.guards`): with the
 effort interface a damping torque ``-hold_damping x qdot`` (and ``hold_stiffness`` back to
 where the hold began) from the newest joint state at every tick, with the position interface
-the last commanded angles (never a stale measured one). When the newest joint state is older
+the last commanded angles (never a stale measured one), with the velocity interface zero
+velocity. When the newest joint state is older
 than ``state_timeout`` s, since it arrived or by its ``header.stamp`` (the node's clock: give
 ``use_sim_time:=true`` with a simulator; :mod:`pg_node.control.watchdog`), the hold command
 is published at every control tick (never one message only: a forward command controller
@@ -130,6 +137,7 @@ from pg_node.ros import command
 from pg_node.ros import table_msg
 from pg_node.ros.diagnostics import Diagnostics, RateCounter
 from pg_node.ros.parameters import declare_params
+from pg_node.ros.policy_markers import policy_markers
 from pg_node.ros.runtime import params_help, run
 from pg_node.sim.actuation import actuators
 from pg_node.sim.kinematics_check import compare_kinematics
@@ -148,10 +156,12 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, Float64MultiArray, String
 from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+from visualization_msgs.msg import MarkerArray
 
 #: the parameters of :class:`pg_node.control.guards.GuardSettings`
 GUARD_PARAMS = ('smoothing', 'max_change', 'joint_limit_margin', 'max_velocity', 'ramp_time',
-                'hold_damping', 'hold_stiffness', 'max_deceleration', 'max_position_delta')
+                'hold_damping', 'hold_stiffness', 'max_deceleration', 'max_position_delta',
+                'max_acceleration')
 #: /diagnostics levels of the control layer's severities
 LEVELS = {Severity.OK: DiagnosticStatus.OK, Severity.WARN: DiagnosticStatus.WARN,
           Severity.ERROR: DiagnosticStatus.ERROR}
@@ -186,6 +196,7 @@ class PolicyNode(LifecycleNode):
         self.told = set()                   # the warnings given (once each)
         self.lifecycle = 'unconfigured'
         self.policy = self.guard = self.recorder = self.tf_buffer = None
+        self.builder = None
         self.settings = GuardSettings(**{k: p[k] for k in GUARD_PARAMS})
         self.num_arms = p['num_arms']
         self.plain = False
@@ -242,6 +253,10 @@ class PolicyNode(LifecycleNode):
         self.timers_by_param = {
             'control_rate': self.create_timer(1.0, self.on_tick, clock=steady),
             'diagnostics_rate': self.create_timer(1.0, self.publish_diag, clock=steady)}
+        # what it does, for RViz/Foxglove (pg_node.ros.policy_markers)
+        self.pub_markers = self.create_publisher(MarkerArray, '~/markers', 1)
+        self.timers_by_param['marker_rate'] = self.create_timer(1.0, self.publish_markers,
+                                                                clock=steady)
         for name in self.timers_by_param:
             self.on_parameter(name, p[name])
         if p['autostart']:
@@ -269,9 +284,14 @@ class PolicyNode(LifecycleNode):
                 self.guard.period = period      # the braking guard's tick
         elif name == 'diagnostics_rate':
             period = 1.0 / value
+        elif name == 'marker_rate':
+            period = 1.0 / value if value > 0 else None
         else:
             return
         timer = self.timers_by_param[name]
+        if period is None:
+            timer.cancel()
+            return
         timer.timer_period_ns = int(period * 1e9)
         timer.reset()
 
@@ -730,7 +750,7 @@ class PolicyNode(LifecycleNode):
             if status != self.status:
                 self.get_logger().info(f'not commanding: no target yet for {target} (on '
                                        f"topic target, frame_id {self.params['base_frame']!r}"
-                                       f"{'' if self.plain else ' or arm<i>'})")
+                                       f"{' or arm0' if self.plain else ' or arm<i>'})")
             self.set_status(NodeState.WAITING, status)
             return
         if self.watchdog.end():
@@ -748,6 +768,20 @@ class PolicyNode(LifecycleNode):
         self.record(cmd, self.publish(cmd), age, obs, mean, act, acted)
         self.ages.append(time.monotonic() - self.state_time)
         self.set_status(NodeState.COMMANDING, 'commanding')
+
+    def publish_markers(self):
+        """Publish the goals and fingertips (:mod:`pg_node.ros.policy_markers`) if watched."""
+        if self.builder is None or not self.pub_markers.get_subscription_count():
+            return
+        goals = target_array(self.targets, self.num_arms, self.plain)
+        goals = None if isinstance(goals, str) else goals
+        tips = None if self.q is None else self.builder.fingertips(self.q)
+        arms = len(goals) if goals is not None else len(tips) if tips is not None else 0
+        frame = self.params['marker_frame']
+        frames = [frame or (self.params['base_frame'] if self.plain else f'arm{i}')
+                  for i in range(arms)]
+        self.pub_markers.publish(policy_markers(goals, tips, self.state, frames,
+                                                self.get_clock().now().to_msg()))
 
     def set_status(self, state: NodeState, text: str):
         """Note what the node is doing: the state (its level) and the text saying why."""

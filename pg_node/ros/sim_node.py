@@ -33,6 +33,11 @@ Topics published:
   (``LINE_LIST``, ns ``links``), the fingertips and the targets (``SPHERE_LIST``, ns
   ``fingertips`` and ``targets``); arm ``i`` is drawn shifted by its place on a square
   grid with ``marker_spacing`` between arms (frame ``arm<i>`` is ``frame_id`` shifted so);
+* ``/pg_node/scene`` (``visualization_msgs/MarkerArray``) at ``scene_rate`` Hz of wall time
+  while it has a subscriber: each arm of ``view_arms`` as ``robot_description`` draws it
+  (its geoms at their world poses), its goal, fingertip and the fingertip's trail over the
+  last ``trail_length`` control steps of the episode, all in ``frame_id`` with arm ``i``
+  shifted as in ``pg_node/markers`` (:mod:`pg_node.sim.scene`, :mod:`pg_node.ros.scene_msg`);
 * ``/diagnostics`` (``diagnostic_msgs/DiagnosticArray``) at ``diagnostics_rate`` Hz: mode,
   paused, steps, simulated time, steps per second, commands received / dropped (wrong size,
   non-finite, absurd) / clipped / ignored, lock-step timeouts; in lock-step also the round
@@ -42,10 +47,12 @@ Topics published:
 Subscribed: ``pg_node/commands`` (``std_msgs/Float64MultiArray``, as ros2_control's
 forward_command_controller): ``num_envs * n_actuators`` values, arm-major (arm 0's
 actuators in model order, then arm 1's...), in the policy's control units, or with
-``command_interface`` ``effort`` / ``position`` in N m / rad as a robot's controller takes
-them (``policy_node`` sends those; :mod:`pg_node.control.interfaces` maps them back), taken as
-serialised bytes (``raw=True``) and decoded into numpy; bytes that do not decode count as
-a message of another size. A message of another size, with a non-finite value or with an
+``command_interface`` ``effort`` / ``position`` / ``velocity`` in N m / rad / rad/s as a
+robot's controller takes them (``policy_node`` sends those, absolute angles even for a
+policy of relative targets, :mod:`pg_node.control.position_delta`;
+:mod:`pg_node.control.interfaces` maps them back), taken as serialised bytes
+(``raw=True``) and decoded into numpy; bytes that do not decode count as a message of
+another size. A message of another size, with a non-finite value or with an
 absurd one (beyond ``ABSURD_COMMAND``, e.g. 1e300) is dropped, counted and warned about
 (at most once a second); other values outside the actuators' control range are clipped to
 it, counted (``commands_clipped``) and warned about.
@@ -55,8 +62,8 @@ that answers the current transition is accepted (its layout's tag, :mod:`pg_node
 another publisher's, an untagged one or a late duplicate is ignored and counted
 (``commands_ignored``). In real-time mode any valid command is held, tag or not.
 
-In real-time mode with ``command_interface`` ``effort`` or ``position`` (the robot's
-stand-in) it also subscribes ``arm_controller/joint_trajectory``
+In real-time mode with ``command_interface`` ``effort``, ``position`` or ``velocity`` (the
+robot's stand-in) it also subscribes ``arm_controller/joint_trajectory``
 (``trajectory_msgs/JointTrajectory``, what ``policy_node`` sends by default) and follows it
 as Jazzy's joint trajectory controller with zero gains would
 (:class:`pg_node.control.jtc.JtcFollower`): each arm's actuated joints, named as in
@@ -130,8 +137,10 @@ from pg_node.ros import transition
 from pg_node.ros.parameters import declare_params
 from pg_node.ros.run_protocol import EndWithLearner, RANDOMIZATION, RunGuard
 from pg_node.ros.runtime import params_help, run
+from pg_node.ros.scene_msg import scene_markers
 from pg_node.sim.actuation import actuators
 from pg_node.sim.arm_task import arm_groups, ArmTask
+from pg_node.sim.scene import Scene
 from pg_node.sim.urdf_export import robot_description, UrdfExportError
 from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.node import Node
@@ -257,6 +266,10 @@ class SimNode(Node):
         self.pub_transition = self.create_publisher(Float64MultiArray, 'pg_node/transition',
                                                     reliable_latched)
         self.pub_markers = self.create_publisher(MarkerArray, 'pg_node/markers', 1)
+        # the view_arms as robot_description shows them, in frame_id (pg_node.sim.scene)
+        self.scene = Scene(self.task.model, self.view_arms, self.offsets, p['trail_length'])
+        self.scene_watched = False      # the trail is recorded only while someone watches
+        self.pub_scene = self.create_publisher(MarkerArray, 'pg_node/scene', 1)
         self.pub_draws = None
         if self.task.randomizer is not None:
             # every arm's drawn terms when they change (the learner writes them to the bag)
@@ -266,13 +279,14 @@ class SimNode(Node):
         self.pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self.create_subscription(Float64MultiArray, COMMANDS, self.on_command, 10, raw=True)
         self.follower = None
-        if self.mode == 'real_time' and self.interface in ('effort', 'position'):
+        if self.mode == 'real_time' and self.interface in jtc.FOLLOWED_FIELD:
             # the robot's joint trajectory controller (pg_node.control.jtc): its joints are
             # each arm's actuated joints, in actuator order
             self.actuated = [spec.joint_names.index(j) for j in self.actuators.joints]
             self.follower = jtc.JtcFollower(
                 arm_joint_names(self.actuators.joints, n, plain=n == 1),
-                self.interface, p['jtc_cmd_timeout'])
+                self.interface, p['jtc_cmd_timeout'],
+                flags=dict(jtc.SHIPPED_FLAGS.get(self.interface, {})))
             self.create_subscription(JointTrajectory, CONTROLLER_TRAJECTORY,
                                      self.on_trajectory, 10)
         self.create_service(Trigger, '~/reset_world', self.on_reset_world)
@@ -280,6 +294,7 @@ class SimNode(Node):
         self.create_service(Trigger, '~/step_simulation', self.on_step_simulation)
         self.timers_by_param = {
             'marker_rate': self.create_timer(1.0, self.publish_markers),
+            'scene_rate': self.create_timer(1.0, self.publish_scene),
             'diagnostics_rate': self.create_timer(1.0, self.publish_diagnostics)}
         if self.mode == 'real_time':
             self.timers_by_param['real_time_factor'] = self.create_timer(
@@ -308,11 +323,14 @@ class SimNode(Node):
     def on_parameter(self, name: str, value) -> None:
         """Apply a live parameter: the timers' periods and the marker grid follow it."""
         periods = {'marker_rate': lambda v: 1.0 / v if v > 0 else None,
+                   'scene_rate': lambda v: 1.0 / v if v > 0 else None,
                    'diagnostics_rate': lambda v: 1.0 / v,
                    'real_time_factor': lambda v: self.task.dt / v,
                    'lock_step_timeout': lambda v: min(0.1, v / 2)}
         if name == 'marker_spacing':
             self.offsets = self.grid_offsets(value)
+            if hasattr(self, 'scene'):
+                self.scene.offsets = self.offsets
         timer = self.timers_by_param.get(name)
         if timer is not None:
             period = periods[name](value)
@@ -455,8 +473,8 @@ class SimNode(Node):
             self.get_logger().warning(
                 f'{CONTROLLER_TRAJECTORY}: aborted due to command timeout (no '
                 f"trajectory for jtc_cmd_timeout {self.params['jtc_cmd_timeout']:g} s): "
-                + ('zero effort' if self.interface == 'effort' else
-                   'holding the positions measured now'))
+                + {'effort': 'zero effort', 'velocity': 'zero velocity'}.get(
+                    self.interface, 'holding the positions measured now'))
         if si is not None:
             ctrl = interfaces.INTERFACES[self.interface].from_si(
                 self.actuators, si.reshape(self.task.num_envs, -1))
@@ -494,6 +512,8 @@ class SimNode(Node):
         last = g == len(self.groups) - 1
         if last:
             self.counters['steps'] += 1      # a control step: every group has stepped
+            if self.scene_watched:
+                self.scene.record(self.task.datas, self.task.episode_step)
         self.publish_state(g, self.group_transition(g, obs, reward, terminated, truncated,
                                                     info['final_obs']), last)
         self.publish_draws()
@@ -655,6 +675,14 @@ class SimNode(Node):
             marker.points = [Point(x=x, y=y, z=z) for x, y, z in points.tolist()]
             out.markers.append(marker)
         self.pub_markers.publish(out)
+
+    def publish_scene(self):
+        """Publish the view_arms' links, goals and fingertip trails while someone watches."""
+        self.scene_watched = bool(self.pub_scene.get_subscription_count())
+        if self.scene_watched:
+            self.pub_scene.publish(scene_markers(self.scene.views(self.task.datas),
+                                                 sim_stamp(self.sim_time),
+                                                 self.params['frame_id']))
 
     def _marker(self, stamp, ns: str, i: int, kind: int, rgb, size: float) -> Marker:
         """Return a marker with the common fields filled in."""

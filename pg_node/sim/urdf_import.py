@@ -21,7 +21,13 @@ for it and then edits the compiled :class:`mujoco.MjSpec` into pg_node's convent
   models have: ``motor`` applies ``u * effort * effort_scale`` N m (``effort`` is the URDF
   ``<limit effort>``), ``position`` drives the joint to the angle ``u`` maps to linearly
   over the joint's range (``-pi..pi`` for a continuous joint) with stiffness ``kp`` and
-  damping ``kv``, its force clamped to ``effort * effort_scale``.
+  damping ``kv``, its force clamped to ``effort * effort_scale``; ``velocity`` drives the
+  joint at the speed ``u`` maps to linearly over ``+-`` the URDF's ``<limit velocity>``
+  (MuJoCo's velocity servo, ``force = velocity_gain (target - qdot)``, by default
+  ``effort / velocity limit`` per joint), clamped the same. A light link whose clamped
+  force turns its speed around by more than its limit in one step chatters (seen: the
+  test fixture's 1 g links at 200 N m, 200 rad/s for a 10 rad/s limit): the import warns
+  when 2 s of full commands drive a joint past 3 times its velocity limit.
 * **physics the robot has** (the defaults): ``timestep`` 0.02 s, so that pg_node's default
   ``frame_skip`` (2) and ``max_episode_steps`` (50) make a 0.04 s control step and 2 s
   episodes, time for a real arm to reach (:func:`training_settings` gives the overrides
@@ -115,6 +121,9 @@ class ImportOptions:
     actuator: str = 'motor'
     kp: float = 100.0
     kv: float = 10.0
+    #: velocity actuators: N m s/rad, force = gain x (target speed - joint speed); None:
+    #: per joint effort / velocity limit (the effort limit at an error of the whole limit)
+    velocity_gain: Optional[float] = None
     effort_scale: float = 1.0
     gravity_compensation: bool = True
     tip_offset: Tuple[float, float, float] = (0.0, 0.0, 0.0)
@@ -742,8 +751,14 @@ def import_urdf(urdf_path, opts: ImportOptions, out_path=None, command: str = ''
     out = Path(out_path).resolve() if out_path else urdf_dir / default_output(urdf_path, robot)
     base, root, chain, joints = _chain(robot, opts.base, opts.tip)
     arm, coupled = _couplings(chain, joints)
-    if opts.actuator not in ('motor', 'position'):
-        raise UrdfImportError(f'unknown actuator {opts.actuator!r}; use motor or position')
+    if opts.actuator not in ('motor', 'position', 'velocity'):
+        raise UrdfImportError(f'unknown actuator {opts.actuator!r}; use motor, position or '
+                              'velocity')
+    if opts.actuator == 'velocity':
+        slow = [name for name in arm if _velocity_limit(joints[name]) <= 0]
+        if slow:
+            raise UrdfImportError('--actuator velocity needs a <limit velocity> on every arm '
+                                  f'joint; {", ".join(slow)} has none')
     if opts.position_delta is not None and (opts.actuator != 'position'
                                             or not opts.position_delta > 0):
         raise UrdfImportError('--position-delta needs --actuator position and a positive '
@@ -862,6 +877,16 @@ def _build(robot, urdf_path, opts, base, arm, coupled, joints, warnings, command
         act.ctrlrange = [-1.0, 1.0]
         if opts.actuator == 'motor':
             act.gear[0] = efforts[name]
+        elif opts.actuator == 'velocity':
+            # MuJoCo's <velocity>: force = kv (vmax u - qdot), clamped to the effort limit
+            vmax = _velocity_limit(joints[name])
+            kv = opts.velocity_gain or efforts[name] / vmax
+            act.gaintype = mujoco.mjtGain.mjGAIN_FIXED
+            act.biastype = mujoco.mjtBias.mjBIAS_AFFINE
+            act.gainprm[0] = kv * vmax
+            act.biasprm[:3] = [0.0, 0.0, -kv]
+            act.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
+            act.forcerange = [-efforts[name], efforts[name]]
         else:
             # force = kp * (mid + half * u - q) - kv * qdot, clamped to the effort limit
             mid, half = (lo + hi) / 2, (hi - lo) / 2
@@ -920,7 +945,38 @@ def _build(robot, urdf_path, opts, base, arm, coupled, joints, warnings, command
                         f'full-torque commands at timestep {opts.timestep:g} s: give the '
                         "motors' rotor inertia (--armature), a smaller --timestep, or "
                         '--velocity-damping (a damping a robot in torque mode lacks)')
+    if opts.actuator == 'velocity':
+        fast = _overspeed(model, arm, home, opts,
+                          np.array([_velocity_limit(joints[name]) for name in arm]))
+        if fast:
+            warnings.append(f'velocity servos: under 2 s of full commands {fast} faster than 3 '
+                            'times its velocity limit: the clamped servo force chatters on '
+                            "light links; give the motors' rotor inertia (--armature), a "
+                            'smaller --timestep or a smaller --velocity-gain')
     return spec.to_xml(), len(points), fixed, _coupling_error(model, arm, coupled, home, opts)
+
+
+def _overspeed(model: mujoco.MjModel, arm: List[str], home: np.ndarray, opts: ImportOptions,
+               limits: np.ndarray) -> str:
+    """Return the arm joints that bang-bang commands drive past 3x their limit ('' if none)."""
+    frame_skip, steps = training_settings(opts.timestep)
+    data = mujoco.MjData(model)
+    data.qpos[[model.joint(name).qposadr[0] for name in arm]] = home
+    dofs = [model.joint(name).dofadr[0] for name in arm]
+    rng = np.random.default_rng(opts.seed)
+    worst = np.zeros(len(arm))
+    for _ in range(steps):
+        data.ctrl[:] = rng.choice([-1.0, 1.0], model.nu)
+        mujoco.mj_step(model, data, nstep=frame_skip)
+        worst = np.maximum(worst, np.nan_to_num(np.abs(data.qvel[dofs]), nan=np.inf))
+    return ', '.join(f'{name} ({w:.3g} rad/s)' for name, w, v in zip(arm, worst, limits)
+                     if w > 3 * v)
+
+
+def _velocity_limit(joint: ET.Element) -> float:
+    """Return a URDF joint's ``<limit velocity>`` in rad/s (0 when it has none)."""
+    limit = joint.find('limit')
+    return float(limit.get('velocity', 0)) if limit is not None else 0.0
 
 
 def unstable_steps(model: mujoco.MjModel, arm: List[str], home: np.ndarray,

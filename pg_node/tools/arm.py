@@ -48,9 +48,14 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument('--base', help='link the arm starts at (default: the root link); joints '
                                   'above it are fixed')
     p.add_argument('-o', '--output', help='MJCF file to write (default: <robot name>.xml)')
-    p.add_argument('--actuator', choices=('motor', 'position'), default='motor',
+    p.add_argument('--actuator', choices=('motor', 'position', 'velocity'), default='motor',
                    help='motor: torque u * effort; position: target angle mapped from u over '
-                        'the joint range (default: %(default)s)')
+                        'the joint range; velocity: target speed u * the URDF velocity limit '
+                        '(default: %(default)s)')
+    p.add_argument('--velocity-gain', type=positive_float,
+                   help='velocity actuators: N m s/rad, force = gain x (target speed - joint '
+                        'speed), clamped to the effort limit (default: per joint effort / '
+                        'velocity limit)')
     p.add_argument('--kp', type=positive_float, default=100.0,
                    help='position actuators: stiffness in N m/rad (default: %(default)s)')
     p.add_argument('--kv', type=positive_float, default=10.0,
@@ -108,6 +113,7 @@ def options(args):
     from pg_node.sim.urdf_import import ImportOptions
     return ImportOptions(
         tip=args.tip, base=args.base, actuator=args.actuator, kp=args.kp, kv=args.kv,
+        velocity_gain=args.velocity_gain,
         effort_scale=args.effort_scale, gravity_compensation=args.gravity_compensation,
         tip_offset=tuple(args.tip_offset), package_paths=args.package_path,
         visual_meshes=not args.no_visual_meshes, contacts=args.contacts,

@@ -10,6 +10,11 @@ policy was trained on, and an unreadable file are refused in one line.
 episode: ``mass_scale=1.3 gear_scale=0.8 damping_scale=2 latency_steps=2 obs_noise=0.02``
 (the keys of :func:`pg_node.common.perturbations.parse_perturbation`). The episodes are the
 nominal evaluation's, so the two reports compare episode for episode.
+
+``--engine pybullet`` runs the same episodes with the arm in PyBullet, loaded from the
+robot's own URDF (``--urdf``, default: the one ``arm import`` made the model from, named in
+its ``pg_import_command``), as :func:`pg_node.rl.evaluate.evaluate_in_pybullet` describes
+(docs/sim_to_sim.md); ``--perturb`` does not apply there.
 """
 import argparse
 import json
@@ -35,6 +40,11 @@ def main(argv=None) -> int:
                              'frictionloss_scale, armature_scale, gear_scale (or _add, _abs), '
                              'latency_steps, obs_noise, vel_noise, action_noise, target_noise; '
                              'e.g. mass_scale=1.3 latency_steps=2')
+    parser.add_argument('--engine', choices=('mujoco', 'pybullet'), default='mujoco',
+                        help='the physics engine: MuJoCo on the model, or PyBullet on the '
+                             'URDF of the robot (default: %(default)s)')
+    parser.add_argument('--urdf', help='with --engine pybullet: the URDF of the robot '
+                                       '(default: the one the model was imported from)')
     parser.add_argument('--json', action='store_true', help='print JSON')
     args = parser.parse_args(argv)
     if not os.path.exists(args.checkpoint):  # answered before torch is imported
@@ -49,8 +59,12 @@ def main(argv=None) -> int:
     except BadTerm as exc:
         print(f'eval: {exc}', file=sys.stderr)
         return 2
+    if args.engine == 'pybullet' and args.perturb:
+        print('eval: --perturb is for --engine mujoco; PyBullet is the other arm',
+              file=sys.stderr)
+        return 2
     try:
-        state, _ = find_checkpoint(args.checkpoint)
+        state, ckpt_file = find_checkpoint(args.checkpoint)
     except PolicySourceError as exc:
         print(f'eval: {exc}', file=sys.stderr)
         return 1
@@ -74,8 +88,15 @@ def main(argv=None) -> int:
               f'policy was trained on {cfg["model"]} with {state["obs_dim"]} and '
               f'{state["act_dim"]}', file=sys.stderr)
         return 2
-    res = evaluate_policy(policy_from_checkpoint(state), model, args.episodes, args.seed,
-                          perturbation=perturbation)
+    from pg_node.rl.trained_policy import checkpoint_card
+    frame_skip = int(checkpoint_card(state, ckpt_file)['frame_skip'])
+    if args.engine == 'pybullet':
+        res = _in_pybullet(args, state, model, task.model, frame_skip)
+        if res is None:
+            return 2
+    else:
+        res = evaluate_policy(policy_from_checkpoint(state), model, args.episodes, args.seed,
+                              perturbation=perturbation, frame_skip=frame_skip)
     res['policy_version'] = int(state['version'])
     res['perturbation'] = {t: s.text() for t, s in perturbation.items()}
     del res['eval_returns'], res['eval_final_distances']
@@ -83,8 +104,35 @@ def main(argv=None) -> int:
         print(json.dumps(res))
     else:
         on = (' on an arm with ' + ' '.join(args.perturb)) if args.perturb else ''
+        if args.engine == 'pybullet':
+            on = f" in PyBullet ({res['pybullet_urdf']}, step {res['pybullet_timestep']:.3g} s)"
         print(f"policy version {res['policy_version']}{on}: return {res['eval_return']:.2f} "
               f"+/- {res['eval_return_std']:.2f} over {args.episodes} episodes; final "
               f"distance {100 * res['eval_final_distance']:.2f} cm, "
               f"{100 * res['eval_reached']:.0f}% within 2 cm")
     return 0
+
+
+def _in_pybullet(args, state, model: str, mj_model, frame_skip: int):
+    """Return :func:`evaluate_in_pybullet`'s result, or None after saying why it cannot run."""
+    from pg_node.rl.evaluate import evaluate_in_pybullet
+    from pg_node.rl.learner import policy_from_checkpoint
+    from pg_node.sim.pybullet_arm import model_urdf, PybulletError
+    urdf = args.urdf or model_urdf(mj_model)
+    if urdf is None:
+        print(f'eval: --engine pybullet needs --urdf: {model} was not made by arm import',
+              file=sys.stderr)
+        return None
+    if not os.path.isfile(urdf):
+        print(f'eval: no URDF {urdf} (give --urdf)', file=sys.stderr)
+        return None
+    try:
+        res = evaluate_in_pybullet(policy_from_checkpoint(state), model, urdf, args.episodes,
+                                   args.seed, frame_skip=frame_skip)
+    except (PybulletError, ValueError) as exc:
+        print(f'eval: --engine pybullet: {exc}', file=sys.stderr)
+        return None
+    for line in res.pop('pybullet_warnings'):
+        print(f'eval: PyBullet: {line}', file=sys.stderr)
+    res['pybullet_urdf'] = urdf
+    return res

@@ -24,6 +24,10 @@ the card's: effort for motors, else the servos' position or velocity;
 (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` unless the environment sets it): a real
 controller on the lab network never hears them.
 
+``--robot pybullet`` puts ``pybullet_node`` in the simulator's place: PyBullet on the robot's
+own URDF (``--urdf``, default the one ``arm import`` made the model from), one arm, behind the
+same controller topics (docs/sim_to_sim.md).
+
 ``--perturb KEY=VALUE ...`` (the keys of ``eval --perturb``) makes the simulator an arm that
 is not the policy's model, as hardware is: ``mass_scale=1.5 gear_scale=0.7
 latency_steps=2 obs_noise=0.01`` gives heavier links, weaker motors, commands applied two
@@ -68,6 +72,12 @@ def parse_args(argv):
                         help='play on an arm that is not the model, e.g. mass_scale=1.5 '
                              'gear_scale=0.7 latency_steps=2 obs_noise=0.01 (the keys of eval '
                              '--perturb)')
+    parser.add_argument('--robot', choices=('sim', 'pybullet'), default='sim',
+                        help="the robot's stand-in: sim_node (MuJoCo on the model) or "
+                             "pybullet_node (PyBullet on the robot's URDF; default: "
+                             '%(default)s)')
+    parser.add_argument('--urdf', help='with --robot pybullet: the URDF of the robot '
+                                       '(default: the one the model was imported from)')
     parser.add_argument('--log-dir', help="where the nodes' logs go (default: a temporary "
                                           'directory)')
     return parser.parse_args(argv)
@@ -179,6 +189,10 @@ def main(argv=None) -> int:
         perturbation = parse_perturbation(args.perturb)
     except BadTerm as exc:
         print(f'play: {exc}', file=sys.stderr)
+        return 2
+    if args.robot == 'pybullet' and (args.perturb or args.arms > 1 or args.gif):
+        print('play: --robot pybullet is one arm as it is: no --perturb, --arms or --gif',
+              file=sys.stderr)
         return 2
     from pg_node.rl.trained_policy import (find_checkpoint, checkpoint_card, OnnxPolicy,
                                            PolicySourceError)
@@ -296,14 +310,23 @@ def play(args, card, source: Path, perturbation, log_dir: Path, temporary: bool)
                 while not ready and procs['policy_node'].poll() is None \
                         and time.monotonic() < deadline:
                     rclpy.spin_once(node, timeout_sec=0.1)
-                procs['sim_node'] = processes.start_logged(
-                    [sys.executable, '-m', 'pg_node.ros.sim_node', '--ros-args',
-                     '-r', f'__ns:={namespace}', '-r', f'{COMMANDS}:={CONTROLLER_COMMANDS}',
-                     '-p', 'mode:=real_time', '-p', f'command_interface:={interface}',
-                     '-p', f'num_envs:={args.arms}', '-p',
-                     f'seed:={args.seed}', '-p', f'model:={model}',
-                     '-p', f'real_time_factor:={args.real_time_factor}', *perturb_params],
-                    log_dir / 'sim_node.log', env)
+                if args.robot == 'pybullet':
+                    urdf = ['-p', f'urdf:={Path(args.urdf).resolve()}'] if args.urdf else []
+                    procs['pybullet_node'] = processes.start_logged(
+                        [sys.executable, '-m', 'pg_node.ros.pybullet_node', '--ros-args',
+                         '-r', f'__ns:={namespace}', '-p', f'model:={model}',
+                         '-p', f'seed:={args.seed}', '-p', f'frame_skip:={card["frame_skip"]}',
+                         '-p', f'real_time_factor:={args.real_time_factor}', *urdf],
+                        log_dir / 'pybullet_node.log', env)
+                else:
+                    procs['sim_node'] = processes.start_logged(
+                        [sys.executable, '-m', 'pg_node.ros.sim_node', '--ros-args',
+                         '-r', f'__ns:={namespace}', '-r', f'{COMMANDS}:={CONTROLLER_COMMANDS}',
+                         '-p', 'mode:=real_time', '-p', f'command_interface:={interface}',
+                         '-p', f'num_envs:={args.arms}', '-p',
+                         f'seed:={args.seed}', '-p', f'model:={model}',
+                         '-p', f'real_time_factor:={args.real_time_factor}', *perturb_params],
+                        log_dir / 'sim_node.log', env)
                 deadline = time.monotonic() + 120 + 5 * args.episodes
 
                 def arm0_done():

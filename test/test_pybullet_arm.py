@@ -1,0 +1,215 @@
+"""
+The arm in PyBullet from the robot's URDF (issue 45): semantics, engine agreement, eval.
+
+No ROS: :class:`pg_node.sim.pybullet_arm.PybulletArm` against MuJoCo's import of the same
+URDF, :func:`pg_node.sim.pybullet_check.compare` on the vendor arms of example-robot-data,
+and ``python -m pg_node eval --engine pybullet`` as a process.
+"""
+from importlib.metadata import distribution
+import json
+import os
+from pathlib import Path
+import subprocess
+import sys
+
+import mujoco
+import numpy as np
+from pg_node.common.params import load_config
+from pg_node.common.paths import default_config
+from pg_node.rl.evaluate import evaluate_in_pybullet, evaluate_policy
+from pg_node.rl.learner import Learner
+from pg_node.sim.pybullet_arm import prepare_urdf, PybulletArm, PybulletError, urdf_of
+from pg_node.sim.pybullet_check import compare
+from pg_node.sim.urdf_import import BOUND_MASS, import_urdf, ImportOptions, write_model
+import pytest
+import torch
+
+REPO = Path(__file__).resolve().parent.parent
+FIXTURES = REPO / 'test' / 'fixtures'
+TWO_LINK = FIXTURES / 'urdf' / 'two_link.urdf'
+REACHER2 = FIXTURES / 'reacher2.urdf'      # no damping: PyBullet's 1/240 s step
+SHARE = Path(distribution('example-robot-data').locate_file('cmeel.prefix/share'))
+ROBOTS = SHARE / 'example-robot-data' / 'robots'
+UR5 = ROBOTS / 'ur_description' / 'urdf' / 'ur5_joint_limited_robot.urdf'
+PANDA = ROBOTS / 'panda_description' / 'urdf' / 'panda.urdf'
+JOINTS = ['joint0', 'joint1']
+UR5_JOINTS = ['shoulder_pan_joint', 'shoulder_lift_joint', 'elbow_joint', 'wrist_1_joint',
+              'wrist_2_joint', 'wrist_3_joint']
+
+
+def imported(tmp_path, urdf, tip, **options) -> Path:
+    """Import ``urdf`` with ``arm import``'s defaults and return the model's path."""
+    out = tmp_path / f'{urdf.stem}.xml'
+    result = import_urdf(urdf, ImportOptions(tip=tip, package_paths=[str(SHARE)],
+                                             visual_meshes=False, targets=50, **options),
+                         out_path=out, command=f'python -m pg_node arm import {urdf} --tip {tip}')
+    write_model(result, out)
+    return out
+
+
+@pytest.fixture
+def arm():
+    a = PybulletArm(TWO_LINK, JOINTS, control_period=0.04)
+    yield a
+    a.close()
+
+
+def test_links_without_inertial_weigh_what_mujoco_gives_them_and_other_joints_are_fixed():
+    text, warnings = prepare_urdf(FIXTURES / 'urdf' / 'gripper.urdf', ['joint0'])
+    assert any('1 kg' in w for w in warnings)
+    import xml.etree.ElementTree as ET
+    root = ET.fromstring(text)
+    moving = [j.get('name') for j in root.iter('joint') if j.get('type') != 'fixed']
+    assert moving == ['joint0']
+    for link in root.iter('link'):
+        assert link.find('inertial/mass') is not None
+    with pytest.raises(PybulletError, match='has no joint nope'):
+        prepare_urdf(TWO_LINK, ['joint0', 'nope'])
+
+
+def test_limits_damping_and_efforts_come_from_the_urdf(arm):
+    assert arm.damping.tolist() == [1.0, 1.0]
+    assert arm.lower[0] == -np.inf and (arm.lower[1], arm.upper[1]) == (-3.0, 3.0)
+    assert arm.effort_limit.tolist() == [200.0, 200.0]
+    assert arm.masses()['fingertip'] == pytest.approx(BOUND_MASS)
+    # the damping on 1.3e-4 kg m^2 needs a step far below PyBullet's 1/240 s
+    assert arm.timestep < 5e-5 and arm.substeps * arm.timestep == pytest.approx(0.04)
+
+
+def test_a_torque_moves_the_arm_as_mujoco_moves_its_import(tmp_path, arm):
+    """N m in, the same motion out: units, damping and inertias agree with MuJoCo's."""
+    model = mujoco.MjModel.from_xml_path(str(imported(tmp_path, TWO_LINK, 'fingertip')))
+    data = mujoco.MjData(model)
+    tau = np.array([0.3, -0.2])
+    data.qpos[:2] = arm_q = [0.3, 0.5]
+    data.ctrl[:] = tau / model.actuator_gear[:, 0]
+    mujoco.mj_step(model, data, nstep=20)      # 0.04 s
+    arm.set_state(arm_q)
+    arm.step(tau)
+    q, qd, effort = arm.state()
+    np.testing.assert_allclose(effort, tau)
+    np.testing.assert_allclose(q, data.qpos[:2], atol=2e-3)
+    np.testing.assert_allclose(qd, data.qvel[:2], rtol=0.05, atol=0.01)
+    assert np.abs(qd).max() > 0.1
+
+
+def test_the_stable_step_matters(arm):
+    """Twice PyBullet's stable bound and the damped joints ring at its 100 rad/s cap."""
+    fast = PybulletArm(TWO_LINK, JOINTS, control_period=0.04, max_timestep=4 * arm.timestep)
+    for a in (arm, fast):
+        a.set_state([0.3, 0.5], [1.0, -1.0])
+        a.step([0.0, 0.0])
+    assert np.abs(arm.state()[1]).max() < 1e-3
+    assert np.abs(fast.state()[1]).max() > 10
+    fast.close()
+
+
+def test_efforts_are_clamped_to_the_urdf_limit_and_default_motors_are_off():
+    a = PybulletArm(REACHER2, JOINTS, control_period=0.04)
+    a.step([0.0, 1e4])
+    assert a.state()[2][1] == 200.0
+    a.set_state([0.0, 0.0], [1.0, 0.0])       # no damping in this URDF: it coasts
+    a.step([0.0, 0.0])
+    assert a.state()[1][0] == pytest.approx(1.0, rel=0.05)
+    a.close()
+
+
+def test_position_and_velocity_modes_follow_their_targets(arm):
+    arm.set_state([0.0, 0.0])
+    arm.step([0.5, -0.4], mode='position', periods=10)
+    np.testing.assert_allclose(arm.state()[0], [0.5, -0.4], atol=0.01)
+    arm.step([0.5, -5.0], mode='position', periods=10)    # kept inside joint1's limits
+    assert arm.state()[0][1] == pytest.approx(-3.0, abs=0.01)
+    arm.set_state([0.0, 0.0])
+    arm.step([0.2, 0.1], mode='velocity', periods=2)
+    np.testing.assert_allclose(arm.state()[1], [0.2, 0.1], atol=0.01)
+    with pytest.raises(PybulletError, match='2 finite values'):
+        arm.step([np.nan, 0.0])
+
+
+def test_gravity_compensation_holds_the_ur5_and_without_it_the_arm_falls():
+    pose = [0.0, -1.0, 1.0, -1.0, -1.5, 0.0]
+    moved = []
+    for compensate in (True, False):
+        a = PybulletArm(UR5, UR5_JOINTS, control_period=0.04, gravity_compensation=compensate,
+                        package_paths=[str(SHARE)])
+        a.set_state(pose)
+        a.step(np.zeros(6), periods=10)     # 0.4 s
+        moved.append(np.abs(a.state()[0] - pose).max())
+        a.close()
+    assert moved[0] < 5e-3 and moved[1] > 0.1, moved
+
+
+@pytest.mark.parametrize('urdf, tip', [(UR5, 'tool0'), (PANDA, 'panda_link8'),
+                                       (TWO_LINK, 'fingertip')])
+def test_pybullet_reads_the_vendor_arm_as_pg_node_imports_it(tmp_path, urdf, tip):
+    model = mujoco.MjModel.from_xml_path(str(imported(tmp_path, urdf, tip)))
+    from pg_node.sim.arm_task import ArmSpec
+    a = PybulletArm(urdf, ArmSpec.from_model(model).joint_names, control_period=0.04,
+                    package_paths=[str(SHARE)])
+    found = compare(model, a)
+    a.close()
+    assert found.disagreements == [] and found.position_error < 1e-3, found.line()
+    assert found.links_compared >= 5 and 'agree' in found.line()
+
+
+def test_a_moved_joint_is_said(tmp_path):
+    model = mujoco.MjModel.from_xml_path(str(imported(tmp_path, TWO_LINK, 'fingertip')))
+    other = tmp_path / 'other.urdf'
+    other.write_text(TWO_LINK.read_text().replace('<origin xyz="0.1 0 0"/>',
+                                                  '<origin xyz="0.105 0 0"/>')
+                     .replace('lower="-3" upper="3"', 'lower="-2" upper="3"'))
+    a = PybulletArm(other, JOINTS, control_period=0.04)
+    line = compare(model, a).line()
+    a.close()
+    assert 'link frames up to 5 mm apart' in line and 'joint1 limits -2..3' in line, line
+
+
+def test_urdf_of_reads_the_import_command():
+    assert urdf_of("python -m pg_node arm import '/a b/r.urdf' --tip t") == '/a b/r.urdf'
+    assert urdf_of(None) is None and urdf_of('python -m pg_node train') is None
+
+
+class Constant:
+    """A policy that always asks for the same control."""
+
+    def __init__(self, u):
+        self.u = torch.as_tensor(u, dtype=torch.float32)
+
+    def mean_action(self, obs):
+        return self.u.expand(len(obs), -1)
+
+
+def test_the_same_episodes_end_where_mujoco_ends_them(tmp_path):
+    """A steady 0.3 N m swing: episode for episode, the engines agree to the millimetre."""
+    model = imported(tmp_path, TWO_LINK, 'fingertip')
+    policy = Constant([0.0015, -0.001])
+    mj = evaluate_policy(policy, str(model), n_episodes=4, frame_skip=20)
+    pb = evaluate_in_pybullet(policy, str(model), TWO_LINK, n_episodes=4, frame_skip=20,
+                              max_episode_steps=50)
+    np.testing.assert_allclose(pb['eval_final_distances'], mj['eval_final_distances'],
+                               atol=2e-3)
+    np.testing.assert_allclose(pb['eval_returns'], mj['eval_returns'], rtol=0.02)
+    assert np.ptp(mj['eval_final_distances']) > 0.01     # distinct episodes
+
+
+def test_eval_engine_pybullet_runs_the_policy_on_the_urdf_it_was_imported_from(tmp_path):
+    model = imported(tmp_path, REACHER2, 'body1')
+    run_dir = tmp_path / 'run'
+    sections = load_config(default_config(), [f'run_dir={run_dir}', f'model={model}'])
+    cfg = {k: v for section in sections.values() for k, v in section.items()}
+    Learner(12, 2, cfg).save(run_dir / 'checkpoints')
+    env = dict(os.environ, PYTHONPATH=str(REPO))
+
+    def run(*args):
+        return subprocess.run([sys.executable, '-m', 'pg_node', 'eval', str(run_dir), *args],
+                              env=env, capture_output=True, text=True, timeout=120)
+    done = run('--engine', 'pybullet', '--episodes', '2', '--json')
+    assert done.returncode == 0, done.stderr
+    res = json.loads(done.stdout)
+    assert res['pybullet_urdf'] == str(REACHER2) and res['eval_episodes'] == 2
+    assert 0 < res['eval_final_distance'] < 1
+    bad = run('--engine', 'pybullet', '--urdf', str(tmp_path / 'none.urdf'))
+    assert bad.returncode == 2 and 'no URDF' in bad.stderr and 'Traceback' not in bad.stderr
+    bad = run('--engine', 'pybullet', '--perturb', 'mass_scale=2')
+    assert bad.returncode == 2 and '--perturb is for --engine mujoco' in bad.stderr
