@@ -197,12 +197,16 @@ class Scratch:
                                     start_new_session=True)
             try:
                 out, err = proc.communicate(timeout=timeout)
+                code = proc.returncode
             except subprocess.TimeoutExpired:
                 # to its whole session: train and play stop their nodes on SIGINT
                 processes.stop(proc, ((signal.SIGINT, 30.0), (signal.SIGKILL, 5.0)))
                 out, err = proc.communicate()
                 err += f'\n(timed out after {timeout} s)'
-            self.done[line] = subprocess.CompletedProcess(line, proc.returncode, out, err)
+                # timeout(1)'s status: a command stopped so may exit 0 (play, train), and a
+                # play that waited for ever passed
+                code = 124
+            self.done[line] = subprocess.CompletedProcess(line, code, out, err)
             self.wrote[line] = sorted(self.files() - before)
         return self.done[line]
 
