@@ -100,3 +100,29 @@ def test_view_serves_a_bags_scene_over_foxglove_websocket(tmp_path):
         tips.append(data.site_xpos[spec.fingertip_site].copy())
     got = np.array([tip.pose.position.x, tip.pose.position.y, tip.pose.position.z])
     assert np.min(np.linalg.norm(np.array(tips) - got, axis=1)) < 1e-9
+
+
+def test_the_shipped_views_open_on_the_scene_and_the_metrics():
+    """The RViz config and the Foxglove layout name topics the graph and ``view`` serve."""
+    import yaml
+    from pg_node.bag.recorder import metric_topic
+    from pg_node.tools.view import LIVE_TOPICS
+    rviz = yaml.safe_load(open(os.path.join(REPO, 'config', 'pg_node.rviz')))
+    manager = rviz['Visualization Manager']
+    assert manager['Global Options']['Fixed Frame'] == 'world'
+    shown = {d['Topic']['Value'] for d in manager['Displays']
+             if d['Class'] == 'rviz_default_plugins/MarkerArray' and d['Enabled']}
+    assert shown == {'/pg_node/scene', '/policy_node/markers'}
+    layout = json.load(open(os.path.join(REPO, 'config', 'pg_node.foxglove.json')))
+    scene = layout['configById']['3D!pgscene']
+    assert scene['followTf'] == 'world' and scene['topics']['/pg_node/scene']['visible']
+    served = {'/' + t.lstrip('/') for t in LIVE_TOPICS} | {'/arm0/joint_states'}
+    assert set(scene['topics']) <= served
+    paths = [p['value'] for k, c in layout['configById'].items() if k.startswith('Plot!')
+             for p in c['paths']]
+    metrics = {metric_topic(n) for n in ('episode_return', 'policy_loss', 'value_loss',
+                                         'entropy')}
+    for path in paths:
+        topic = path.split('.')[0]
+        assert topic in metrics or topic in served, path
+    assert metric_topic('episode_return') + '.data' in paths

@@ -215,7 +215,8 @@ def main(argv=None) -> int:
     code = shown = 0
     on = f' perturbed ({" ".join(args.perturb)})' if args.perturb else ''
     print(f'play: {source} on {args.arms} x {card["model"]}{on} in real time '
-          f'(x{args.real_time_factor:g}); logs in {log_dir}', flush=True)
+          f'(x{args.real_time_factor:g}) in namespace {namespace}; logs in {log_dir}',
+          flush=True)
     try:
         with processes.terminate_as_interrupt():
             procs['policy_node'] = processes.start_logged(

@@ -11,9 +11,9 @@ For a viewer without a ROS install: a Foxglove WebSocket server (Foxglove's own 
   ``pg_node/scene``, ``pg_node/markers``, ``robot_description``, ``joint_states``,
   ``arm<i>/joint_states``, ``target``, ``policy_node/markers``, ``/diagnostics`` and every
   ``pg_node/metrics/*`` topic there is (looked for each second). ``-r __ns:=/exp1`` style
-  namespaces: ``--ns /exp1``. The server keeps no message for a client that joins later,
-  so the last ``robot_description`` and each arm's last ``target`` are served again every
-  second.
+  namespaces: ``--ns /exp1`` (served without it, as the layout names them). The server
+  keeps no message for a client that joins later, so the last ``robot_description`` and
+  each arm's last ``target`` are served again every second.
 * **bag** (RUN: a run directory with ``bag/``, a bag directory or ``.mcap``): every topic of
   the bag, at ``--rate`` times the recorded pace (``--loop`` starts over), and the scene
   rebuilt from its ``/joint_states`` and ``/target`` (a training bag records no markers):
@@ -129,7 +129,10 @@ def serve_live(served: Served, ns: str, stop_after: Optional[float]) -> int:
             return
         subscribed.add(full)
 
-        def forward(cdr, full=full, type_name=type_name):
+        # served without the run's namespace: the shipped layout names /pg_node/scene...
+        shown = full[len(ns):] if ns and full.startswith(ns.rstrip('/') + '/') else full
+
+        def forward(cdr, full=shown, type_name=type_name):
             served.publish(full, type_name, cdr, time.time_ns())
             key = full
             if full.endswith('/target'):
