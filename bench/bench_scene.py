@@ -46,13 +46,16 @@ def watch(seconds: float) -> None:
     node = rclpy.create_node('bench_scene_watcher')
     got, subscribed = [0], set()
     deadline = time.monotonic() + seconds
-    while time.monotonic() < deadline:
-        for name, types in node.get_topic_names_and_types():
-            if name.endswith('pg_node/scene') and name not in subscribed:
-                node.create_subscription(MarkerArray, name,
-                                         lambda _m: got.__setitem__(0, got[0] + 1), 1)
-                subscribed.add(name)
-        rclpy.spin_once(node, timeout_sec=0.2)
+    try:
+        while time.monotonic() < deadline:
+            for name, _types in node.get_topic_names_and_types():
+                if name.endswith('pg_node/scene') and name not in subscribed:
+                    node.create_subscription(MarkerArray, name,
+                                             lambda _m: got.__setitem__(0, got[0] + 1), 1)
+                    subscribed.add(name)
+            rclpy.spin_once(node, timeout_sec=0.2)
+    except KeyboardInterrupt:           # the bench stops it with SIGINT when training ends
+        pass
     print(f'{got[0]} scene messages on {sorted(subscribed)}', flush=True)
     node.destroy_node()
     rclpy.try_shutdown()

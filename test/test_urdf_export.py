@@ -69,3 +69,12 @@ def test_an_imported_arm_describes_itself_with_the_vendors_urdf(tmp_path):
     urdf, origin = robot_description(mujoco.MjModel.from_xml_path(str(moved)))
     assert origin == 'written from the MuJoCo model'
     assert compare_kinematics(model, urdf, tolerance=1e-6) is None
+
+
+def test_the_command_prints_what_sim_node_publishes(tmp_path, capsys):
+    from pg_node.sim.urdf_export import main
+    assert main(['arm5_3d']) == 0
+    model = mujoco.MjModel.from_xml_path(str(resolve_model('arm5_3d')))
+    assert capsys.readouterr().out == export_urdf(model)
+    assert main(['no_such_arm']) == 1
+    assert capsys.readouterr().err.startswith('urdf_export: ')

@@ -237,3 +237,26 @@ def robot_description(model: mujoco.MjModel) -> Tuple[str, str]:
         except OSError:
             pass
     return export_urdf(model), 'written from the MuJoCo model'
+
+
+def main(argv=None) -> int:
+    """Print the ``robot_description`` of a model (shipped name or MJCF path), as sim_node's."""
+    import sys
+    from pg_node.common.paths import resolve_model
+    args = sys.argv[1:] if argv is None else argv
+    if len(args) != 1 or args[0].startswith('-'):
+        print('usage: python -m pg_node.sim.urdf_export MODEL > arm.urdf  (MODEL: reacher2, '
+              'arm5_3d, arm7 or an MJCF path): the URDF sim_node publishes as robot_description',
+              file=sys.stderr)
+        return 2
+    try:
+        model = mujoco.MjModel.from_xml_path(str(resolve_model(args[0])))
+        print(robot_description(model)[0], end='')
+    except (ValueError, OSError) as exc:
+        print(f'urdf_export: {" ".join(str(exc).split())}', file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

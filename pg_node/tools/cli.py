@@ -30,6 +30,7 @@ COMMANDS = {
     'export': ('pg_node.tools.export', 'a trained policy as ONNX with its card (runs without '
                                        'torch)'),
     'play': ('pg_node.tools.play', 'watch a trained policy act: real-time sim_node + policy_node'),
+    'view': ('pg_node.tools.view', "the arm in the Foxglove app: live, or from a run's bag"),
     'arm': ('pg_node.tools.arm', "import a robot's URDF as an arm model (arm import)"),
     'lifecycle': ('pg_node.tools.lifecycle', "get or change a managed node's lifecycle state "
                                              '(ros2 lifecycle get/set)'),

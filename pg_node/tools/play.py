@@ -290,7 +290,8 @@ def play(args, card, source: Path, perturbation, log_dir: Path, temporary: bool)
     logs = (f'logs in {log_dir} (removed at the end unless a node fails; --log-dir keeps '
             'them)' if temporary else f'logs in {log_dir}')
     print(f'play: {source} on {args.arms} x {card["model"]}{on} in real time '
-          f'(x{args.real_time_factor:g}), seed {args.seed}; {logs}', flush=True)
+          f'(x{args.real_time_factor:g}), seed {args.seed}, in namespace {namespace}; '
+          f'{logs}', flush=True)
     interrupts = processes.Interrupts()
     with interrupts.handled():
         try:

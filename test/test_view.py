@@ -1,0 +1,128 @@
+"""
+``python -m pg_node view BAG`` serves the scene to a client speaking Foxglove's protocol.
+
+A small bag (reacher2's arm 0: its goal and 50 joint states) is served by the command as a
+subprocess; a ``websockets`` client connects with the SDK's subprotocol, finds the
+``/pg_node/scene`` channel among those advertised (and ``/tf`` with the frame ``arm0``),
+subscribes and receives a message: a ``MarkerArray`` in ``world`` whose fingertip sits where
+MuJoCo puts it for one of the recorded joint states.
+"""
+import json
+import os
+import re
+import struct
+import subprocess
+import sys
+import time
+
+import mujoco
+import numpy as np
+from pg_node.bag.writer import BagWriter
+from pg_node.common.paths import resolve_model
+from pg_node.sim.arm_task import ArmSpec
+import pytest
+from rclpy.serialization import deserialize_message
+from visualization_msgs.msg import Marker, MarkerArray
+
+REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+SUBPROTOCOL = 'foxglove.sdk.v1'
+
+
+def write_bag(path, angles):
+    from geometry_msgs.msg import PointStamped
+    from sensor_msgs.msg import JointState
+    with BagWriter(path) as w:
+        w.add_topic('/target', PointStamped)
+        w.add_topic('/joint_states', JointState)
+        target = PointStamped()
+        target.header.frame_id = 'arm0'
+        target.point.x, target.point.y = 0.1, -0.05
+        w.write('/target', target, 1_000_000)
+        for k, (a, b) in enumerate(angles):
+            js = JointState(name=['arm0/joint0', 'arm0/joint1'], position=[a, b],
+                            velocity=[0.0, 0.0], effort=[0.0, 0.0])
+            js.header.stamp.nanosec = 20_000_000 * k
+            w.write('/joint_states', js, 2_000_000 + 20_000_000 * k)
+
+
+def test_view_serves_a_bags_scene_over_foxglove_websocket(tmp_path):
+    from websockets.sync.client import connect
+    angles = [(0.02 * k, -0.5 + 0.01 * k) for k in range(50)]
+    write_bag(tmp_path / 'bag', angles)
+    env = dict(os.environ, PYTHONPATH=REPO, PYTHONUNBUFFERED='1')
+    proc = subprocess.Popen(
+        [sys.executable, '-m', 'pg_node', 'view', str(tmp_path / 'bag'), '--port', '0',
+         '--loop', '--scene-rate', '20', '--stop-after', '30'],
+        env=env, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+        start_new_session=True)
+    try:
+        line = proc.stdout.readline()
+        port = re.search(r'ws://127\.0\.0\.1:(\d+)', line)
+        assert port, line + proc.stdout.read() if proc.poll() is not None else line
+        channels, scene = {}, None
+        with connect(f'ws://127.0.0.1:{port.group(1)}', subprotocols=[SUBPROTOCOL],
+                     open_timeout=10) as ws:
+            assert ws.subprotocol == SUBPROTOCOL
+            deadline = time.monotonic() + 20
+            subscribed = False
+            while scene is None:
+                assert time.monotonic() < deadline, f'no scene message; channels {channels}'
+                frame = ws.recv(timeout=10)
+                if isinstance(frame, str):
+                    msg = json.loads(frame)
+                    if msg.get('op') == 'advertise':
+                        channels.update({c['topic']: c for c in msg['channels']})
+                    if '/pg_node/scene' in channels and not subscribed:
+                        ws.send(json.dumps({'op': 'subscribe', 'subscriptions': [
+                            {'id': 7, 'channelId': channels['/pg_node/scene']['id']}]}))
+                        subscribed = True
+                elif frame[0] == 0x01:          # message data: sub id, log time, payload
+                    (sub,) = struct.unpack_from('<I', frame, 1)
+                    assert sub == 7
+                    scene = deserialize_message(bytes(frame[13:]), MarkerArray)
+        assert channels['/pg_node/scene']['encoding'] == 'cdr'
+        assert channels['/pg_node/scene']['schemaName'] == 'visualization_msgs/msg/MarkerArray'
+        assert {'/tf', '/joint_states', '/target'} <= set(channels)
+    finally:
+        proc.terminate()
+        proc.wait(10)
+    assert {m.header.frame_id for m in scene.markers} == {'world'}
+    assert {m.ns for m in scene.markers} == {'arm0'}
+    spheres = [m for m in scene.markers if m.type == Marker.SPHERE]
+    goal, tip = spheres[-2], spheres[-1]
+    assert (goal.pose.position.x, goal.pose.position.y) == pytest.approx((0.1, -0.05))
+    model = mujoco.MjModel.from_xml_path(str(resolve_model('reacher2')))
+    spec, data = ArmSpec.from_model(model), mujoco.MjData(model)
+    tips = []
+    for q in angles:
+        data.qpos[spec.qpos_adr] = q
+        mujoco.mj_kinematics(model, data)
+        tips.append(data.site_xpos[spec.fingertip_site].copy())
+    got = np.array([tip.pose.position.x, tip.pose.position.y, tip.pose.position.z])
+    assert np.min(np.linalg.norm(np.array(tips) - got, axis=1)) < 1e-9
+
+
+def test_the_shipped_views_open_on_the_scene_and_the_metrics():
+    """The RViz config and the Foxglove layout name topics the graph and ``view`` serve."""
+    import yaml
+    from pg_node.bag.recorder import metric_topic
+    from pg_node.tools.view import LIVE_TOPICS
+    rviz = yaml.safe_load(open(os.path.join(REPO, 'config', 'pg_node.rviz')))
+    manager = rviz['Visualization Manager']
+    assert manager['Global Options']['Fixed Frame'] == 'world'
+    shown = {d['Topic']['Value'] for d in manager['Displays']
+             if d['Class'] == 'rviz_default_plugins/MarkerArray' and d['Enabled']}
+    assert shown == {'/pg_node/scene', '/policy_node/markers'}
+    layout = json.load(open(os.path.join(REPO, 'config', 'pg_node.foxglove.json')))
+    scene = layout['configById']['3D!pgscene']
+    assert scene['followTf'] == 'world' and scene['topics']['/pg_node/scene']['visible']
+    served = {'/' + t.lstrip('/') for t in LIVE_TOPICS} | {'/arm0/joint_states'}
+    assert set(scene['topics']) <= served
+    paths = [p['value'] for k, c in layout['configById'].items() if k.startswith('Plot!')
+             for p in c['paths']]
+    metrics = {metric_topic(n) for n in ('episode_return', 'policy_loss', 'value_loss',
+                                         'entropy')}
+    for path in paths:
+        topic = path.split('.')[0]
+        assert topic in metrics or topic in served, path
+    assert metric_topic('episode_return') + '.data' in paths
