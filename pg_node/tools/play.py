@@ -370,7 +370,8 @@ def play(args, card, source: Path, perturbation, log_dir: Path, temporary: bool)
             rets = np.array([d[2] for d in done])
             dists = 100 * np.array([d[3] for d in done])
             print(f'{len(done)} episode{"s" * (len(done) != 1)}: return {rets.mean():.3f} '
-                  f'+/- {rets.std():.3f}, final distance {dists.mean():.2f} cm (median {np.median(dists):.2f} cm)')
+                  f'+/- {rets.std():.3f}, final distance {dists.mean():.2f} cm '
+                  f'(median {np.median(dists):.2f} cm)')
         if not args.gif or not done:
             return code, keep
         arm0 = [(ep, frames, ret) for ep, arm, ret, _, frames in done if arm == 0]
