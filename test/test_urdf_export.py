@@ -55,12 +55,17 @@ def test_a_body_with_two_joints_is_refused():
         export_urdf(model)
 
 
-def test_an_imported_arm_describes_itself_with_the_vendors_urdf(tmp_path):
+def test_a_model_naming_its_urdf_describes_itself_with_it(tmp_path):
     from pg_node.sim.urdf_import import ImportOptions, import_urdf, write_model
     from pg_node.sim.urdf_export import robot_description
     panda = resolve_model('arm7').parent / 'urdf' / 'panda.urdf'
     out = tmp_path / 'panda.xml'
     write_model(import_urdf(panda, ImportOptions(tip='panda_hand_tcp'), out_path=out), out)
+    urdf, origin = robot_description(mujoco.MjModel.from_xml_path(str(out)))
+    assert origin == 'written from the MuJoCo model'     # arm import names no URDF (yet)
+    spec = mujoco.MjSpec.from_file(str(out))
+    spec.add_text(name='pg_source_urdf', data=str(panda.resolve()))
+    out.write_text(spec.to_xml())
     model = mujoco.MjModel.from_xml_path(str(out))
     urdf, origin = robot_description(model)
     assert origin == str(panda.resolve()) and urdf == panda.read_text()

@@ -13,8 +13,8 @@ Topics published:
 * ``/arm<i>/joint_states`` for each arm ``i`` in ``view_arms`` (default ``0``): the same for
   that arm alone, with plain names, so that ``robot_state_publisher`` can draw it;
 * ``/robot_description`` (``std_msgs/String``, reliable, transient local, once at start):
-  the arm's URDF (:func:`pg_node.sim.urdf_export.robot_description`: the vendor's for an
-  imported arm, else one written from the MuJoCo model with its kinematics);
+  the arm's URDF (:func:`pg_node.sim.urdf_export.robot_description`: one written from the
+  MuJoCo model with its kinematics, or the file the model names in ``pg_source_urdf``);
 * ``/clock`` (``rosgraph_msgs/Clock``): simulated time, ``control steps * dt``, every
   control step while it has a subscriber; it never goes back, not even on a world reset;
 * ``/target`` (``geometry_msgs/PointStamped``): one message per arm whenever its target

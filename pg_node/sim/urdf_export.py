@@ -22,9 +22,11 @@ robot as a URDF. The hand-written arms (``reacher2``, ``arm5_3d``, ``arm7``) hav
 * **inertials** and the joint limits (``effort`` the largest torque of the joint's
   actuator) as the model has them.
 
-:func:`robot_description` is what ``sim_node`` publishes: the vendor's URDF for an arm
-imported from a URDF file (the custom text ``pg_source_urdf`` that ``arm import`` keeps
-names it), else the URDF written here.
+:func:`robot_description` is what ``sim_node`` publishes: the vendor's URDF when the model
+names one in its custom text ``pg_source_urdf`` (an absolute path; ``arm import`` does not
+write it yet: the shipped ``arm7.xml`` is byte-equal to its import, and an absolute path
+would tie it to one machine), else the URDF written here (imported arms included: their
+kinematics are MuJoCo's compile of the vendor's URDF, their meshes drawn as boxes).
 
 Kinematics are MuJoCo's at every joint angle: :func:`pg_node.sim.kinematics_check.
 compare_kinematics` takes the result with zero deviation (``test/test_urdf_export.py``).

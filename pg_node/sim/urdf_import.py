@@ -931,9 +931,6 @@ def _build(robot, urdf_path, opts, base, arm, coupled, joints, warnings, command
         spec.add_numeric(name=name, data=list(np.asarray(data, dtype=float)))
     if command:
         spec.add_text(name='pg_import_command', data=command)
-    if Path(urdf_path).suffix == '.urdf' and Path(urdf_path).is_file():
-        # robot_description of the imported arm: the vendor's URDF (pg_node.sim.urdf_export)
-        spec.add_text(name='pg_source_urdf', data=str(Path(urdf_path).resolve()))
     said = assumptions(opts)
     if said:
         spec.add_text(name='pg_physics_assumptions', data='\n'.join(said))
