@@ -104,7 +104,7 @@ def main() -> int:
         task.close()
         policy = policy_from_checkpoint(state)
         fs = int(card['frame_skip'])
-        arm = Path(urdf).stem
+        arm = Path(model).stem
         t0 = time.perf_counter()
         mj = evaluate_policy(policy, model, args.episodes, args.seed, frame_skip=fs)
         rows.append((arm, label, f'MuJoCo ({card["physics"]["timestep"]:g} s)', mj,
