@@ -135,7 +135,7 @@ def test_a_velocity_policy_drives_the_stand_in_as_a_velocity_controller(
         speeds = np.array([m.points[0].velocities for m in commands])
         for m in commands:
             (point,) = m.points
-            assert list(m.joint_names) == ['arm0/joint0', 'arm0/joint1']
+            assert list(m.joint_names) == ['joint0', 'joint1']     # one arm: plain names
             assert len(point.positions) == 2 and len(point.effort) == 0
     else:
         speeds = np.array([m.data for m in commands])     # rad/s, the joints' order
