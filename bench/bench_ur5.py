@@ -75,7 +75,7 @@ def main() -> int:
     print('| arm | interface | targets | steps | steps/s | return | final distance (cm) '
           '| within 2 cm |')
     print('|---|---|---|---:|---:|---:|---:|---:|')
-    print(f"| UR5 | {args.actuator} | "
+    print(f'| UR5 | {args.actuator} | '
           f"{'workspace' if args.full_workspace else 'ball 0.3 m'} | "
           f"{summary['total_steps']:,} | "
           f"{summary['steps_per_second']:,.0f} | "
