@@ -9,10 +9,15 @@ gravity compensation), a start pose and a target region, then trains it through 
 and the share of episodes that end within 2 cm, with the steps per second::
 
     AMENT_PREFIX_PATH=$PWD/.venv .venv/bin/python bench/bench_ur5.py --out /tmp/ur5 \
-        [--steps 5000000] [--seed 0] [--full-workspace]
+        [--steps 5000000] [--seed 0] [--full-workspace] \
+        [--actuator velocity [--servo-bandwidth 'uniform 5 20'] [--servo-latency 'uniform 0 0.02']]
 
 ``--full-workspace`` keeps targets anywhere the arm reaches (no region): what the first
-attempt used. Not a test: nothing is asserted. Run nothing else meanwhile (2 cores).
+attempt used. ``--actuator velocity`` imports the UR5 as its driver presents it (issue 46):
+velocity servos (``arm import --actuator velocity``, gain effort / velocity limit), no
+velocity damping, gravity compensation, and trains with each servo's tracking bandwidth
+(Hz) and dead time (s) randomized per episode (docs/robustness.md; ``none`` for neither).
+Not a test: nothing is asserted. Run nothing else meanwhile (2 cores).
 """
 import argparse
 from importlib.metadata import distribution
@@ -35,6 +40,14 @@ def main() -> int:
     parser.add_argument('--steps', type=int, default=5_000_000)
     parser.add_argument('--seed', type=int, default=0)
     parser.add_argument('--full-workspace', action='store_true')
+    parser.add_argument('--actuator', choices=('damped-motor', 'velocity'),
+                        default='damped-motor',
+                        help='damped-motor: effort with --velocity-damping (the first '
+                        'result); velocity: velocity servos, no damping')
+    parser.add_argument('--servo-bandwidth', default='uniform 5 20',
+                        help="velocity: randomize_servo_bandwidth (Hz), or 'none'")
+    parser.add_argument('--servo-latency', default='uniform 0 0.02',
+                        help="velocity: randomize_servo_latency (s), or 'none'")
     args = parser.parse_args()
     share = Path(distribution('example-robot-data').locate_file('cmeel.prefix/share'))
     urdf = share / 'example-robot-data' / 'robots' / 'ur_description' / 'urdf' / \
@@ -43,17 +56,27 @@ def main() -> int:
     model = (args.out / 'ur5.xml').resolve()
     region = [] if args.full_workspace else ['--target-region', *REGION]
     run = [sys.executable, '-m', 'pg_node']
+    if args.actuator == 'velocity':
+        physics = ['--actuator', 'velocity', '--timestep', '0.02']
+        servo = [f'randomize_servo_{name}={value}' for name, value in
+                 (('bandwidth', args.servo_bandwidth), ('latency', args.servo_latency))
+                 if value != 'none']
+    else:
+        physics = ['--velocity-damping', '--timestep', '0.02']
+        servo = []
     subprocess.run([*run, 'arm', 'import', str(urdf), '--tip', 'tool0', '--package-path',
-                    str(share), '--velocity-damping', '--timestep', '0.02', '--home', *HOME,
-                    *region, '-o', str(model)], check=True)
+                    str(share), *physics, '--home', *HOME, *region, '-o', str(model)],
+                   check=True)
     run_dir = args.out / f'run_s{args.seed}'
     subprocess.run([*run, 'train', '--config', 'arm7', f'model:={model}',
                     f'total_steps:={args.steps}', '--seed', str(args.seed), '--run-dir',
-                    str(run_dir)], check=True, env=os.environ)
+                    str(run_dir), *servo], check=True, env=os.environ)
     summary = json.loads((run_dir / 'summary.json').read_text())
-    print('| arm | targets | steps | steps/s | return | final distance (cm) | within 2 cm |')
-    print('|---|---|---:|---:|---:|---:|---:|')
-    print(f"| UR5 | {'workspace' if args.full_workspace else 'ball 0.3 m'} | "
+    print('| arm | interface | targets | steps | steps/s | return | final distance (cm) '
+          '| within 2 cm |')
+    print('|---|---|---|---:|---:|---:|---:|---:|')
+    print(f'| UR5 | {args.actuator} | '
+          f"{'workspace' if args.full_workspace else 'ball 0.3 m'} | "
           f"{summary['total_steps']:,} | "
           f"{summary['steps_per_second']:,.0f} | "
           f"{summary['eval_return']:.2f} | {100 * summary['eval_final_distance']:.2f} | "

@@ -914,3 +914,29 @@ def test_velocity_servos_take_the_urdf_velocity_limits(tmp_path, capsys):
                               '-o', out)
     assert code == 1 and '--actuator velocity needs a <limit velocity>' in err
     assert len(err.strip().splitlines()) == 1
+
+
+def test_the_import_prints_the_recipe_measured_for_its_interface(tmp_path, capsys):
+    """
+    Issue 46 item 6: the recipe that learned, per command interface, or that none was.
+
+    Velocity servos and velocity-damped motors have one (measured on the UR5, BENCHMARKS.md);
+    undamped motors and position servos say none was measured yet.
+    """
+    out = tmp_path / 'arm.xml'
+    cases = ((['--actuator', 'velocity', '--armature', 0.1],
+              'recipe measured for velocity actuators: import with --actuator velocity, '),
+             (['--velocity-damping', '--timestep', 0.02],
+              'recipe measured for motor, velocity damping actuators: import with '
+              '--velocity-damping --timestep 0.02, '),
+             ([], 'recipe: none measured yet for motor actuators; '),
+             (['--actuator', 'position', '--position-delta', 0.05],
+              'recipe: none measured yet for position, bounded changes actuators; '))
+    for flags, said in cases:
+        code, stdout, err = run_import(capsys, TWO_LINK, '--tip', 'fingertip', *flags,
+                                       '-o', out)
+        assert code == 0, err
+        last = stdout.strip().splitlines()[-1]
+        assert last.startswith(said), last
+    for flags, train, result in arm.RECIPES.values():
+        assert train.startswith('--config arm7') and 'within 2 cm' in result

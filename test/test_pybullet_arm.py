@@ -213,3 +213,21 @@ def test_eval_engine_pybullet_runs_the_policy_on_the_urdf_it_was_imported_from(t
     assert bad.returncode == 2 and 'no URDF' in bad.stderr and 'Traceback' not in bad.stderr
     bad = run('--engine', 'pybullet', '--perturb', 'mass_scale=2')
     assert bad.returncode == 2 and '--perturb is for --engine mujoco' in bad.stderr
+
+
+def test_velocity_servos_run_as_velocity_commands(tmp_path):
+    """
+    An arm of velocity servos (issue 46) runs in PyBullet on its velocity motors.
+
+    It was refused ("command_interface position needs position actuators"). A steady
+    0.1 rad/s on both joints: the engines end the same episodes within a few millimetres
+    (MuJoCo's servo loses the URDF damping's share of the speed, 1/21, PyBullet's motor not).
+    """
+    model = imported(tmp_path, TWO_LINK, 'fingertip', actuator='velocity', armature=0.1)
+    policy = Constant([0.01, 0.01])
+    mj = evaluate_policy(policy, str(model), n_episodes=4, frame_skip=2)
+    pb = evaluate_in_pybullet(policy, str(model), TWO_LINK, n_episodes=4, frame_skip=2,
+                              max_episode_steps=50)
+    np.testing.assert_allclose(pb['eval_final_distances'], mj['eval_final_distances'],
+                               atol=5e-3)
+    assert np.ptp(mj['eval_final_distances']) > 0.01     # distinct episodes

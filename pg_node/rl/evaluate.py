@@ -64,7 +64,8 @@ def evaluate_in_pybullet(policy, model: str, urdf, n_episodes: int = 100, seed: 
     observation is rebuilt from PyBullet's joint angles and velocities with the model's
     forward kinematics (:class:`pg_node.sim.observation.ObservationBuilder`, as
     ``policy_node`` builds it on a robot), ``u = mu(s)`` clipped to the control range is
-    turned into N m (motor actuators) or rad (servos) by the model's actuators
+    turned into N m (motor actuators), rad (position servos) or rad/s (velocity servos) by
+    the model's actuators
     (:mod:`pg_node.control.interfaces`) and held for a control period of ``frame_skip`` x
     the model's timestep. The reward and the distance are the task's, with the fingertip
     where PyBullet puts it (the tip link's frame plus the model's fingertip offset).
@@ -84,7 +85,8 @@ def evaluate_in_pybullet(policy, model: str, urdf, n_episodes: int = 100, seed: 
     task.close()
     m, s = task.model, task.spec
     act = actuators(m)
-    interface = 'effort' if check(act, 'effort') is None else 'position'
+    # the interface of the actuators' kind (velocity servos were run as position ones)
+    interface = next((name for name in INTERFACES if check(act, name) is None), 'position')
     why = check(act, interface)
     if why:
         raise ValueError(why)
