@@ -1046,9 +1046,10 @@ def test_when_policy_node_is_killed_the_trajectory_path_holds_the_forward_keeps_
     late = [e for t, e in after if t > 1.0]
     if command_message == 'trajectory':
         assert all(not e.any() for e in late), late[:3]
-        zero_at = next(t for t, e in after if not e.any())
-        assert zero_at < 1.0
-        assert all(not e.any() for t, e in after if t >= zero_at)      # and stays held
+        # held from before 1 s on: the last torque comes before it (an episode's reset tick,
+        # which reports the reset state's zero effort, may come earlier, while torque holds)
+        last_torque = max((t for t, e in after if e.any()), default=0.0)
+        assert last_torque < 1.0, [(round(t, 3), e) for t, e in after]
         assert 'aborted due to command timeout' in sim_log, sim_log[-3000:]
         assert 'rejected a trajectory' not in sim_log
     else:
