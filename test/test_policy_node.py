@@ -20,6 +20,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from domains import ros_domain
 from geometry_msgs.msg import PointStamped
 import mujoco
+from node_procs import start_node
 import numpy as np
 from pg_node.common.params import load_config
 from pg_node.common.paths import resolve_model
@@ -75,13 +76,7 @@ GEAR = 200.0
 
 def start(tmp_path, module, *params, remap=()):
     """Start ``python -m <module> --ros-args -p ... -r ...`` in the test's domain."""
-    args = [sys.executable, '-m', module, '--ros-args']
-    for param in params:
-        args += ['-p', param]
-    for rule in remap:
-        args += ['-r', rule]
-    log = tmp_path / f'{module.rsplit(".", 1)[-1]}_{time.monotonic_ns()}.log'
-    return processes.start_logged(args, log, processes.child_env(DOMAIN_ID))
+    return start_node(DOMAIN_ID, tmp_path, module, *params, remap=remap)
 
 
 def start_policy(tmp_path, *params, remap=()):

@@ -9,21 +9,12 @@ from pathlib import Path
 import re
 import shutil
 
-from pg_node.bag.writer import BagWriter, reindex
+from pg_node.bag.writer import reindex
 from pg_node.ros.replay_node import EXIT_DAMAGED, EXIT_NOTHING, EXIT_OK, EXIT_USAGE, main
-from std_msgs.msg import Float64MultiArray
+from test_reindex_cli import write_bag
 
 REPO = Path(__file__).resolve().parent.parent
 SAMPLE = REPO / 'bags' / 'sample'
-
-
-def write_bag(directory, n=400):
-    """Write ``n`` messages in small chunks; return the bag's directory."""
-    with BagWriter(directory, chunk_size=2048, compression='none') as w:
-        w.add_topic('/numbers', Float64MultiArray)
-        for i in range(n):
-            w.write('/numbers', Float64MultiArray(data=[float(i)] * 8), 1_000_000 * (i + 1))
-    return directory
 
 
 def cut_bag(directory):

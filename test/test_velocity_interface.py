@@ -13,12 +13,12 @@ jumps) changes by at most ``max_acceleration x period`` per tick, the arm moves,
 stopping ``policy_node`` leaves a zero-velocity hold. A few seconds of node time each.
 """
 from pathlib import Path
-import sys
 import threading
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray
 from domains import ros_domain
+from node_procs import start_node
 import numpy as np
 from pg_node.common.params import load_config
 from pg_node.common.paths import resolve_model
@@ -58,13 +58,8 @@ def velocity_policy(tmp_path_factory):
 
 
 def start(tmp_path, module, *params, remap=()):
-    args = [sys.executable, '-m', module, '--ros-args']
-    for param in params:
-        args += ['-p', param]
-    for rule in remap:
-        args += ['-r', rule]
-    log = tmp_path / f'{module.rsplit(".", 1)[-1]}.log'
-    return processes.start_logged(args, log, processes.child_env(DOMAIN_ID))
+    """Start a node in this file's domain (test_policy_node's way)."""
+    return start_node(DOMAIN_ID, tmp_path, module, *params, remap=remap)
 
 
 @pytest.mark.parametrize('message', ['trajectory', 'forward'])
