@@ -109,7 +109,12 @@ def test_a_velocity_policy_drives_the_stand_in_as_a_velocity_controller(
                 f'max_acceleration:={MAX_ACCELERATION}')
     try:
         deadline = time.monotonic() + 90
-        while len(commands) < 40 and time.monotonic() < deadline:
+        counted = 'trajectories_received' if message == 'trajectory' else 'commands_received'
+
+        def heard():        # the commands, and the stand-in's count of them in /diagnostics
+            with lock:
+                return len(commands) >= 40 and int(diagnostics.get(counted, 0)) >= 40
+        while not heard() and time.monotonic() < deadline:
             assert pol.poll() is None and sim.poll() is None
             time.sleep(0.1)
         code, log = processes.stop_logged(pol)      # SIGINT: one hold left in force
