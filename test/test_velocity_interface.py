@@ -106,7 +106,7 @@ def test_a_velocity_policy_drives_the_stand_in_as_a_velocity_controller(
                 f'command_message:={message}',
                 # samples (std about 1 after one update): jumps the acceleration limit caps
                 'deterministic:=false',
-                f'max_acceleration:={MAX_ACCELERATION}')
+                f'max_acceleration:={MAX_ACCELERATION}', f'record:={tmp_path / "ticks"}')
     try:
         deadline = time.monotonic() + 90
         counted = 'trajectories_received' if message == 'trajectory' else 'commands_received'
@@ -141,11 +141,17 @@ def test_a_velocity_policy_drives_the_stand_in_as_a_velocity_controller(
         speeds = np.array([m.data for m in commands])     # rad/s, the joints' order
     assert np.all(np.abs(speeds) <= 2.0)
     assert np.abs(speeds).max() > 0.1                   # the policy commands motion
-    steps = np.abs(np.diff(speeds, axis=0))[:-1]        # the last: the hold, a stop
+    # tick by tick from policy_node's own record: a reliable keep-last writer may overwrite
+    # a sample a loaded subscriber has not taken yet, so the received list can skip ticks
+    from mcap_ros2.reader import read_ros2_messages
+    from pg_node.ros.policy_node import tick_from_msg
+    sent = np.array([tick_from_msg(m.ros_msg)[1]['command_si'][0] for m in read_ros2_messages(
+        str(next((tmp_path / 'ticks').glob('*.mcap'))))])
+    steps = np.abs(np.diff(sent, axis=0))[:-1]          # the last: the hold, a stop
     period = card['control_step']                       # 0.02 s: one command a step
     assert steps.max() <= MAX_ACCELERATION * period + 1e-9, steps.max()
     assert np.isclose(steps.max(), MAX_ACCELERATION * period)   # and it did act
-    np.testing.assert_array_equal(speeds[-1], [0.0, 0.0])   # the hold: zero velocity
+    np.testing.assert_array_equal(sent[-1], [0.0, 0.0])     # the hold: zero velocity
     if message == 'trajectory':
         assert int(seen.get('trajectories_received', 0)) >= 40, seen
         assert seen.get('trajectories_rejected') == '0', seen
