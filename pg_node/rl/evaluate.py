@@ -21,6 +21,15 @@ EVAL_SEED_OFFSET = 10_000
 REACHED = 0.02
 
 
+def metrics(returns: np.ndarray, final: np.ndarray) -> dict:
+    """Return the evaluation's summary of per-episode returns and final distances (m)."""
+    return {'eval_return': float(np.mean(returns)), 'eval_return_std': float(np.std(returns)),
+            'eval_episodes': len(returns), 'eval_returns': returns.tolist(),
+            'eval_final_distance': float(np.mean(final)),
+            'eval_reached': float(np.mean(final <= REACHED)),
+            'eval_final_distances': final.tolist()}
+
+
 def evaluate_policy(policy, model: str, n_episodes: int = 100, seed: int = 0,
                     max_episode_steps: int = 50,
                     perturbation: Optional[Mapping] = None,
@@ -43,11 +52,7 @@ def evaluate_policy(policy, model: str, n_episodes: int = 100, seed: int = 0,
                 final[first] = info['distance'][first]
     finally:
         task.close()
-    return {'eval_return': float(np.mean(returns)), 'eval_return_std': float(np.std(returns)),
-            'eval_episodes': int(n_episodes), 'eval_returns': returns.tolist(),
-            'eval_final_distance': float(np.mean(final)),
-            'eval_reached': float(np.mean(final <= REACHED)),
-            'eval_final_distances': final.tolist()}
+    return metrics(returns, final)
 
 
 def evaluate_in_pybullet(policy, model: str, urdf, n_episodes: int = 100, seed: int = 0,
@@ -120,9 +125,5 @@ def evaluate_in_pybullet(policy, model: str, urdf, n_episodes: int = 100, seed: 
         timestep, warnings = arm.timestep, list(arm.warnings)
     finally:
         arm.close()
-    return {'eval_return': float(np.mean(returns)), 'eval_return_std': float(np.std(returns)),
-            'eval_episodes': int(n_episodes), 'eval_returns': returns.tolist(),
-            'eval_final_distance': float(np.mean(final)),
-            'eval_reached': float(np.mean(final <= REACHED)),
-            'eval_final_distances': final.tolist(),
-            'pybullet_timestep': timestep, 'pybullet_warnings': warnings}
+    return dict(metrics(returns, final), pybullet_timestep=timestep,
+                pybullet_warnings=warnings)
