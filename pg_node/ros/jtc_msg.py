@@ -1,7 +1,7 @@
 """
 A ``trajectory_msgs/JointTrajectory`` as :mod:`pg_node.control.jtc` takes it.
 
-The robot stand-ins (``pybullet_node``; ``sim_node`` builds the same inline) hand the
+The robot stand-ins (``sim_node``, ``pybullet_node``) hand the
 message to :class:`pg_node.control.jtc.JtcFollower` through this one conversion.
 """
 from pg_node.control import jtc

@@ -132,6 +132,7 @@ from pg_node.control import interfaces
 from pg_node.control import jtc
 from pg_node.control.joint_map import arm_joint_names
 from pg_node.ros import command
+from pg_node.ros import jtc_msg
 from pg_node.ros import table_msg
 from pg_node.ros import transition
 from pg_node.ros.parameters import declare_params
@@ -430,14 +431,7 @@ class SimNode(Node):
     def on_trajectory(self, msg: JointTrajectory):
         """Take a trajectory as the joint trajectory controller would, or log its rejection."""
         self.counters['trajectories_received'] += 1
-        stamp = msg.header.stamp
-        trajectory = jtc.Trajectory(
-            list(msg.joint_names),
-            [jtc.Point({k: list(getattr(p, k)) for k in jtc.POINT_FIELDS},
-                       p.time_from_start.sec + 1e-9 * p.time_from_start.nanosec)
-             for p in msg.points],
-            stamp.sec + 1e-9 * stamp.nanosec)
-        reason = self.follower.receive(trajectory, self.clock_seconds())
+        reason = self.follower.receive(jtc_msg.trajectory(msg), self.clock_seconds())
         if reason is not None:
             self.counters['trajectories_rejected'] += 1
             self.get_logger().error(f'rejected a trajectory on {CONTROLLER_TRAJECTORY} as a '
