@@ -1,10 +1,12 @@
 """
 pybullet_node as a process: the ros2_control chain's semantics on PyBullet (issue 45).
 
-One node for the file (the reacher2 URDF fixture, imported as ``arm import`` would: no
-damping, so PyBullet's 1/240 s step and real time), heard over DDS: the description latched,
-plain joint names, a forward controller's command held past any timeout, then a joint
-trajectory controller's point and, ``jtc_cmd_timeout`` later, its zero-effort hold.
+The reacher2 URDF fixture, imported as ``arm import`` would (no damping, so PyBullet's
+1/240 s step and real time), heard over DDS, once per command interface (each node in a
+namespace of its own): on effort, the description latched, plain joint names, a forward
+controller's command held past any timeout, then a joint trajectory controller's point and,
+``jtc_cmd_timeout`` later, its zero-effort hold; on velocity, rad/s held forever and the
+zero-velocity holds.
 """
 import os
 from pathlib import Path
@@ -27,40 +29,41 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 REPO = Path(__file__).resolve().parent.parent
 URDF = REPO / 'test' / 'fixtures' / 'reacher2.urdf'
 DOMAIN_ID = ros_domain(base=120, spread=100)
+#: the actuators ``arm import`` gives the model for each command interface
+ACTUATOR = {'effort': 'motor', 'velocity': 'velocity'}
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
-@pytest.fixture(scope='module')
-def node(tmp_path_factory):
-    """Start pybullet_node on the fixture and a client in the test's domain."""
-    tmp = tmp_path_factory.mktemp('pybullet_node')
+def start_node(tmp, interface: str, namespace: str, urdf: Path = URDF):
+    """Start pybullet_node on ``urdf`` (``interface``) in ``namespace``, and a client."""
     model = tmp / 'reacher2.xml'
-    write_model(import_urdf(URDF, ImportOptions(tip='body1', targets=50, visual_meshes=False),
-                            out_path=model, command=f'python -m pg_node arm import {URDF}'),
+    write_model(import_urdf(urdf, ImportOptions(tip='body1', targets=50, visual_meshes=False,
+                                                actuator=ACTUATOR[interface]),
+                            out_path=model, command=f'python -m pg_node arm import {urdf}'),
                 model)
     env = dict(os.environ, ROS_DOMAIN_ID=str(DOMAIN_ID), PYTHONUNBUFFERED='1',
                PYTHONPATH=str(REPO), AMENT_PREFIX_PATH=os.environ.get(
                    'AMENT_PREFIX_PATH', str(Path(sys.executable).parent.parent)))
     log = tmp / 'pybullet_node.log'
     proc = processes.start_logged(
-        [sys.executable, '-m', 'pg_node.ros.pybullet_node', '--ros-args', '-p',
-         f'model:={model}', '-p', 'max_episode_steps:=100000', '-p', 'frame_skip:=20'],
-        log, env)
+        [sys.executable, '-m', 'pg_node.ros.pybullet_node', '--ros-args', '-r',
+         f'__ns:={namespace}', '-p', f'model:={model}', '-p', 'max_episode_steps:=100000',
+         '-p', 'frame_skip:=20', '-p', f'command_interface:={interface}'], log, env)
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=DOMAIN_ID)
-    client = rclpy.create_node('pybullet_node_test', context=context)
+    client = rclpy.create_node('pybullet_node_test', namespace=namespace, context=context)
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(client)
     heard = {'description': [], 'joints': [], 'target': []}
-    client.create_subscription(String, '/robot_description', heard['description'].append,
+    client.create_subscription(String, 'robot_description', heard['description'].append,
                                LATCHED)
-    client.create_subscription(JointState, '/joint_states', heard['joints'].append, 100)
-    client.create_subscription(PointStamped, '/target', heard['target'].append, LATCHED)
-    pubs = {'forward': client.create_publisher(Float64MultiArray, '/arm_controller/commands',
+    client.create_subscription(JointState, 'joint_states', heard['joints'].append, 100)
+    client.create_subscription(PointStamped, 'target', heard['target'].append, LATCHED)
+    pubs = {'forward': client.create_publisher(Float64MultiArray, 'arm_controller/commands',
                                                10),
             'jtc': client.create_publisher(JointTrajectory,
-                                           '/arm_controller/joint_trajectory', 10)}
+                                           'arm_controller/joint_trajectory', 10)}
 
     def spin_until(condition, timeout=30.0):
         deadline = time.monotonic() + timeout
@@ -69,22 +72,53 @@ def node(tmp_path_factory):
             assert time.monotonic() < deadline, log.read_text()
             executor.spin_once(timeout_sec=0.05)
 
-    yield {'heard': heard, 'pubs': pubs, 'spin_until': spin_until, 'log': log}
-    processes.stop_logged(proc)
-    client.destroy_node()
-    rclpy.try_shutdown(context=context)
+    def stop():
+        processes.stop_logged(proc)
+        client.destroy_node()
+        rclpy.try_shutdown(context=context)
+    return {'heard': heard, 'pubs': pubs, 'spin_until': spin_until, 'log': log,
+            'stop': stop}
+
+
+@pytest.fixture(scope='module')
+def node(tmp_path_factory):
+    """pybullet_node on the effort interface."""
+    started = start_node(tmp_path_factory.mktemp('pybullet_node'), 'effort', '/effort')
+    yield started
+    started['stop']()
+
+
+@pytest.fixture(scope='module')
+def velocity_node(tmp_path_factory):
+    """pybullet_node on the velocity interface (the fixture imported with velocity servos)."""
+    tmp = tmp_path_factory.mktemp('pybullet_velocity')
+    # a velocity servo needs a speed limit: the continuous joint0 gets joint1's
+    urdf = tmp / 'reacher2.urdf'
+    urdf.write_text(URDF.read_text().replace(
+        '<axis xyz="0 0 1"/>\n  </joint>',
+        '<axis xyz="0 0 1"/>\n    <limit effort="200" velocity="20"/>\n  </joint>', 1))
+    started = start_node(tmp, 'velocity', '/velocity', urdf)
+    yield started
+    started['stop']()
+
+
+def state_after(node, seconds: float) -> JointState:
+    """Return the first joint state heard ``seconds`` of simulated time on."""
+    joints = node['heard']['joints']
+    node['spin_until'](lambda: joints)
+    start = stamp(joints[-1])
+    node['spin_until'](lambda: stamp(joints[-1]) >= start + seconds)
+    return joints[-1]
+
+
+def stamp(msg) -> float:
+    """Return a message's header stamp in s."""
+    return msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
 
 
 def efforts_after(node, seconds: float) -> np.ndarray:
     """Return the efforts of the first joint state heard ``seconds`` of simulated time on."""
-    joints = node['heard']['joints']
-    node['spin_until'](lambda: joints)
-    start = joints[-1].header.stamp.sec + 1e-9 * joints[-1].header.stamp.nanosec
-
-    def stamp(m):
-        return m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec
-    node['spin_until'](lambda: stamp(joints[-1]) >= start + seconds)
-    return np.array(joints[-1].effort)
+    return np.array(state_after(node, seconds).effort)
 
 
 def test_the_stand_in_offers_itself_as_a_robot(node):
@@ -113,6 +147,44 @@ def test_a_forward_command_is_held_then_a_trajectory_point_until_its_cmd_timeout
     node['pubs']['forward'].publish(Float64MultiArray(data=forward))
     np.testing.assert_allclose(efforts_after(node, 0.2), [0.0, 0.0])
     assert 'aborted due to command timeout' in node['log'].read_text()
+
+
+def test_velocity_commands_are_rad_per_s_held_forever_and_zero_holds(velocity_node):
+    """
+    The velocity interface as ros2_control's velocity controllers: rad/s, the last held.
+
+    Before any command 0 rad/s holds the arm; a forward command turns the joints at its
+    speed (the angle grows by speed x simulated time) for as long as no other comes; a
+    trajectory point's velocities (non-zero at its end, as the shipped jtc_velocity.yaml
+    allows) take over, and ``jtc_cmd_timeout`` later JTC's hold stops the arm where it is.
+    """
+    n = velocity_node
+    n['spin_until'](lambda: n['heard']['joints'])
+    assert 'velocity commands' in n['log'].read_text()
+    first = state_after(n, 0.0)
+    still = state_after(n, 0.5)
+    np.testing.assert_allclose(still.velocity, [0.0, 0.0], atol=1e-6)
+    # the start's 0.005 rad/s of noise is stopped within the first control period
+    np.testing.assert_allclose(still.position, first.position, atol=2e-4)
+    speed = np.array([0.5, -0.25])
+    n['pubs']['forward'].publish(Float64MultiArray(data=speed.tolist()))
+    n['spin_until'](lambda: np.allclose(n['heard']['joints'][-1].velocity, speed, atol=1e-6))
+    a = state_after(n, 0.0)
+    b = state_after(n, 1.0)     # held: five times sim_node's command_timeout later
+    np.testing.assert_allclose(b.velocity, speed, atol=1e-6)
+    np.testing.assert_allclose(np.subtract(b.position, a.position), speed * (stamp(b) - stamp(a)),
+                               atol=1e-6)
+    point = np.array([-0.2, 0.4])
+    n['pubs']['jtc'].publish(JointTrajectory(
+        joint_names=['joint1', 'joint0'], points=[JointTrajectoryPoint(
+            positions=list(b.position)[::-1], velocities=point[::-1].tolist())]))
+    n['spin_until'](lambda: np.allclose(n['heard']['joints'][-1].velocity, point, atol=1e-6))
+    # jtc_cmd_timeout (0.2 s) after the point: JTC's hold, 0 rad/s, the arm stays put
+    held = state_after(n, 0.3)
+    np.testing.assert_allclose(held.velocity, [0.0, 0.0], atol=1e-6)
+    np.testing.assert_allclose(state_after(n, 0.5).position, held.position, atol=1e-6)
+    text = n['log'].read_text()
+    assert 'aborted due to command timeout' in text and 'rejected' not in text, text
 
 
 def test_play_refuses_what_the_pybullet_stand_in_does_not_do(tmp_path):

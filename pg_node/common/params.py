@@ -470,10 +470,12 @@ PYBULLET_PARAMS: Dict[str, Param] = {
                               'AMENT_PREFIX_PATH (empty: none)'),
     'frame_skip': Param(2, "the control period is frame_skip x the model's timestep", low=1),
     'max_episode_steps': Param(50, 'control steps after which a new episode starts', low=1),
-    'command_interface': Param('effort', 'what the controllers take: effort (N m) or position '
-                                         '(rad)', choices=('effort', 'position')),
+    'command_interface': Param('effort', 'what the controllers take: effort (N m), position '
+                                         '(rad) or velocity (rad/s)',
+                               choices=('effort', 'position', 'velocity')),
     'gravity_compensation': Param(True, "the robot cancels the arm's weight (a torque robot's "
-                                        'firmware does); false: the commands must hold it'),
+                                        'firmware does; effort only: position and velocity '
+                                        'motors carry it); false: the commands must hold it'),
     'jtc_cmd_timeout': Param(0.2, 'the cmd_timeout of the joint trajectory controller on '
                                   'arm_controller/joint_trajectory (s after the last point '
                                   'before its hold)', **POSITIVE),

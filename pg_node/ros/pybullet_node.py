@@ -21,17 +21,28 @@ Published:
   fingertip-to-target vector PyBullet's), the task's reward and the episode's count, for
   ``play`` to sum.
 
-Subscribed, in SI units of ``command_interface`` (``effort`` N m, or ``position`` rad):
+Subscribed, in SI units of ``command_interface`` (``effort`` N m, ``position`` rad or
+``velocity`` rad/s; before any command 0 of the interface: zero effort, zero velocity (the
+velocity motors hold the arm where it is) or angles 0):
 
 * ``arm_controller/commands`` (``std_msgs/Float64MultiArray``), as ros2_control's forward
-  command controller: one value per arm joint in the URDF's joint order; the last command is
-  held forever (the controller has no timeout); a message of another size or with a
-  non-finite value is dropped with a warning;
+  command controller (``effort_controllers/JointGroupEffortController`` and its position and
+  velocity siblings, config/controllers/forward_velocity.yaml): one value per arm joint in
+  the URDF's joint order; the last command is held forever (the controller has no timeout:
+  a velocity keeps the arm moving); a message of another size or with a non-finite value is
+  dropped with a warning;
 * ``arm_controller/joint_trajectory`` (``trajectory_msgs/JointTrajectory``), as Jazzy's joint
-  trajectory controller with zero gains (:class:`pg_node.control.jtc.JtcFollower`): applied
-  at each point's ``time_from_start``, and ``jtc_cmd_timeout`` s after the last point the
-  controller's hold (zero effort, or the positions measured then). Once a trajectory was
-  accepted, it sets the command.
+  trajectory controller with zero gains (:class:`pg_node.control.jtc.JtcFollower`) and the
+  ``allow_*`` flags of the shipped controller of the interface (``jtc.SHIPPED_FLAGS``: the
+  velocity one allows a non-zero last velocity, config/controllers/jtc_velocity.yaml):
+  applied at each point's ``time_from_start`` (the point's ``velocities`` on the velocity
+  interface, its ``ff_velocity_scale`` 1), and ``jtc_cmd_timeout`` s after the last point
+  the controller's hold (zero effort, zero velocity, or the positions measured then). Once
+  a trajectory was accepted, it sets the command.
+
+Service: ``~/reset_world`` (``std_srvs/Trigger``), as ``sim_node``'s: the episodes drawn
+again from ``seed`` as at start (the next one under a new id, the held command kept);
+``play`` calls it once the policy commands, so the same ``--seed`` plays the same episodes.
 
 Episodes: each ``max_episode_steps`` control periods the arm is put at a new start with a
 new goal, drawn as ``sim_node`` with the same ``seed`` draws them (an
@@ -67,6 +78,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, String
+from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory
 
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
@@ -116,7 +128,8 @@ class PybulletNode(Node):
         self.steps = 0
         self.seq = -1
         self.episode_id = -1
-        self.follower = jtc.JtcFollower(self.joints, self.interface, p['jtc_cmd_timeout'])
+        self.follower = jtc.JtcFollower(self.joints, self.interface, p['jtc_cmd_timeout'],
+                                        flags=dict(jtc.SHIPPED_FLAGS.get(self.interface, {})))
 
         self.pub_description = self.create_publisher(String, 'robot_description', LATCHED)
         self.pub_description.publish(String(data=Path(urdf).read_text()))
@@ -130,21 +143,31 @@ class PybulletNode(Node):
         self.create_subscription(Float64MultiArray, CONTROLLER_COMMANDS, self.on_command, 10)
         self.create_subscription(JointTrajectory, CONTROLLER_TRAJECTORY, self.on_trajectory,
                                  10)
+        self.create_service(Trigger, '~/reset_world', self.on_reset_world)
         self.start_episode()
         self.create_timer(self.task.dt / p['real_time_factor'], self.on_tick)
         log.info(f'{p["model"]} in PyBullet from {urdf}: joints {", ".join(self.joints)}, '
                  f'{self.interface} commands, control period {self.task.dt:g} s in '
-                 f'{self.arm.substeps} steps of {self.arm.timestep:.3g} s, gravity '
-                 f'compensation {"on" if p["gravity_compensation"] else "off"}')
+                 f'{self.arm.substeps} steps of {self.arm.timestep:.3g} s, '
+                 + (f'gravity compensation {"on" if p["gravity_compensation"] else "off"}'
+                    if self.interface == 'effort' else
+                    f"the {self.interface} motors carry the arm's weight"))
 
     @property
     def sim_time(self) -> float:
         """Return the simulated time in s."""
         return self.steps * self.task.dt
 
-    def start_episode(self):
-        """Draw a new start and goal, put the arm there, publish the goal and a transition."""
-        self.task.reset_env(0)
+    def start_episode(self, seed=None):
+        """
+        Draw a new start and goal, put the arm there, publish the goal and a transition.
+
+        ``seed``: draw from a generator seeded anew (the episodes as at start), not the next.
+        """
+        if seed is None:
+            self.task.reset_env(0)
+        else:
+            self.task.reset(seed=seed)
         q, qd, _ = self.task.joint_state()
         self.goal = self.task.target_pos()[0]
         self.arm.set_state(q[0], qd[0])
@@ -157,6 +180,14 @@ class PybulletNode(Node):
                                                     z=float(self.goal[2]))))
         obs = self.observe()
         self.publish_transition(obs, 0.0, False, obs)
+
+    def on_reset_world(self, request, response):
+        """Start the episodes again as drawn at start (``sim_node``'s ``~/reset_world``)."""
+        self.start_episode(seed=self.params['seed'])
+        response.success = True
+        response.message = f'new episodes [{self.episode_id}]'
+        self.get_logger().info(f'~/reset_world called: {response.message}')
+        return response
 
     def _header(self, stamp):
         from std_msgs.msg import Header

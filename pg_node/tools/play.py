@@ -26,7 +26,8 @@ controller on the lab network never hears them.
 
 ``--robot pybullet`` puts ``pybullet_node`` in the simulator's place: PyBullet on the robot's
 own URDF (``--urdf``, default the one ``arm import`` made the model from), one arm, behind the
-same controller topics (docs/sim_to_sim.md).
+same controller topics and on the card's command interface, its ``~/reset_world`` called as
+``sim_node``'s (docs/sim_to_sim.md).
 
 ``--perturb KEY=VALUE ...`` (the keys of ``eval --perturb``) makes the simulator an arm that
 is not the policy's model, as hardware is: ``mass_scale=1.5 gear_scale=0.7
@@ -278,7 +279,8 @@ def play(args, card, source: Path, perturbation, log_dir: Path, temporary: bool)
         lambda m: episodes.add(transition.from_msg(m)),
         QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
                    durability=DurabilityPolicy.TRANSIENT_LOCAL))
-    reset_world = node.create_client(Trigger, 'sim_node/reset_world')
+    stand_in = 'pybullet_node' if args.robot == 'pybullet' else 'sim_node'
+    reset_world = node.create_client(Trigger, f'{stand_in}/reset_world')
     reset = None
     procs = {}
     code = shown = 0
@@ -303,7 +305,10 @@ def play(args, card, source: Path, perturbation, log_dir: Path, temporary: bool)
                      # its joint states come from the sim, started next; the sim is its own
                      # robot, with no controller node whose joints parameter could be read
                      '-p', 'configure_timeout:=120.0', '-p', 'controller_timeout:=0.0',
-                     '-p', f'command_interface:={interface}'],
+                     '-p', f'command_interface:={interface}',
+                     # pybullet_node latches the URDF: the policy's kinematics are checked
+                     '-p', 'require_robot_description:='
+                     + ('true' if args.robot == 'pybullet' else 'false')],
                     log_dir / 'policy_node.log', env)
                 # the simulator starts once the policy is loaded (torch's import alone can
                 # take seconds)
@@ -317,7 +322,8 @@ def play(args, card, source: Path, perturbation, log_dir: Path, temporary: bool)
                         [sys.executable, '-m', 'pg_node.ros.pybullet_node', '--ros-args',
                          '-r', f'__ns:={namespace}', '-p', f'model:={model}',
                          '-p', f'seed:={args.seed}', '-p', f'frame_skip:={card["frame_skip"]}',
-                         '-p', f'real_time_factor:={args.real_time_factor}', *urdf],
+                         '-p', f'real_time_factor:={args.real_time_factor}',
+                         '-p', f'command_interface:={interface}', *urdf],
                         log_dir / 'pybullet_node.log', env)
                 else:
                     procs['sim_node'] = processes.start_logged(
