@@ -325,6 +325,11 @@ SIM_PARAMS: Dict[str, Param] = {
                              'subscriber; 0 turns it off', low=0.0, live=True),
     'trail_length': Param(50, "fingertip positions in pg_node/scene's trail", low=0),
     'diagnostics_rate': Param(1.0, 'diagnostics rate in Hz of wall time', **POSITIVE, live=True),
+    'in_process_hop': Param(True, 'when the actor shares the process (sim_and_actor, what '
+                                  'train starts): hand transitions and commands to it inside '
+                                  'the process, without DDS or an executor wake-up; each '
+                                  'is still published on its topic while anyone else '
+                                  'subscribes (pg_node.ros.local_hop). false: over DDS'),
     'round_trip_log': Param('', 'lock_step: a .npy file to write every round trip to when the '
                                 'node stops (ns from just before a transition is published to '
                                 'the arrival of the command that answers it); empty: the round '

@@ -278,7 +278,8 @@ class SimNode(Node):
                 Float64MultiArray, self.run.topic(RANDOMIZATION),
                 QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
         self.pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
-        self.create_subscription(Float64MultiArray, COMMANDS, self.on_command, 10, raw=True)
+        self.sub_cmd = self.create_subscription(Float64MultiArray, COMMANDS, self.on_command, 10,
+                                                raw=True)
         self.follower = None
         if self.mode == 'real_time' and self.interface in jtc.FOLLOWED_FIELD:
             # the robot's joint trajectory controller (pg_node.control.jtc): its joints are
