@@ -93,6 +93,38 @@ def test_a_torque_moves_the_arm_as_mujoco_moves_its_import(tmp_path, arm):
     assert np.abs(qd).max() > 0.1
 
 
+def test_hard_limits_stop_mujoco_near_where_pybullet_stops(tmp_path, arm):
+    """
+    ``arm import --hard-limits``: joint1 driven into its limit (3 rad) as PyBullet stops it.
+
+    20 N m on joint1 from 2.5 rad for 0.4 s: PyBullet's limit is a hard constraint (3.0 rad);
+    MuJoCo's default soft limit lets the light fixture sink through it (8.2 rad seen), the
+    hard one (``solreflimit`` 2 x 0.002 s) holds it within 0.41 rad of it.
+    """
+    tau = np.array([0.0, 20.0])
+    arm.set_state([0.0, 2.5])
+    arm.step(tau, periods=10)
+    stopped = arm.state()[0][1]
+    assert stopped == pytest.approx(3.0, abs=1e-3)
+    reached = {}
+    for hard in (False, True):
+        folder = tmp_path / ('hard' if hard else 'soft')
+        folder.mkdir()
+        model = mujoco.MjModel.from_xml_path(str(imported(folder, TWO_LINK, 'fingertip',
+                                                          hard_limits=hard)))
+        assert model.jnt_solref[1][0] == pytest.approx(0.004 if hard else 0.02)
+        data = mujoco.MjData(model)
+        data.qpos[:2] = [0.0, 2.5]
+        data.ctrl[:] = tau / model.actuator_gear[:, 0]
+        mujoco.mj_step(model, data, nstep=200)
+        reached[hard] = data.qpos[1]
+    assert reached[True] - stopped < 0.5 and reached[False] - stopped > 4, reached
+    from pg_node.tools import arm as arm_cli
+    argv = ['import', str(TWO_LINK), '--tip', 'fingertip']
+    assert arm_cli.options(arm_cli.parser().parse_args(argv + ['--hard-limits'])).hard_limits
+    assert not arm_cli.options(arm_cli.parser().parse_args(argv)).hard_limits
+
+
 def test_the_stable_step_matters(arm):
     """Twice PyBullet's stable bound and the damped joints ring at its 100 rad/s cap."""
     fast = PybulletArm(TWO_LINK, JOINTS, control_period=0.04, max_timestep=4 * arm.timestep)

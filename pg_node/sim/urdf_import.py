@@ -47,6 +47,10 @@ for it and then edits the compiled :class:`mujoco.MjSpec` into pg_node's convent
   policy's card carries. ``gravity_compensation``: every body of the arm gets
   ``gravcomp="1"`` (MuJoCo applies the bodies' weight back as a passive force), as
   torque-controlled arms do in their firmware (libfranka's torques are "without gravity").
+  ``hard_limits``: every arm joint's limit as hard as MuJoCo keeps stable (``solreflimit``
+  time constant 2 x ``timestep``, critically damped), as a robot's end stop and PyBullet's
+  limit are; off by default, MuJoCo's soft limit is a 0.02 s spring a policy can learn to
+  lean on (docs/sim_to_sim.md: all of the two-link fixture's gap to PyBullet).
 * **inertias**: one that MuJoCo rejects (principal moments breaking ``A + B >= C``) is
   balanced by MuJoCo's ``balanceinertia`` (all three moments set to their mean), with a
   warning naming the link and both sets of moments; one that is not positive definite is
@@ -137,6 +141,9 @@ class ImportOptions:
     damping: Optional[float] = None
     #: None: :func:`with_defaults` (off)
     velocity_damping: Optional[bool] = None
+    #: joint limits as hard as MuJoCo keeps stable (``solreflimit`` time constant 2 x
+    #: ``timestep``, critically damped), a robot's end stop, not MuJoCo's 0.02 s spring
+    hard_limits: bool = False
     #: position actuators: rad per control step; the actions are changes around the
     #: measured angle (``pg_position_delta``); None: absolute targets over the range
     position_delta: Optional[float] = None
@@ -845,6 +852,8 @@ def _build(robot, urdf_path, opts, base, arm, coupled, joints, warnings, command
             joint.armature = opts.armature
         if opts.damping is not None:
             joint.damping = [opts.damping, 0.0, 0.0]
+        if opts.hard_limits:
+            joint.solref_limit = [2 * opts.timestep, 1.0]
         if opts.velocity_damping:
             limit = joints[name].find('limit')
             velocity = float(limit.get('velocity', 0)) if limit is not None else 0.0

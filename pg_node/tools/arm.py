@@ -95,6 +95,11 @@ def parser() -> argparse.ArgumentParser:
                         'the model and the card keep: a robot in torque mode has no such '
                         'damping (default: off for motor actuators and with --damping, on '
                         'for position)')
+    p.add_argument('--hard-limits', action='store_true',
+                   help='joint limits as hard as MuJoCo keeps stable (solreflimit 2 x the '
+                        "timestep), as a robot's end stops and PyBullet's limits are; default: "
+                        "MuJoCo's soft limit, a 0.02 s spring a policy can learn to lean on "
+                        '(docs/sim_to_sim.md)')
     p.add_argument('--home', type=float, nargs='+', metavar='Q',
                    help='start pose, one angle per arm joint (default: 0, moved 0.1 rad '
                         'inside the limits where it is not)')
@@ -155,7 +160,7 @@ def options(args):
         visual_meshes=not args.no_visual_meshes, contacts=args.contacts,
         timestep=args.timestep, integrator=args.integrator, armature=args.armature,
         damping=args.damping, home=args.home, position_delta=args.position_delta,
-        velocity_damping=args.velocity_damping,
+        velocity_damping=args.velocity_damping, hard_limits=args.hard_limits,
         targets=args.targets,
         target_min_height=args.target_min_height,
         target_region=tuple(args.target_region) if args.target_region else None,
@@ -216,9 +221,11 @@ def report(result, opts, out) -> list:
         damping = f'damping {opts.damping:g} N m s/rad (no velocity damping)'
     else:
         damping = "the URDF's damping (no velocity damping)"
+    limits = ('hard joint limits' if opts.hard_limits
+              else "MuJoCo's soft joint limits (--hard-limits for a robot's)")
     lines.append(f'physics: timestep {opts.timestep:g} s ({opts.integrator}), {damping}, '
                  f'gravity compensation {"on" if opts.gravity_compensation else "off"}, '
-                 f'{opts.actuator} actuators')
+                 f'{opts.actuator} actuators, {limits}')
     if opts.position_delta is not None:
         lines.append(f'actions: changes of at most {opts.position_delta:g} rad per control '
                      'step around the measured angle (pg_position_delta; policy_node does the '
