@@ -289,6 +289,10 @@ def arm_indices(text: str) -> List[int]:
 SIM_PARAMS: Dict[str, Param] = {
     'frame_skip': Param(2, 'physics steps per control step', low=1),
     'max_episode_steps': Param(50, 'control steps after which an episode is truncated', low=1),
+    'position_delta': Param(0.0, 'rad per control step: position servos: each action is a '
+                                 'change of at most this around the measured angle (as '
+                                 'arm import --position-delta; the card records it); 0: the '
+                                 "model's pg_position_delta, or absolute targets", low=0.0),
     'reward_dist_weight': Param(1.0, 'weight of the fingertip distance in the reward', low=0.0),
     'reward_control_weight': Param(1.0, 'weight of the squared command norm in the reward',
                                    low=0.0),

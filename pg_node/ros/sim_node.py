@@ -201,7 +201,8 @@ class SimNode(Node):
                             reward_control_weight=p['reward_control_weight'],
                             randomization=from_params(p),
                             # a robot's stand-in gets absolute angles from policy_node
-                            relative_actions=p['command_interface'] == 'control')
+                            relative_actions=p['command_interface'] == 'control',
+                            position_delta=p['position_delta'])
         self.params = p
         self.interface = p['command_interface']
         self.actuators = actuators(self.task.model)

@@ -122,7 +122,7 @@ def resolve_config(args) -> dict:
     from pg_node.sim.arm_task import check_arm, NotAnArm
     try:
         model = resolve_model(cfg[SHARED]['model'])
-        check_arm(model)
+        check_arm(model, cfg['sim_node']['position_delta'])
     except NotAnArm as exc:
         raise ConfigError(f"parameter 'model': {exc}") from None
     if model == Path(os.path.expanduser(cfg[SHARED]['model'])):
@@ -491,7 +491,7 @@ def evaluate_run(run_dir: Path, episodes: int) -> dict:
     from pg_node.rl.checkpoint import list_checkpoints, load_latest
     from pg_node.rl.evaluate import evaluate_policy
     from pg_node.rl.learner import policy_from_checkpoint
-    from pg_node.rl.trained_policy import checkpoint_card
+    from pg_node.rl.trained_policy import card_position_delta, checkpoint_card
     state, problems = load_latest(run_dir / 'checkpoints')
     for p in problems:
         print(p, file=sys.stderr)
@@ -501,7 +501,8 @@ def evaluate_run(run_dir: Path, episodes: int) -> dict:
                 if version == state['version'])
     card = checkpoint_card(state, ckpt)
     res = evaluate_policy(policy_from_checkpoint(state), state['config']['model'], episodes,
-                          state['config']['seed'], frame_skip=int(card['frame_skip']))
+                          state['config']['seed'], frame_skip=int(card['frame_skip']),
+                          position_delta=card_position_delta(card))
     res['policy_version'] = int(state['version'])
     res['checkpoint'] = str(ckpt)
     return res
