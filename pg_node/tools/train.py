@@ -481,19 +481,28 @@ def write_summary(path: Path, summary: dict):
 
 
 def evaluate_run(run_dir: Path, episodes: int) -> dict:
-    """Evaluate the newest checkpoint's deterministic policy."""
-    from pg_node.rl.checkpoint import load_latest
+    """
+    Evaluate the newest checkpoint's deterministic policy, as ``eval`` does.
+
+    At the control step it was trained with: ``frame_skip`` from its card (the run's
+    ``params.yaml``), not the default.
+    """
+    from pg_node.rl.checkpoint import list_checkpoints, load_latest
     from pg_node.rl.evaluate import evaluate_policy
     from pg_node.rl.learner import policy_from_checkpoint
+    from pg_node.rl.trained_policy import checkpoint_card
     state, problems = load_latest(run_dir / 'checkpoints')
     for p in problems:
         print(p, file=sys.stderr)
     if state is None:
         return {}
+    ckpt = next(path for path, version in list_checkpoints(run_dir / 'checkpoints')
+                if version == state['version'])
+    frame_skip = int(checkpoint_card(state, ckpt)['frame_skip'])
     res = evaluate_policy(policy_from_checkpoint(state), state['config']['model'], episodes,
-                          state['config']['seed'])
+                          state['config']['seed'], frame_skip=frame_skip)
     res['policy_version'] = int(state['version'])
-    res['checkpoint'] = str(sorted((run_dir / 'checkpoints').glob('ckpt_*.pt'))[-1])
+    res['checkpoint'] = str(ckpt)
     return res
 
 
