@@ -13,8 +13,10 @@ Topics published:
 * ``/arm<i>/joint_states`` for each arm ``i`` in ``view_arms`` (default ``0``): the same for
   that arm alone, with plain names, so that ``robot_state_publisher`` can draw it;
 * ``/robot_description`` (``std_msgs/String``, reliable, transient local, once at start):
-  the arm's URDF (:func:`pg_node.sim.urdf_export.robot_description`: one written from the
-  MuJoCo model with its kinematics, or the file the model names in ``pg_source_urdf``);
+  the arm's URDF (:func:`pg_node.sim.urdf_export.robot_description`: for an imported arm
+  the vendor's, the file the model names in ``pg_source_urdf`` relative to its folder;
+  else, or with one warning line when that file is missing, one written from the MuJoCo
+  model with its kinematics);
 * ``/clock`` (``rosgraph_msgs/Clock``): simulated time, ``control steps * dt``, every
   control step while it has a subscriber; it never goes back, not even on a world reset;
 * ``/target`` (``geometry_msgs/PointStamped``): one message per arm whenever its target
@@ -256,9 +258,13 @@ class SimNode(Node):
                              durability=DurabilityPolicy.TRANSIENT_LOCAL)
         self.pub_description = self.create_publisher(String, 'robot_description', latched)
         try:
-            urdf, origin = robot_description(self.task.model)
-            self.pub_description.publish(String(data=urdf))
-            self.get_logger().info(f'robot_description: {origin}')
+            description = robot_description(self.task.model, self.task.model_path)
+            self.pub_description.publish(String(data=description.urdf))
+            if description.problem:
+                self.get_logger().warning(f'robot_description {description.origin}: '
+                                          f'{description.problem}')
+            else:
+                self.get_logger().info(f'robot_description: {description.origin}')
         except UrdfExportError as exc:          # the arm trains; ROS tools lack its URDF
             self.get_logger().warning(f'no robot_description: {exc}')
         self.pub_clock = self.create_publisher(Clock, 'clock', 10)
