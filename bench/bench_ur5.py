@@ -1,23 +1,35 @@
 r"""
-Benchmark: a vendor arm as it ships, learned in 3-D through the ROS graph (issue 31).
+Benchmark: a vendor arm as it ships, learned in 3-D through the ROS graph (issues 31, 46).
 
-Imports the UR5 of PyPI's ``example-robot-data`` (``ur5_joint_limited_robot.urdf``, tip
-``tool0``) with the physics the BENCHMARKS figure was learned on (``--velocity-damping
---timestep 0.02``: the importer's defaults before issue 46, an assumed damping the UR5 lacks;
-gravity compensation), a start pose and a target region, then trains it through the graph with the
-``arm7`` preset (PPO) and prints the evaluation: mean return, mean final fingertip distance
-and the share of episodes that end within 2 cm, with the steps per second::
+Imports an arm of PyPI's ``example-robot-data`` (``--arm ur5``: ``ur5_joint_limited_robot.urdf``,
+tip ``tool0``; ``--arm panda``: the Franka Panda's ``panda.urdf``, tip ``panda_hand_tcp``,
+fingers fixed) with a start pose and goals in a ball in front of it above the table, trains it
+through the graph with the ``arm7`` preset (PPO) and prints the evaluation: mean return, mean
+final fingertip distance and the share of episodes that end within 2 cm, with the steps per
+second::
 
     AMENT_PREFIX_PATH=$PWD/.venv .venv/bin/python bench/bench_ur5.py --out /tmp/ur5 \
-        [--steps 5000000] [--seed 0] [--full-workspace] \
-        [--actuator velocity [--servo-bandwidth 'uniform 5 20'] [--servo-latency 'uniform 0 0.02']]
+        [--arm ur5|panda] [--steps 5000000] [--seed 0] [--full-workspace] \
+        [--actuator damped-motor|velocity|motor] [--servo-bandwidth 'uniform 5 20'] \
+        [--servo-latency 'uniform 0 0.02']
 
-``--full-workspace`` keeps targets anywhere the arm reaches (no region): what the first
-attempt used. ``--actuator velocity`` imports the UR5 as its driver presents it (issue 46):
-velocity servos (``arm import --actuator velocity``, gain effort / velocity limit), no
-velocity damping, gravity compensation, and trains with each servo's tracking bandwidth
-(Hz) and dead time (s) randomized per episode (docs/robustness.md; ``none`` for neither).
-Not a test: nothing is asserted. Run nothing else meanwhile (2 cores).
+The ``--actuator`` is the command interface the arm is imported and trained on:
+
+- ``damped-motor`` (the UR5's first result, issue 31): effort with ``--velocity-damping
+  --timestep 0.02``, an assumed damping the robot lacks, gravity compensation;
+- ``velocity`` (a UR driver's velocity controller, issue 46): velocity servos (gain effort /
+  velocity limit), no velocity damping, gravity compensation, each servo's tracking bandwidth
+  (Hz) and dead time (s) randomized per episode (``--servo-bandwidth``,
+  ``--servo-latency``; ``none`` for neither);
+- ``motor`` (a Franka in torque mode, issue 46): the importer's defaults, effort with the
+  URDF's damping and nothing more, gravity compensated by the robot, the 0.002 s step with
+  ``frame_skip:=20`` (the 0.04 s control step); trained with the terms a torque robot has
+  randomized (:data:`TORQUE_TERMS`: damping and dry friction near zero, an unknown payload at
+  the fingertip, i.e. a gravity-compensation error, and a dead time; ``--servo-latency``
+  replaces the last, ``none`` drops it).
+
+``--full-workspace`` keeps targets anywhere the arm reaches (no region): what the UR5's first
+attempt used. Not a test: nothing is asserted. Run nothing else meanwhile (2 cores).
 """
 import argparse
 from importlib.metadata import distribution
@@ -28,54 +40,86 @@ import subprocess
 import sys
 
 REPO = Path(__file__).resolve().parent.parent
-#: UR5's "home" with the arm raised and the tool down, and the goals' ball in front of it
-HOME = ['0', '-1.571', '1.571', '-1.571', '-1.571', '0']
-REGION = ['0.4', '0', '0.3', '0.3']
+#: per arm: URDF under example-robot-data's robots/, tip link, start pose, goals' ball
+#: (centre x y z, radius; m): the UR5 raised with the tool down, the Panda in Franka's
+#: "ready" pose, the goals in front of each above the table
+ARMS = {
+    'ur5': ('ur_description/urdf/ur5_joint_limited_robot.urdf', 'tool0',
+            ['0', '-1.571', '1.571', '-1.571', '-1.571', '0'], ['0.4', '0', '0.3', '0.3']),
+    'panda': ('panda_description/urdf/panda.urdf', 'panda_hand_tcp',
+              ['0', '-0.785', '0', '-2.356', '0', '1.571', '0.785'],
+              ['0.45', '0', '0.35', '0.3']),
+}
+#: what a torque robot's physics leaves uncertain (docs/robustness.md, "Torque physics"):
+#: joint damping (N m s/rad) and dry friction (N m) near zero, a payload (kg) its gravity
+#: compensation does not know of, a dead time (s) below the control step
+TORQUE_TERMS = {'damping': 'abs uniform 0 0.1', 'frictionloss': 'abs uniform 0 0.2',
+                'payload': 'uniform 0 1', 'servo_latency': 'uniform 0 0.01'}
+
+
+def import_and_train_args(args):
+    """Return the ``arm import`` flags and the extra ``train`` arguments of ``args``."""
+    if args.actuator == 'velocity':
+        physics = ['--actuator', 'velocity', '--timestep', '0.02']
+        terms = {'servo_bandwidth': args.servo_bandwidth,
+                 'servo_latency': args.servo_latency}
+        extra = []
+    elif args.actuator == 'motor':
+        physics = []
+        terms = dict(TORQUE_TERMS)
+        if args.servo_latency != TORQUE_TERMS['servo_latency']:
+            terms['servo_latency'] = args.servo_latency
+        extra = ['frame_skip:=20']
+    else:
+        physics = ['--velocity-damping', '--timestep', '0.02']
+        terms = {}
+        extra = []
+    servo = [f'randomize_{name}={value}' for name, value in terms.items() if value != 'none']
+    return physics, extra + servo
 
 
 def main() -> int:
     """Import, train, print the evaluation."""
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     parser.add_argument('--out', type=Path, required=True, help='folder for model and run')
+    parser.add_argument('--arm', choices=sorted(ARMS), default='ur5')
     parser.add_argument('--steps', type=int, default=5_000_000)
     parser.add_argument('--seed', type=int, default=0)
     parser.add_argument('--full-workspace', action='store_true')
-    parser.add_argument('--actuator', choices=('damped-motor', 'velocity'),
+    parser.add_argument('--actuator', choices=('damped-motor', 'velocity', 'motor'),
                         default='damped-motor',
                         help='damped-motor: effort with --velocity-damping (the first '
-                        'result); velocity: velocity servos, no damping')
+                        'result); velocity: velocity servos, no damping; motor: effort, '
+                        'no damping, torque terms randomized')
     parser.add_argument('--servo-bandwidth', default='uniform 5 20',
                         help="velocity: randomize_servo_bandwidth (Hz), or 'none'")
-    parser.add_argument('--servo-latency', default='uniform 0 0.02',
-                        help="velocity: randomize_servo_latency (s), or 'none'")
+    parser.add_argument('--servo-latency', default=None,
+                        help="randomize_servo_latency (s), or 'none' (default: 'uniform 0 "
+                        "0.02' for velocity, 'uniform 0 0.01' for motor)")
     args = parser.parse_args()
+    if args.servo_latency is None:
+        args.servo_latency = ('uniform 0 0.02' if args.actuator == 'velocity'
+                              else TORQUE_TERMS['servo_latency'])
     share = Path(distribution('example-robot-data').locate_file('cmeel.prefix/share'))
-    urdf = share / 'example-robot-data' / 'robots' / 'ur_description' / 'urdf' / \
-        'ur5_joint_limited_robot.urdf'
+    rel, tip, home, region = ARMS[args.arm]
+    urdf = share / 'example-robot-data' / 'robots' / rel
     args.out.mkdir(parents=True, exist_ok=True)
-    model = (args.out / 'ur5.xml').resolve()
-    region = [] if args.full_workspace else ['--target-region', *REGION]
+    model = (args.out / f'{args.arm}.xml').resolve()
+    region = [] if args.full_workspace else ['--target-region', *region]
     run = [sys.executable, '-m', 'pg_node']
-    if args.actuator == 'velocity':
-        physics = ['--actuator', 'velocity', '--timestep', '0.02']
-        servo = [f'randomize_servo_{name}={value}' for name, value in
-                 (('bandwidth', args.servo_bandwidth), ('latency', args.servo_latency))
-                 if value != 'none']
-    else:
-        physics = ['--velocity-damping', '--timestep', '0.02']
-        servo = []
-    subprocess.run([*run, 'arm', 'import', str(urdf), '--tip', 'tool0', '--package-path',
-                    str(share), *physics, '--home', *HOME, *region, '-o', str(model)],
+    physics, train_extra = import_and_train_args(args)
+    subprocess.run([*run, 'arm', 'import', str(urdf), '--tip', tip, '--package-path',
+                    str(share), *physics, '--home', *home, *region, '-o', str(model)],
                    check=True)
     run_dir = args.out / f'run_s{args.seed}'
     subprocess.run([*run, 'train', '--config', 'arm7', f'model:={model}',
                     f'total_steps:={args.steps}', '--seed', str(args.seed), '--run-dir',
-                    str(run_dir), *servo], check=True, env=os.environ)
+                    str(run_dir), *train_extra], check=True, env=os.environ)
     summary = json.loads((run_dir / 'summary.json').read_text())
     print('| arm | interface | targets | steps | steps/s | return | final distance (cm) '
           '| within 2 cm |')
     print('|---|---|---|---:|---:|---:|---:|---:|')
-    print(f'| UR5 | {args.actuator} | '
+    print(f'| {args.arm} | {args.actuator} | '
           f"{'workspace' if args.full_workspace else 'ball 0.3 m'} | "
           f"{summary['total_steps']:,} | "
           f"{summary['steps_per_second']:,.0f} | "

@@ -21,8 +21,12 @@ Three tables, from one invocation:
   (:func:`bench.runs.lock_step_latency`), with no training running and while
   a training graph runs in another DDS domain on the same two cores.
 """
+import argparse
+import json
+import os
 from pathlib import Path
 import statistics
+import sys
 import tempfile
 import threading
 import time
@@ -53,6 +57,45 @@ TRAINING_LABELS = {'rollout': 'within a rollout',
                    'boundary': "at a rollout's end (hand-over)",
                    'separate_rollout': 'within a rollout, every node its own process',
                    'separate_boundary': "at a rollout's end, every node its own process"}
+
+
+class LoadWatch:
+    """
+    The machine's load (``os.getloadavg``) before and during a block, sampled each second.
+
+    ``with LoadWatch() as load: ...``; then ``load.result()``: the 1/5/15-minute averages
+    just before the block (``before``) and the 1-minute average's mean and largest value
+    while it ran (``during_mean``, ``during_max``; the 1-minute average lags: a run of a few
+    seconds shows mostly the load before it).
+    """
+
+    def __init__(self, period: float = 1.0):
+        self.period = period
+        self.before = None
+        self.samples: List[float] = []
+        self._done = threading.Event()
+        self._thread = threading.Thread(target=self._sample, daemon=True)
+
+    def _sample(self):
+        while not self._done.wait(self.period):
+            self.samples.append(os.getloadavg()[0])
+
+    def __enter__(self):
+        self.before = [round(x, 2) for x in os.getloadavg()]
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc):
+        self.samples.append(os.getloadavg()[0])
+        self._done.set()
+        self._thread.join()
+        return False
+
+    def result(self) -> Dict:
+        """Return ``before``, ``during_mean`` and ``during_max`` (1-minute averages)."""
+        return {'before': self.before,
+                'during_mean': round(statistics.fmean(self.samples), 2),
+                'during_max': round(max(self.samples), 2)}
 
 
 def inprocess_rate(steps: int, overrides: Sequence[str] = ()) -> float:
@@ -123,18 +166,27 @@ def run_tax(b: Dict, log: Callable[[str], None]) -> Dict:
     """Measure the three tables; return every number."""
     from pg_node.common.params import defaults
     from bench import runs as br
-    out = {'steps': b['tax_steps'], 'pairs': [], 'nodes': {}, 'scaling': [], 'latency': {}}
+    out = {'steps': b['tax_steps'], 'pairs': [], 'pair_loads': [], 'nodes': {}, 'scaling': [],
+           'latency': {}}
     steps = b['tax_steps']
     trips = {'rollout': [], 'boundary': [], 'separate_rollout': [], 'separate_boundary': []}
     n_steps = defaults('actor_node')['n_steps']    # the runs' rollouts: a hand-over per n_steps
     for k in range(b['tax_repeats']):
         log(f'tax: in-process, graph and graph of separate processes, 64 arms, {steps:,} '
             f'steps ({k + 1}/{b["tax_repeats"]})')
-        ip = inprocess_rate(steps)
-        summary = graph_run(steps, round_trips=True)
-        separate = graph_run(steps, ['--separate'], round_trips=True)
+        loads = {}
+        with LoadWatch() as load:
+            ip = inprocess_rate(steps)
+        loads['inprocess'] = load.result()
+        with LoadWatch() as load:
+            summary = graph_run(steps, round_trips=True)
+        loads['graph'] = load.result()
+        with LoadWatch() as load:
+            separate = graph_run(steps, ['--separate'], round_trips=True)
+        loads['separate'] = load.result()
         out['pairs'].append({'inprocess': ip, 'graph': summary['steps_per_second'],
                              'separate': separate['steps_per_second']})
+        out['pair_loads'].append(loads)
         for prefix, run in (('', summary), ('separate_', separate)):
             part = split_round_trips(run['round_trips_ns'], n_steps)
             trips[f'{prefix}rollout'].append(part[0])
@@ -235,20 +287,46 @@ def _fmt(x, spec=',.0f'):
     return '—' if x is None else format(x, spec)
 
 
+def _spread(values, spec):
+    return f'{format(min(values), spec)}-{format(max(values), spec)}'
+
+
+def load_text(loads, keys) -> str:
+    """
+    Return one run's loads as ``1.02, 1.80 (2.10); ...``: per side, before, during (max).
+
+    >>> load_text({'inprocess': {'before': [1.02, 0.9, 0.8], 'during_mean': 1.5,
+    ...                          'during_max': 1.8}}, ['inprocess', 'graph'])
+    '1.02, 1.50 (1.80)'
+    """
+    if not loads:
+        return '—'
+    return '; '.join(f"{loads[k]['before'][0]:.2f}, {loads[k]['during_mean']:.2f} "
+                     f"({loads[k]['during_max']:.2f})" for k in keys if k in loads)
+
+
 def render_tax(res: Dict, table: Callable[[List[str], List[List[str]]], str]) -> List[str]:
     """Return the section's markdown lines."""
     pairs = res['pairs']
     keys = ['graph', 'separate'] if all('separate' in p for p in pairs) else ['graph']
     ratio_head = ['run', 'in-process steps/s', 'graph steps/s', 'graph / in-process',
                   'graph, separate, steps/s', 'separate / in-process'][:2 + 2 * len(keys)]
+    loads = res.get('pair_loads') or [None] * len(pairs)
+    ratio_head.append('load: 1-min average before, during (max) each run')
     ratio_rows = [[str(k + 1), _fmt(p['inprocess'])]
                   + [x for key in keys
                      for x in (_fmt(p[key]), _fmt(p[key] / p['inprocess'], '.3f'))]
+                  + [load_text(loads[k], ['inprocess', *keys])]
                   for k, p in enumerate(pairs)]
     ratio_rows.append(
         ['**median**', f"**{_fmt(statistics.median(p['inprocess'] for p in pairs))}**"]
         + [f'**{x}**' for key in keys for x in (_fmt(statistics.median(p[key] for p in pairs)),
-                                                _fmt(tax_ratio(pairs, key), '.3f'))])
+                                                _fmt(tax_ratio(pairs, key), '.3f'))] + [''])
+    ratio_rows.append(['min-max', _spread([p['inprocess'] for p in pairs], ',.0f')]
+                      + [x for key in keys
+                         for x in (_spread([p[key] for p in pairs], ',.0f'),
+                                   _spread([p[key] / p['inprocess'] for p in pairs], '.3f'))]
+                      + [''])
     out = ['## The ROS tax: the graph against the same computation in one process', '',
            f'Default settings (64 arms, 8-step rollouts, A2C, lock-step, sync), '
            f'{res["steps"]:,} steps per run, in-process and graph in turn, '
@@ -304,3 +382,127 @@ def render_tax(res: Dict, table: Callable[[List[str], List[List[str]]], str]) ->
             'runs in another DDS domain on the same two cores.', '',
             table(['while', *head[1:]], rows(LATENCY_LABELS)), '']
     return out
+
+
+# --- python -m bench tax: the ratio alone, in alternating runs ------------------------------
+
+#: the graphs ``python -m bench tax`` sets beside in-process by default: ``train``'s default,
+#: and the same with the simulator and the actor exchanging over DDS (``in_process_hop`` off)
+GRAPHS = {'graph': [], 'graph_over_dds': ['sim_node.in_process_hop=false']}
+
+
+def ratio_runs(steps: int, runs: int, graphs: Dict[str, List[str]],
+               log: Callable[[str], None]) -> Dict:
+    """
+    Train in-process and through each of ``graphs`` in turn, ``runs`` times; every load.
+
+    The order turns round every other run (in-process first, then last), so that a load
+    that drifts through a run weighs on both sides alike. ``graphs``: a name for each graph
+    and its ``train`` overrides.
+    """
+    out = {'steps': steps, 'graphs': graphs, 'pairs': [], 'pair_loads': [],
+           'load_start': [round(x, 2) for x in os.getloadavg()]}
+    for k in range(runs):
+        order = ['inprocess', *graphs]
+        if k % 2:
+            order.reverse()
+        rates, loads = {}, {}
+        for side in order:
+            log(f'tax: run {k + 1}/{runs}, {side}, {steps:,} steps')
+            with LoadWatch() as load:
+                rates[side] = (inprocess_rate(steps) if side == 'inprocess' else
+                               graph_run(steps, graphs[side])['steps_per_second'])
+            loads[side] = load.result()
+            log(f'tax: {side} {rates[side]:,.0f} steps/s, load {load_text(loads, [side])}')
+        out['pairs'].append(rates)
+        out['pair_loads'].append(loads)
+    out['load_end'] = [round(x, 2) for x in os.getloadavg()]
+    return out
+
+
+def render_ratio(res: Dict, command: str) -> List[str]:
+    """Return the markdown of :func:`ratio_runs`: one row per run, the median, min-max."""
+    pairs, graphs = res['pairs'], list(res['graphs'])
+    head = ['run', 'in-process steps/s'] + [x for g in graphs
+                                            for x in (f'{g} steps/s', f'{g} / in-process')]
+    head.append('load: 1-min average before, during (max), in-process; '
+                + '; '.join(graphs))
+    rows = [[str(k + 1), _fmt(p['inprocess'])]
+            + [x for g in graphs for x in (_fmt(p[g]), _fmt(p[g] / p['inprocess'], '.3f'))]
+            + [load_text(res['pair_loads'][k], ['inprocess', *graphs])]
+            for k, p in enumerate(pairs)]
+    rows.append(['**median**', f"**{_fmt(statistics.median(p['inprocess'] for p in pairs))}**"]
+                + [f'**{x}**' for g in graphs
+                   for x in (_fmt(statistics.median(p[g] for p in pairs)),
+                             _fmt(tax_ratio(pairs, g), '.3f'))] + [''])
+    rows.append(['min-max', _spread([p['inprocess'] for p in pairs], ',.0f')]
+                + [x for g in graphs
+                   for x in (_spread([p[g] for p in pairs], ',.0f'),
+                             _spread([p[g] / p['inprocess'] for p in pairs], '.3f'))] + [''])
+    lines = ['| ' + ' | '.join(head) + ' |', '|' + '---|' * len(head)]
+    lines += ['| ' + ' | '.join(r) + ' |' for r in rows]
+    described = '; '.join(f'{g}: `train {" ".join(o)}`' if o else f'{g}: `train`'
+                          for g, o in res['graphs'].items())
+    return [f'`{command}`: default settings (64 arms, 8-step rollouts, A2C, lock-step, sync), '
+            f'{res["steps"]:,} steps per training, in-process and each graph in turn '
+            f'({described}), {len(pairs)} times, the order reversed every other time; steps/s '
+            'from the first update to the last. The ratio is read within each run, its median '
+            'is the figure. Load average (1/5/15 min) '
+            f'{" / ".join(map(str, res["load_start"]))} at the start, '
+            f'{" / ".join(map(str, res["load_end"]))} at the end.', '', *lines, '']
+
+
+def main(argv=None) -> int:
+    """``python -m bench tax``: the graph / in-process ratio in alternating runs."""
+    from pg_node.tools.processes import REPO
+    parser = argparse.ArgumentParser(
+        prog='python -m bench tax',
+        description='The ROS tax: the default training in-process and through the graph, '
+                    'in turn; the ratio of each run, its median and spread, and the load.')
+    parser.add_argument('--steps', type=int, default=BUDGETS['tax_steps'][0],
+                        help='environment steps per training (default: %(default)s)')
+    parser.add_argument('--runs', type=int, default=5,
+                        help='runs of each side, alternating (at least 3; default: '
+                             '%(default)s)')
+    parser.add_argument('--graph', action='append', metavar='NAME[=KEY=VALUE,...]',
+                        help='a graph to measure, with its train overrides (repeatable; '
+                             'default: graph, and graph_over_dds with '
+                             'sim_node.in_process_hop=false)')
+    parser.add_argument('--out', metavar='FILE.md',
+                        help='also write the table there, and every number to FILE.json')
+    args = parser.parse_args(argv)
+    if args.runs < 3 or args.steps <= 0:
+        parser.error('--runs must be at least 3 and --steps positive')
+    graphs = GRAPHS
+    if args.graph:
+        graphs = {}
+        for spec in args.graph:
+            name, _, overrides = spec.partition('=')
+            if not name or name == 'inprocess' or name in graphs:
+                parser.error(f'--graph {spec!r}: a new name (not inprocess) first')
+            graphs[name] = [o for o in overrides.split(',') if o]
+    command = ' '.join(['python -m bench tax', *(sys.argv[2:] if argv is None else argv)])
+    start = time.perf_counter()
+
+    def log(text):
+        print(f'[tax {time.perf_counter() - start:7.1f} s] {text}', file=sys.stderr, flush=True)
+
+    log(f'commit {_commit(REPO)}')
+    res = ratio_runs(args.steps, args.runs, graphs, log)
+    res['command'], res['commit'] = command, _commit(REPO)
+    text = '\n'.join(render_ratio(res, command))
+    print(text)
+    if args.out:
+        out = Path(args.out)
+        out.write_text(text)
+        out.with_suffix('.json').write_text(json.dumps(res, indent=1))
+    return 0
+
+
+def _commit(repo) -> str:
+    import subprocess
+    try:
+        return subprocess.run(['git', 'rev-parse', '--short', 'HEAD'], cwd=repo, text=True,
+                              capture_output=True, timeout=10).stdout.strip() or '?'
+    except OSError:
+        return '?'

@@ -156,3 +156,28 @@ def test_the_ros_blocker_blocks():
     """A module that needs rclpy fails under the same blocker, so the test above can fail."""
     res = blocked_import(ROS_PACKAGES, ['ros'])
     assert res.returncode != 0 and 'not importable in this test' in res.stderr
+
+
+#: what the repository's root holds: the package's files and the folders the docs name
+ROOT_FILES = {'.gitignore', 'Makefile', 'README.md', 'package.xml', 'pytest.ini',
+              'requirements.in', 'requirements.lock', 'setup.cfg', 'setup.py'}
+ROOT_DIRS = {'.ci', 'bags', 'bench', 'config', 'docs', 'launch', 'pg_node', 'resource',
+             'scripts', 'test'}
+
+
+def stray_at_root(tracked):
+    """Return the tracked paths whose first component is neither a root file nor a folder."""
+    return sorted(p for p in tracked
+                  if (p.split('/')[0] not in ROOT_DIRS if '/' in p else p not in ROOT_FILES))
+
+
+def test_nothing_stray_is_tracked_at_the_root():
+    # a shell redirect once committed a file named after a table cell, and a test's
+    # MUJOCO_LOG.TXT was committed: the root holds what a package's root holds
+    root = PACKAGE.parent
+    listed = subprocess.run(['git', 'ls-files'], cwd=root, capture_output=True, text=True)
+    if listed.returncode != 0:
+        pytest.skip('not a git checkout')
+    assert stray_at_root(listed.stdout.splitlines()) == []
+    assert stray_at_root(['MUJOCO_LOG.TXT', 'hat | x', 'pg_node/a.py', 'tmp/x']) == [
+        'MUJOCO_LOG.TXT', 'hat | x', 'tmp/x']

@@ -263,3 +263,26 @@ def test_velocity_servos_run_as_velocity_commands(tmp_path):
     np.testing.assert_allclose(pb['eval_final_distances'], mj['eval_final_distances'],
                                atol=5e-3)
     assert np.ptp(mj['eval_final_distances']) > 0.01     # distinct episodes
+
+
+def test_relative_position_targets_run_around_pybullets_angles(tmp_path):
+    """
+    A policy of bounded changes (a run's ``position_delta``) commands ``q + u d`` in PyBullet.
+
+    A zero change holds each episode's start in both engines, which then end the same
+    episodes within a few millimetres; taken as absolute targets (the angle 0, a radian
+    from the start) the arm would move. (A steady non-zero change is a ramp, which the
+    engines' servos follow with different lags: MuJoCo's ``kp``, ``kv`` against PyBullet's
+    motor.)
+    """
+    model = imported(tmp_path, TWO_LINK, 'fingertip', actuator='position', home=[1.0, 1.0])
+    policy = Constant([0.0, 0.0])
+    mj = evaluate_policy(policy, str(model), n_episodes=4, frame_skip=2, position_delta=0.1)
+    pb = evaluate_in_pybullet(policy, str(model), TWO_LINK, n_episodes=4, frame_skip=2,
+                              max_episode_steps=50, position_delta=0.1)
+    absolute = evaluate_policy(policy, str(model), n_episodes=4, frame_skip=2)
+    np.testing.assert_allclose(pb['eval_final_distances'], mj['eval_final_distances'],
+                               atol=5e-3)
+    assert np.max(np.abs(np.subtract(absolute['eval_final_distances'],
+                                     mj['eval_final_distances']))) > 0.02
+    assert np.ptp(mj['eval_final_distances']) > 0.01     # distinct episodes

@@ -76,3 +76,43 @@ def test_one_arm_has_plain_names_and_a_bad_view_arm_is_refused(tmp_path):
     rc, log = stop_node(proc)
     assert rc != 0 and "view_arms': '1' names an arm beyond the 1 simulated" in log, log
     assert 'Traceback' not in log
+
+
+def description_of(tmp_path, model):
+    """Return what sim_node with ``model`` publishes as robot_description, and its log."""
+    proc = start_node(tmp_path, f'model:={model}')
+    client = Client()
+    try:
+        description = []
+        client.node.create_subscription(String, '/robot_description', description.append,
+                                        LATCHED)
+        client.spin_until(lambda: description)
+    finally:
+        client.close()
+        rc, log = stop_node(proc)
+    assert rc == 0, log
+    return description[0].data, log
+
+
+@pytest.mark.e2e
+def test_an_imported_arm_publishes_its_vendors_urdf(tmp_path):
+    """
+    The shipped arm7 (imported from ``urdf/panda.urdf``): that file, as it is.
+
+    A copy of the model without the URDF beside it: the URDF written from the model, and
+    one warning line that names the missing file.
+    """
+    vendor = resolve_model('arm7').parent / 'urdf' / 'panda.urdf'
+    urdf, log = description_of(tmp_path, 'arm7')
+    assert urdf == vendor.read_text()
+    assert f'robot_description: {vendor}' in log
+    lost = tmp_path / 'arm7.xml'
+    lost.write_text(resolve_model('arm7').read_text())
+    urdf, log = description_of(tmp_path, lost)
+    model = mujoco.MjModel.from_xml_path(str(lost))
+    assert compare_kinematics(model, urdf, tolerance=1e-6) is None
+    assert urdf != vendor.read_text()
+    line = ("robot_description written from the MuJoCo model: the model's vendor URDF "
+            f"(pg_source_urdf) {tmp_path / 'urdf' / 'panda.urdf'} cannot be read: No such "
+            'file or directory')
+    assert [n for n in log.splitlines() if 'robot_description' in n][0].endswith(line)

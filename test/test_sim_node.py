@@ -637,6 +637,54 @@ def test_sim_and_actor_share_a_process_and_both_stop_cleanly(tmp_path, client, s
 
 
 @pytest.mark.e2e
+@pytest.mark.parametrize('hop', [True, False], ids=['in-process-hop', 'over-dds'])
+def test_sim_and_actor_publish_every_transition_and_command_for_others(tmp_path, client, hop):
+    """
+    A subscriber in another process gets every transition and command of the pair.
+
+    With ``in_process_hop`` the two nodes hand them over inside the process and publish
+    them for the others; without it they go over DDS. The test plays the learner: each
+    policy version lets the actor answer one rollout of ``n_steps`` transitions.
+    """
+    from pg_node.common.params import defaults
+    from pg_node.rl.learner import make_policy
+    from pg_node.rl.weights import flatten_state
+    from pg_node.ros import messages
+    from pg_node.ros import table_msg
+    n_steps, versions = 4, 3
+    proc = _sim_and_actor(tmp_path, f'in_process_hop:={str(hop).lower()}',
+                          f'n_steps:={n_steps}')
+    commands = []
+    sub = client.node.create_subscription(Float64MultiArray, '/pg_node/commands',
+                                          commands.append, 100)
+    pub_w = client.node.create_publisher(Float64MultiArray, '/pg_node/policy_weights', LATCHED)
+    try:
+        client.spin_until(lambda: client.transitions and sub.get_publisher_count()
+                          and pub_w.get_subscription_count(), timeout=30.0)
+        client.spin_for(0.5)          # the nodes' writers match the test's readers too
+        cfg = {**defaults('learner_node'), **defaults('actor_node')}
+        layout, vec = flatten_state(make_policy(10, 2, cfg))     # reacher2's policy
+        for version in range(versions):
+            pub_w.publish(table_msg.to_msg(*messages.pack_weights(layout, vec, version, 0)))
+            answered = n_steps * (version + 1)
+            client.spin_until(lambda: len(commands) >= answered
+                              and len(client.transitions) >= answered + 1)
+        client.spin_for(0.3)          # nothing more, nothing twice
+    finally:
+        _, text = stop_node(proc)
+    total = n_steps * versions
+    # every one, in order (transition 0 comes again while the actor waits for weights:
+    # sim_node's lock_step_timeout re-sends it)
+    seqs = [tr.seq for tr in client.transitions]
+    assert seqs == sorted(seqs) and set(seqs) == set(range(total + 1)), seqs
+    assert [command.transition_of(m) for m in commands] == list(range(total))
+    assert all(len(m.data) >= 2 * 2 for m in commands)           # 2 arms x 2 actuators
+    said = 'handed to actor_node inside the process (in_process_hop)' in text
+    assert said == hop, text
+    assert 'Traceback' not in text and 'ignored a command' not in text, text
+
+
+@pytest.mark.e2e
 def test_sim_and_actor_refuses_a_bad_actor_parameter_in_one_line(tmp_path):
     proc = _sim_and_actor(tmp_path, 'n_steps:=0')
     assert proc.wait(timeout=60) == 2

@@ -119,12 +119,17 @@ RANDOMIZED = ['randomize_mass=uniform 0.5 2', 'randomize_damping=log_uniform 0.5
               'randomize_servo_latency=uniform 0 0.02', 'randomize_payload=uniform 0 0.5']
 
 
-@pytest.mark.parametrize('groups, overrides', [(2, []), (3, RANDOMIZED)],
-                         ids=['2-groups', '3-groups-randomized'])
+@pytest.mark.parametrize('groups, overrides, transport', [
+    (2, [], ['sim_node.in_process_hop=false']), (3, RANDOMIZED, [])],
+    ids=['2-groups-over-dds', '3-groups-randomized-in-process-hop'])
 def test_graph_equals_inprocess_reference_with_other_lock_step_groups(
-        tmp_path, groups, overrides):
+        tmp_path, groups, overrides, transport):
     """
     Two groups of 32 arms, or three of 21-22 arms: the in-process computation too.
+
+    The first run's simulator and actor exchange their transitions and commands over DDS
+    (``in_process_hop`` off), the others' (the long run's too) inside their process
+    (:mod:`pg_node.ros.local_hop`): both ways the same computation, bit for bit.
 
     The second run randomizes every term (each arm its own masses, damping, friction,
     armature, gears, latency, noise, servo lag and dead time and payload, drawn at startup,
@@ -133,7 +138,10 @@ def test_graph_equals_inprocess_reference_with_other_lock_step_groups(
     """
     steps = 20_480
     res = train(tmp_path / 'run', '--total-steps', str(steps), f'lock_step_groups={groups}',
-                *overrides)
+                *overrides, *transport)
+    log = (tmp_path / 'run' / 'logs' / 'sim_and_actor.log').read_text()
+    assert ('handed to actor_node inside the process (in_process_hop)' in log) == (
+        not transport), log[-3000:]
     assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
     summary = json.loads((tmp_path / 'run' / 'summary.json').read_text())
     ref = train_inprocess(load_config(default_config(), [f'total_steps={steps}',

@@ -96,3 +96,40 @@ def test_all_contradictions_are_one_line():
                              'command_interface': 'effort'})
     assert '\n' not in line and line.count('; ') == 2
     assert line.startswith("the parameters contradict the policy card's physics: control_rate")
+
+
+def test_play_and_trains_final_evaluation_step_as_the_card_says(tmp_path):
+    """
+    A run trained at ``frame_skip`` 3: train's final evaluation and play's robot use 3.
+
+    ``eval`` and in-process training did; ``train``'s summary and ``play --robot sim``
+    (and ``pybullet``) took the default, 2, a control step the policy never learned.
+    """
+    from argparse import Namespace
+    from pg_node.common.params import load_config
+    from pg_node.rl.evaluate import evaluate_policy
+    from pg_node.rl.learner import policy_from_checkpoint
+    from pg_node.rl.train_inprocess import train_inprocess
+    from pg_node.rl.trained_policy import find_checkpoint
+    from pg_node.tools.play import robot_argv
+    from pg_node.tools.train import evaluate_run
+    run = tmp_path / 'run'
+    summary = train_inprocess(load_config(None, ['num_envs=4', 'n_steps=8']), 64,
+                              eval_episodes=1)
+    summary['learner'].save(run / 'checkpoints')
+    (run / 'params.yaml').write_text(yaml.safe_dump(
+        {'/**/sim_node': {'ros__parameters': {'frame_skip': 3}}}))
+    got = evaluate_run(run, 2)
+    state, file = find_checkpoint(run)
+    assert got['checkpoint'] == str(file)
+
+    def evaluated(frame_skip):
+        return evaluate_policy(policy_from_checkpoint(state), 'reacher2', 2,
+                               state['config']['seed'], frame_skip=frame_skip)
+    assert evaluated(3) != evaluated(2)             # the check can fail
+    assert {k: got[k] for k in evaluated(3)} == evaluated(3)
+    card = checkpoint_card(state, file)
+    for robot in ('sim', 'pybullet'):
+        args = Namespace(robot=robot, seed=0, real_time_factor=1.0, urdf=None, arms=1)
+        argv = robot_argv(args, card, 'reacher2', '/play_1', 'effort', [])
+        assert [a for a in argv if a.startswith('frame_skip:=')] == ['frame_skip:=3']

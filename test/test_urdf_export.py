@@ -55,25 +55,53 @@ def test_a_body_with_two_joints_is_refused():
         export_urdf(model)
 
 
-def test_a_model_naming_its_urdf_describes_itself_with_it(tmp_path):
+def test_an_imported_arm_is_described_by_its_vendors_urdf_even_moved(tmp_path):
+    """
+    ``arm import`` names the URDF relative to the model, so the folder can move.
+
+    The model and its URDF are moved together: the description is the vendor's file, read
+    from the new place. The URDF left behind: the URDF is written from the model, and
+    ``problem`` says which file is missing (the line sim_node logs).
+    """
+    import shutil
+    from pg_node.sim.urdf_export import robot_description, source_urdf, WRITTEN
     from pg_node.sim.urdf_import import ImportOptions, import_urdf, write_model
+    shipped = resolve_model('arm7').parent / 'urdf' / 'panda.urdf'
+    vendor = tmp_path / 'a' / 'robot' / 'panda.urdf'
+    vendor.parent.mkdir(parents=True)
+    shutil.copyfile(shipped, vendor)
+    out = tmp_path / 'a' / 'models' / 'panda.xml'
+    out.parent.mkdir()
+    write_model(import_urdf(vendor, ImportOptions(tip='panda_hand_tcp'), out_path=out), out)
+    assert '"../robot/panda.urdf"' in out.read_text()      # nothing of this machine
+    assert str(tmp_path) not in out.read_text()
+    shutil.move(tmp_path / 'a', tmp_path / 'b')
+    moved = tmp_path / 'b' / 'models' / 'panda.xml'
+    model = mujoco.MjModel.from_xml_path(str(moved))
+    described = robot_description(model, moved)
+    assert described.urdf == shipped.read_text() and not described.problem
+    assert described.origin == str(tmp_path / 'b' / 'robot' / 'panda.urdf')
+    assert compare_kinematics(model, described.urdf, tolerance=1e-6) is None
+    (tmp_path / 'b' / 'robot' / 'panda.urdf').unlink()    # the URDF did not come along
+    described = robot_description(model, moved)
+    assert described.origin == WRITTEN
+    assert described.problem == ("the model's vendor URDF (pg_source_urdf) "
+                                 f"{tmp_path / 'b' / 'robot' / 'panda.urdf'} cannot be read: "
+                                 'No such file or directory')
+    assert compare_kinematics(model, described.urdf, tolerance=1e-6) is None
+    # a copy of the model's text without its file (a card's model_xml): written, and said so
+    described = robot_description(model)
+    assert described.origin == WRITTEN and 'is relative' in described.problem
+    assert source_urdf(mujoco.MjModel.from_xml_path(str(resolve_model('reacher2')))) is None
+
+
+def test_the_shipped_arm7_names_its_urdf_by_a_relative_path():
     from pg_node.sim.urdf_export import robot_description
-    panda = resolve_model('arm7').parent / 'urdf' / 'panda.urdf'
-    out = tmp_path / 'panda.xml'
-    write_model(import_urdf(panda, ImportOptions(tip='panda_hand_tcp'), out_path=out), out)
-    urdf, origin = robot_description(mujoco.MjModel.from_xml_path(str(out)))
-    assert origin == 'written from the MuJoCo model'     # arm import names no URDF (yet)
-    spec = mujoco.MjSpec.from_file(str(out))
-    spec.add_text(name='pg_source_urdf', data=str(panda.resolve()))
-    out.write_text(spec.to_xml())
-    model = mujoco.MjModel.from_xml_path(str(out))
-    urdf, origin = robot_description(model)
-    assert origin == str(panda.resolve()) and urdf == panda.read_text()
-    moved = tmp_path / 'moved.xml'               # the vendor's file gone: one written
-    moved.write_text(out.read_text().replace(str(panda.resolve()), str(tmp_path / 'x.urdf')))
-    urdf, origin = robot_description(mujoco.MjModel.from_xml_path(str(moved)))
-    assert origin == 'written from the MuJoCo model'
-    assert compare_kinematics(model, urdf, tolerance=1e-6) is None
+    path = resolve_model('arm7')
+    described = robot_description(mujoco.MjModel.from_xml_path(str(path)), path)
+    assert described.origin == str(path.parent / 'urdf' / 'panda.urdf')
+    assert described.urdf == (path.parent / 'urdf' / 'panda.urdf').read_text()
+    assert 'pg_source_urdf" data="urdf/panda.urdf"' in path.read_text()
 
 
 def test_the_command_prints_what_sim_node_publishes(tmp_path, capsys):
@@ -81,5 +109,16 @@ def test_the_command_prints_what_sim_node_publishes(tmp_path, capsys):
     assert main(['arm5_3d']) == 0
     model = mujoco.MjModel.from_xml_path(str(resolve_model('arm5_3d')))
     assert capsys.readouterr().out == export_urdf(model)
+    assert main(['arm7']) == 0
+    urdf = resolve_model('arm7').parent / 'urdf' / 'panda.urdf'
+    assert capsys.readouterr().out == urdf.read_text()
+    lost = tmp_path / 'arm7.xml'                    # the model without its URDF beside it
+    lost.write_text(resolve_model('arm7').read_text())
+    assert main([str(lost)]) == 0
+    out, err = capsys.readouterr()
+    assert err == (f"urdf_export: the model's vendor URDF (pg_source_urdf) "
+                   f"{tmp_path / 'urdf' / 'panda.urdf'} cannot be read: No such file or "
+                   'directory; written from the model instead\n')
+    assert out.startswith('<?xml version="1.0"?>\n<!-- written by pg_node.sim.urdf_export')
     assert main(['no_such_arm']) == 1
     assert capsys.readouterr().err.startswith('urdf_export: ')

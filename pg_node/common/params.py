@@ -289,6 +289,10 @@ def arm_indices(text: str) -> List[int]:
 SIM_PARAMS: Dict[str, Param] = {
     'frame_skip': Param(2, 'physics steps per control step', low=1),
     'max_episode_steps': Param(50, 'control steps after which an episode is truncated', low=1),
+    'position_delta': Param(0.0, 'rad per control step: position servos: each action is a '
+                                 'change of at most this around the measured angle (as '
+                                 'arm import --position-delta; the card records it); 0: the '
+                                 "model's pg_position_delta, or absolute targets", low=0.0),
     'reward_dist_weight': Param(1.0, 'weight of the fingertip distance in the reward', low=0.0),
     'reward_control_weight': Param(1.0, 'weight of the squared command norm in the reward',
                                    low=0.0),
@@ -325,6 +329,11 @@ SIM_PARAMS: Dict[str, Param] = {
                              'subscriber; 0 turns it off', low=0.0, live=True),
     'trail_length': Param(50, "fingertip positions in pg_node/scene's trail", low=0),
     'diagnostics_rate': Param(1.0, 'diagnostics rate in Hz of wall time', **POSITIVE, live=True),
+    'in_process_hop': Param(True, 'when the actor shares the process (sim_and_actor, what '
+                                  'train starts): hand transitions and commands to it inside '
+                                  'the process, without DDS or an executor wake-up; each '
+                                  'is still published on its topic while anyone else '
+                                  'subscribes (pg_node.ros.local_hop). false: over DDS'),
     'round_trip_log': Param('', 'lock_step: a .npy file to write every round trip to when the '
                                 'node stops (ns from just before a transition is published to '
                                 'the arrival of the command that answers it); empty: the round '

@@ -33,11 +33,17 @@ def metrics(returns: np.ndarray, final: np.ndarray) -> dict:
 def evaluate_policy(policy, model: str, n_episodes: int = 100, seed: int = 0,
                     max_episode_steps: int = 50,
                     perturbation: Optional[Mapping] = None,
-                    frame_skip: int = 2) -> Dict[str, float]:
-    """Run ``n_episodes`` episodes of ``policy.mean_action`` side by side; return statistics."""
+                    frame_skip: int = 2, position_delta=None) -> Dict[str, float]:
+    """
+    Run ``n_episodes`` episodes of ``policy.mean_action`` side by side; return statistics.
+
+    ``position_delta``: the run's (its card's ``max_position_delta``), for a model without
+    its own ``pg_position_delta`` (:func:`pg_node.sim.arm_task.with_position_delta`).
+    """
     task = ArmTask(resolve_model(model), num_envs=n_episodes,
                    seed=seed + EVAL_SEED_OFFSET, max_episode_steps=max_episode_steps,
-                   randomization=perturbation, frame_skip=frame_skip)
+                   randomization=perturbation, frame_skip=frame_skip,
+                   position_delta=position_delta)
     try:
         obs = task.reset()
         returns = np.full(n_episodes, np.nan)
@@ -58,8 +64,8 @@ def evaluate_policy(policy, model: str, n_episodes: int = 100, seed: int = 0,
 def evaluate_in_pybullet(policy, model: str, urdf, n_episodes: int = 100, seed: int = 0,
                          max_episode_steps: int = 50, frame_skip: int = 2,
                          gravity_compensation: Optional[bool] = None,
-                         package_paths=(), max_timestep: Optional[float] = None
-                         ) -> Dict[str, float]:
+                         package_paths=(), max_timestep: Optional[float] = None,
+                         position_delta=None) -> Dict[str, float]:
     """
     Run :func:`evaluate_policy`'s episodes with the arm in PyBullet, read from ``urdf``.
 
@@ -74,6 +80,8 @@ def evaluate_in_pybullet(policy, model: str, urdf, n_episodes: int = 100, seed: 
     (:mod:`pg_node.control.interfaces`) and held for a control period of ``frame_skip`` x
     the model's timestep. The reward and the distance are the task's, with the fingertip
     where PyBullet puts it (the tip link's frame plus the model's fingertip offset).
+    A policy of relative position targets (the model's ``pg_position_delta`` or the run's
+    ``position_delta``) commands ``q + u d`` around PyBullet's angles, as ``policy_node`` does.
     ``gravity_compensation``: None follows the model (its links' ``gravcomp``).
     The result also holds ``pybullet_timestep`` and ``pybullet_warnings``.
     """
@@ -82,8 +90,10 @@ def evaluate_in_pybullet(policy, model: str, urdf, n_episodes: int = 100, seed: 
     from pg_node.sim.observation import ObservationBuilder
     from pg_node.sim.pybullet_arm import PybulletArm
     from pg_node.sim.training_physics import gravity_compensation as who_compensates
+    from pg_node.control.position_delta import targets
     task = ArmTask(resolve_model(model), num_envs=n_episodes, seed=seed + EVAL_SEED_OFFSET,
-                   max_episode_steps=max_episode_steps, frame_skip=frame_skip)
+                   max_episode_steps=max_episode_steps, frame_skip=frame_skip,
+                   position_delta=position_delta)
     task.reset()
     q0, qd0, _ = task.joint_state()
     goals = task.target_pos()
@@ -96,6 +106,8 @@ def evaluate_in_pybullet(policy, model: str, urdf, n_episodes: int = 100, seed: 
     if why:
         raise ValueError(why)
     to_si = INTERFACES[interface].to_si
+    delta = task.position_delta
+    reach = INTERFACES['position'].si_range(act) if delta is not None else None
     if gravity_compensation is None:
         gravity_compensation = who_compensates(m, s.link_bodies) == 'robot'
     tip_link = m.body(int(m.site_bodyid[s.fingertip_site])).name
@@ -115,7 +127,8 @@ def evaluate_in_pybullet(policy, model: str, urdf, n_episodes: int = 100, seed: 
                     obs = obs_of(q[None], qd[None], goals[i][None])
                     u = policy.mean_action(torch.as_tensor(obs, dtype=torch.float32)).numpy()
                     u = u[0].astype(np.float64)
-                    arm.step(to_si(act, np.clip(u, lo, hi)), mode=interface)
+                    arm.step(to_si(act, np.clip(u, lo, hi)) if delta is None
+                             else targets(u, q, delta, *reach), mode=interface)
                     dist = float(np.linalg.norm(arm.link_position(tip_link, tip_offset)
                                                 - goals[i]))
                     # the task's reward: the unclipped action in the penalty (ArmTask.step)

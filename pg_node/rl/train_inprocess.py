@@ -29,7 +29,7 @@ def task_of(cfg: Dict[str, Dict]) -> ArmTask:
                    max_episode_steps=sim['max_episode_steps'],
                    reward_dist_weight=sim['reward_dist_weight'],
                    reward_control_weight=sim['reward_control_weight'],
-                   randomization=from_params(sim))
+                   randomization=from_params(sim), position_delta=sim['position_delta'])
 
 
 def train_inprocess(cfg: Dict[str, Dict], total_steps: int,
@@ -90,7 +90,8 @@ def train_inprocess(cfg: Dict[str, Dict], total_steps: int,
     summary = {'total_steps': steps, 'wall_seconds': wall, 'steps_per_second': steps / wall,
                'policy_version': learner.version}
     summary.update(evaluate_policy(policy, shared['model'], eval_episodes, shared['seed'],
-                                   frame_skip=cfg['sim_node']['frame_skip']))
+                                   frame_skip=cfg['sim_node']['frame_skip'],
+                                   position_delta=cfg['sim_node']['position_delta']))
     summary['learner'] = learner
     summary['critic'] = critic
     return summary

@@ -16,7 +16,7 @@ Every problem with a source is a :class:`PolicySourceError` whose message is one
 """
 import json
 from pathlib import Path
-from typing import Dict, Optional, Tuple
+from typing import Dict, List, Optional, Tuple
 
 import numpy as np
 
@@ -96,10 +96,25 @@ def _run_randomization(ckpt_file: Path) -> Dict[str, str]:
     return {t: text for t, text in from_params(_run_sim_params(ckpt_file)).items() if text}
 
 
+def _run_position_delta(ckpt_file: Path) -> float:
+    """Return ``sim_node.position_delta`` from the run's ``params.yaml`` (none: 0)."""
+    value = _run_sim_params(ckpt_file).get('position_delta')
+    return float(value) if isinstance(value, (int, float)) else 0.0
+
+
+def card_position_delta(card: Dict) -> Optional[List[float]]:
+    """Return the card's ``max_position_delta`` (rad per joint), None for absolute targets."""
+    return (card.get('command_interfaces') or {}).get('position', {}).get('max_position_delta')
+
+
 def make_card(model_name: str, obs_dim: int, act_dim: int, frame_skip: int,
-              source: Dict, randomization: Optional[Dict[str, str]] = None) -> Dict:
+              source: Dict, randomization: Optional[Dict[str, str]] = None,
+              position_delta=None) -> Dict:
     """
     Return the card of a policy trained on ``model_name`` with ``frame_skip``.
+
+    ``position_delta``: the run's ``sim_node.position_delta`` (None or 0: the model's own
+    ``pg_position_delta``, if any): recorded as ``max_position_delta`` like an import's.
 
     The arm model's MJCF text is kept in the card (``model_xml``), so that the card alone
     is enough to compute the observation's forward kinematics. ``physics`` records what the
@@ -111,11 +126,11 @@ def make_card(model_name: str, obs_dim: int, act_dim: int, frame_skip: int,
     from pg_node.common.paths import resolve_model
     from pg_node.control.interfaces import card as command_card
     from pg_node.sim.actuation import actuators
-    from pg_node.sim.arm_task import ArmSpec
+    from pg_node.sim.arm_task import ArmSpec, with_position_delta
     try:
         model_path = resolve_model(model_name)
         model = mujoco.MjModel.from_xml_path(str(model_path))
-        spec = ArmSpec.from_model(model)
+        spec = with_position_delta(model, ArmSpec.from_model(model), position_delta)
     except (OSError, ValueError) as exc:
         raise PolicySourceError(f'arm model {model_name!r} of the policy: '
                                 f'{" ".join(str(exc).split())}') from None
@@ -168,7 +183,7 @@ def checkpoint_card(state: dict, file: Path) -> Dict:
     source = {'checkpoint': str(Path(file).resolve()), 'policy_version': int(state['version']),
               'env_steps': int(state.get('env_steps', 0))}
     return make_card(state['config']['model'], int(state['obs_dim']), int(state['act_dim']),
-                     frame_skip, source, _run_randomization(file))
+                     frame_skip, source, _run_randomization(file), _run_position_delta(file))
 
 
 class TrainedPolicy:

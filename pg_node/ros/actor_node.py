@@ -84,11 +84,11 @@ class ActorNode(Node):
                                                  RELIABLE)
         # one transition of each group of arms may wait here (depth 1 with one group: a
         # real-time simulator's newest transition replaces one not yet answered)
-        self.create_subscription(Float64MultiArray, 'pg_node/transition', self.on_transition,
-                                 QoSProfile(depth=self.cfg['lock_step_groups'],
-                                            reliability=LATCHED.reliability,
-                                            durability=LATCHED.durability),
-                                 raw=True)
+        self.sub_transition = self.create_subscription(
+            Float64MultiArray, 'pg_node/transition', self.on_transition,
+            QoSProfile(depth=self.cfg['lock_step_groups'], reliability=LATCHED.reliability,
+                       durability=LATCHED.durability),
+            raw=True)
         self.create_subscription(Float64MultiArray, self.run.topic('policy_weights'),
                                  self.on_weights, LATCHED)
         self.diag = Diagnostics(self, f'actor_node {self.cfg["actor_id"]}',

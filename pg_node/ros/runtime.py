@@ -17,6 +17,7 @@ from typing import Callable, Iterator, List, Mapping, Optional, Union
 
 from pg_node.common.params import ConfigError
 from pg_node.common.paths import SUPERVISOR_ENV
+from pg_node.ros import local_hop
 import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
@@ -343,7 +344,11 @@ def run(make_node: Callable[[], Union[Node, List[Node]]], args=None,
             # the nodes that can end the process, looked up once: the loop runs per callback
             enders = [n for n in _nodes(node) if hasattr(n, 'exit_code')]
             while rclpy.ok() and not stop:
-                executor.spin_once(timeout_sec=SPIN_TIMEOUT)
+                # hand-overs inside the process (pg_node.ros.local_hop) first; while some
+                # are left, the executor takes only what is ready, without waiting
+                if local_hop.PENDING:
+                    local_hop.deliver()
+                executor.spin_once(timeout_sec=0.0 if local_hop.PENDING else SPIN_TIMEOUT)
                 ended = next((n.exit_code for n in enders if n.exit_code is not None), None)
                 if ended is not None:
                     code = ended

@@ -13,8 +13,10 @@ Topics published:
 * ``/arm<i>/joint_states`` for each arm ``i`` in ``view_arms`` (default ``0``): the same for
   that arm alone, with plain names, so that ``robot_state_publisher`` can draw it;
 * ``/robot_description`` (``std_msgs/String``, reliable, transient local, once at start):
-  the arm's URDF (:func:`pg_node.sim.urdf_export.robot_description`: one written from the
-  MuJoCo model with its kinematics, or the file the model names in ``pg_source_urdf``);
+  the arm's URDF (:func:`pg_node.sim.urdf_export.robot_description`: for an imported arm
+  the vendor's, the file the model names in ``pg_source_urdf`` relative to its folder;
+  else, or with one warning line when that file is missing, one written from the MuJoCo
+  model with its kinematics);
 * ``/clock`` (``rosgraph_msgs/Clock``): simulated time, ``control steps * dt``, every
   control step while it has a subscriber; it never goes back, not even on a world reset;
 * ``/target`` (``geometry_msgs/PointStamped``): one message per arm whenever its target
@@ -201,7 +203,8 @@ class SimNode(Node):
                             reward_control_weight=p['reward_control_weight'],
                             randomization=from_params(p),
                             # a robot's stand-in gets absolute angles from policy_node
-                            relative_actions=p['command_interface'] == 'control')
+                            relative_actions=p['command_interface'] == 'control',
+                            position_delta=p['position_delta'])
         self.params = p
         self.interface = p['command_interface']
         self.actuators = actuators(self.task.model)
@@ -255,9 +258,13 @@ class SimNode(Node):
                              durability=DurabilityPolicy.TRANSIENT_LOCAL)
         self.pub_description = self.create_publisher(String, 'robot_description', latched)
         try:
-            urdf, origin = robot_description(self.task.model)
-            self.pub_description.publish(String(data=urdf))
-            self.get_logger().info(f'robot_description: {origin}')
+            description = robot_description(self.task.model, self.task.model_path)
+            self.pub_description.publish(String(data=description.urdf))
+            if description.problem:
+                self.get_logger().warning(f'robot_description {description.origin}: '
+                                          f'{description.problem}')
+            else:
+                self.get_logger().info(f'robot_description: {description.origin}')
         except UrdfExportError as exc:          # the arm trains; ROS tools lack its URDF
             self.get_logger().warning(f'no robot_description: {exc}')
         self.pub_clock = self.create_publisher(Clock, 'clock', 10)
@@ -278,7 +285,8 @@ class SimNode(Node):
                 Float64MultiArray, self.run.topic(RANDOMIZATION),
                 QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
         self.pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
-        self.create_subscription(Float64MultiArray, COMMANDS, self.on_command, 10, raw=True)
+        self.sub_cmd = self.create_subscription(Float64MultiArray, COMMANDS, self.on_command, 10,
+                                                raw=True)
         self.follower = None
         if self.mode == 'real_time' and self.interface in jtc.FOLLOWED_FIELD:
             # the robot's joint trajectory controller (pg_node.control.jtc): its joints are

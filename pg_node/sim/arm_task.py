@@ -18,7 +18,8 @@ MJCF that follows these conventions can be used instead:
   the arm can reach, 3 numbers a point, mocap targets only: each goal is one of them, drawn
   uniformly, in place of the ball; ``python -m pg_node arm import`` writes them) and
   ``pg_position_delta`` (position servos only: rad per control step, one or one per arm
-  joint; the actions are then changes around the joints' angles, below).
+  joint; the actions are then changes around the joints' angles, below; a run sets or
+  replaces it with ``sim_node``'s ``position_delta``, :func:`with_position_delta`).
 
 Episode start (as ``Reacher-v5.reset_model`` draws it, in the same order, so that an env
 seeded like a Gymnasium env draws the same numbers):
@@ -62,7 +63,7 @@ stepping the ``MjData`` leaves the post-step ``xpos`` that Reacher-v5's reward r
 ``mujoco.rollout`` is not used.
 """
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 import os
 from typing import List, Mapping, Optional
 
@@ -96,18 +97,23 @@ class NotAnArm(ConfigError):
         super().__init__(f'{where}: {reason} (docs/mjcf.md says what an arm needs)')
 
 
-def check_arm(path) -> 'ArmSpec':
+def check_arm(path, position_delta=None) -> 'ArmSpec':
     """
     Compile the MJCF at ``path`` and read it as an arm; return its :class:`ArmSpec`.
+
+    ``position_delta``: a run's (:func:`with_position_delta`), checked against the model
+    (a :class:`ConfigError` of its own).
 
     Raises :class:`NotAnArm` in one line naming the file and what it lacks, so that a
     configuration check refuses a model no node could use before any node starts (a
     compiled model that is not an arm made every node crash, restart and crash again).
     """
+    model = mujoco.MjModel.from_xml_path(str(path))
     try:
-        return ArmSpec.from_model(mujoco.MjModel.from_xml_path(str(path)))
+        spec = ArmSpec.from_model(model)
     except NotAnArm as exc:
         raise NotAnArm(exc.reason, path) from None
+    return with_position_delta(model, spec, position_delta)
 
 
 def _custom_numeric(model: mujoco.MjModel, name: str, default):
@@ -276,6 +282,32 @@ def arm_groups(num_envs: int, groups: int) -> List[slice]:
     return [slice(a, b) for a, b in zip(bounds[:-1], bounds[1:])]
 
 
+def with_position_delta(model: mujoco.MjModel, spec: 'ArmSpec', value) -> 'ArmSpec':
+    """
+    Return ``spec`` with the position delta ``value`` (rad per control step) of a training run.
+
+    ``value``: one number or one per arm joint; ``None`` or 0 keeps the model's own
+    ``pg_position_delta`` (none: absolute targets). A training setting, so that a position
+    policy trains with bounded changes without importing its arm again; the policy's card
+    records it as an import's delta (``max_position_delta``). Raises :class:`ConfigError`
+    (the parameter's) for a model whose actuators are not all position servos, or a value
+    that is not one positive number or one per joint.
+    """
+    try:
+        delta = position_delta.deltas(value, len(spec.joint_ids))
+    except ValueError as exc:
+        raise ConfigError("parameter 'position_delta': " + str(exc).replace(
+            position_delta.MODEL_NUMERIC + ' ', '')) from None
+    if delta is None:
+        return spec
+    kinds = set(actuators(model).kind)
+    if kinds != {'position'}:
+        raise ConfigError(f"parameter 'position_delta' needs position servos; the model's "
+                          f'actuators are {", ".join(sorted(kinds))} (import the arm with '
+                          f'--actuator position)')
+    return replace(spec, position_delta=delta)
+
+
 class ArmTask:
     """
     ``num_envs`` copies of a reaching task on one MuJoCo arm model, stepped together.
@@ -290,7 +322,7 @@ class ArmTask:
                  reward_dist_weight: float = 1.0, reward_control_weight: float = 1.0,
                  num_threads: Optional[int] = None,
                  randomization: Optional[Mapping[str, object]] = None,
-                 relative_actions: bool = True):
+                 relative_actions: bool = True, position_delta=None):
         """
         Load the model and make ``num_envs`` simulations of it; call ``reset`` next.
 
@@ -301,13 +333,17 @@ class ArmTask:
         ``relative_actions``: with a model's ``pg_position_delta``, actions are changes
         around the joints' angles (:mod:`pg_node.control.position_delta`); False takes them
         as absolute targets (a stand-in robot that gets its angles from ``policy_node``).
+        ``position_delta`` (rad per control step, one or one per joint; None or 0: the
+        model's): makes the actions such changes on a model without ``pg_position_delta``
+        (:func:`with_position_delta`).
         """
         if (num_envs < 1 or frame_skip < 1
                 or (max_episode_steps is not None and max_episode_steps < 1)):
             raise ValueError('num_envs, frame_skip and max_episode_steps must be >= 1')
         self.model_path = str(model_path)
         self.model = mujoco.MjModel.from_xml_path(self.model_path)
-        self.spec = ArmSpec.from_model(self.model)
+        self.spec = with_position_delta(self.model, ArmSpec.from_model(self.model),
+                                        position_delta)
         self.num_envs = int(num_envs)
         self.frame_skip = int(frame_skip)
         self.max_episode_steps = max_episode_steps

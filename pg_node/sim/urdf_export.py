@@ -22,17 +22,19 @@ robot as a URDF. The hand-written arms (``reacher2``, ``arm5_3d``, ``arm7``) hav
 * **inertials** and the joint limits (``effort`` the largest torque of the joint's
   actuator) as the model has them.
 
-:func:`robot_description` is what ``sim_node`` publishes: the vendor's URDF when the model
-names one in its custom text ``pg_source_urdf`` (an absolute path; ``arm import`` does not
-write it yet: the shipped ``arm7.xml`` is byte-equal to its import, and an absolute path
-would tie it to one machine), else the URDF written here (imported arms included: their
-kinematics are MuJoCo's compile of the vendor's URDF, their meshes drawn as boxes).
+:func:`robot_description` is what ``sim_node`` publishes: the vendor's URDF, as it is,
+when the model names one in its custom text ``pg_source_urdf`` (``arm import`` writes it
+relative to the model's folder, :mod:`pg_node.sim.urdf_import`; an absolute path is taken
+as such), else the URDF written here (hand-written arms, an arm imported from a xacro, or
+the vendor's file not found: then :attr:`Description.problem` says why, in one line).
 
 Kinematics are MuJoCo's at every joint angle: :func:`pg_node.sim.kinematics_check.
 compare_kinematics` takes the result with zero deviation (``test/test_urdf_export.py``).
 """
 import math
-from typing import Dict, List, Optional, Tuple
+import os
+from pathlib import Path
+from typing import Dict, List, NamedTuple, Optional, Tuple
 import xml.etree.ElementTree as ET
 
 import mujoco
@@ -215,30 +217,56 @@ def export_urdf(model: mujoco.MjModel, name: Optional[str] = None) -> str:
             + '\n')
 
 
-def source_urdf(model: mujoco.MjModel) -> Optional[str]:
-    """Return the path in the model's custom text ``pg_source_urdf``, or None."""
+WRITTEN = 'written from the MuJoCo model'
+
+
+class Description(NamedTuple):
+    """A ``robot_description``: the URDF, where it came from, and why not the vendor's."""
+
+    urdf: str
+    #: the vendor's file, or :data:`WRITTEN`
+    origin: str
+    #: why the file the model names was not taken ('' if it was, or none is named)
+    problem: str = ''
+
+
+def source_urdf(model: mujoco.MjModel, model_path=None) -> Optional[Path]:
+    """
+    Return the file the model's custom text ``pg_source_urdf`` names, or None.
+
+    A relative path is relative to the folder of ``model_path`` (the MJCF file), where
+    ``arm import`` wrote it from; without ``model_path`` it is returned as it is.
+    """
     i = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_TEXT, 'pg_source_urdf')
     if i < 0:
         return None
     adr, size = model.text_adr[i], model.text_size[i]
-    return bytes(model.text_data[adr:adr + size - 1]).decode()
+    path = Path(bytes(model.text_data[adr:adr + size - 1]).decode())
+    if not path.is_absolute() and model_path is not None:
+        path = Path(os.path.normpath(Path(model_path).resolve().parent / path))
+    return path
 
 
-def robot_description(model: mujoco.MjModel) -> Tuple[str, str]:
+def robot_description(model: mujoco.MjModel, model_path=None) -> Description:
     """
-    Return ``(urdf, where from)``: the vendor's URDF of an imported arm, else one written.
+    Return the vendor's URDF of an imported arm, else one written (:func:`export_urdf`).
 
-    The vendor's file is taken when the model names one (``pg_source_urdf``) that can be
-    read; otherwise (a hand-written arm, or the file moved) :func:`export_urdf`'s.
+    The vendor's file is the one the model names (``pg_source_urdf``, relative to the
+    folder of ``model_path``); if it cannot be read (the model moved without it, or a copy
+    of the model's text elsewhere), the URDF is written and ``problem`` says so.
     """
-    path = source_urdf(model)
-    if path:
+    path = source_urdf(model, model_path)
+    if path is None:
+        return Description(export_urdf(model), WRITTEN)
+    if not path.is_absolute():
+        problem = f'pg_source_urdf {path} is relative and the model file is not known'
+    else:
         try:
-            with open(path, encoding='utf-8') as f:
-                return f.read(), path
-        except OSError:
-            pass
-    return export_urdf(model), 'written from the MuJoCo model'
+            return Description(path.read_text(encoding='utf-8'), str(path))
+        except (OSError, UnicodeDecodeError) as exc:
+            problem = (f"the model's vendor URDF (pg_source_urdf) {path} cannot be read: "
+                       f'{getattr(exc, "strerror", None) or exc}')
+    return Description(export_urdf(model), WRITTEN, problem)
 
 
 def main(argv=None) -> int:
@@ -252,8 +280,12 @@ def main(argv=None) -> int:
               file=sys.stderr)
         return 2
     try:
-        model = mujoco.MjModel.from_xml_path(str(resolve_model(args[0])))
-        print(robot_description(model)[0], end='')
+        path = str(resolve_model(args[0]))
+        description = robot_description(mujoco.MjModel.from_xml_path(path), path)
+        if description.problem:
+            print(f'urdf_export: {description.problem}; written from the model instead',
+                  file=sys.stderr)
+        print(description.urdf, end='')
     except (ValueError, OSError) as exc:
         print(f'urdf_export: {" ".join(str(exc).split())}', file=sys.stderr)
         return 1

@@ -80,6 +80,11 @@ for it and then edits the compiled :class:`mujoco.MjSpec` into pg_node's convent
   link's collision geometry (visual) or a small sphere, with a warning.
   ``visual_meshes=False`` keeps only the collision geometry (what simulation needs).
 * contacts are off (pg_node's reaching task has none) unless ``contacts``.
+* the **vendor's URDF** (not a xacro: it has no URDF file to name) as the custom text
+  ``pg_source_urdf``, its path **relative to the model's folder** (``urdf/panda.urdf`` for
+  the shipped ``arm7``), so that the model names no folder of one machine:
+  :func:`pg_node.sim.urdf_export.robot_description` publishes that file, as it is (its
+  ``package://`` meshes included), as ``sim_node``'s ``robot_description``.
 
 Errors are :class:`UrdfImportError` with a one-line message.
 """
@@ -777,8 +782,10 @@ def import_urdf(urdf_path, opts: ImportOptions, out_path=None, command: str = ''
     with tempfile.TemporaryDirectory(prefix='pg_node_meshes_') as scratch:
         meshes = _Meshes(Path(scratch))
         _prepare_meshes(robot, urdf_dir, opts, warnings, meshes)
+        source = (None if is_xacro(urdf_path) or not urdf_path.is_file()
+                  else Path(os.path.relpath(urdf_path, out.parent)).as_posix())
         xml, n_targets, fixed, lag = _build(robot, urdf_path, opts, base, arm, coupled,
-                                            joints, warnings, command)
+                                            joints, warnings, command, source)
     for name, error in lag.items():
         if error > 0.05:
             warnings.append(f'coupled joint {name!r} is up to {error:.2g} rad off its <mimic> '
@@ -803,8 +810,13 @@ def import_urdf(urdf_path, opts: ImportOptions, out_path=None, command: str = ''
                         assumptions=assumptions(opts))
 
 
-def _build(robot, urdf_path, opts, base, arm, coupled, joints, warnings, command):
-    """Compile the prepared URDF, edit it into the arm; return ``(xml, targets, fixed)``."""
+def _build(robot, urdf_path, opts, base, arm, coupled, joints, warnings, command,
+           source=None):
+    """
+    Compile the prepared URDF, edit it into the arm; return ``(xml, targets, fixed, lag)``.
+
+    ``source``: the vendor's URDF relative to the model's folder (``pg_source_urdf``).
+    """
     # a floating or planar joint (a mobile base) is fixed like every other non-arm joint;
     # MuJoCo would refuse a free joint below the URDF's root body anyway
     fixed = []
@@ -940,6 +952,8 @@ def _build(robot, urdf_path, opts, base, arm, coupled, joints, warnings, command
         spec.add_numeric(name=name, data=list(np.asarray(data, dtype=float)))
     if command:
         spec.add_text(name='pg_import_command', data=command)
+    if source:
+        spec.add_text(name='pg_source_urdf', data=source)
     said = assumptions(opts)
     if said:
         spec.add_text(name='pg_physics_assumptions', data='\n'.join(said))

@@ -88,15 +88,18 @@ def main(argv=None) -> int:
               f'policy was trained on {cfg["model"]} with {state["obs_dim"]} and '
               f'{state["act_dim"]}', file=sys.stderr)
         return 2
-    from pg_node.rl.trained_policy import checkpoint_card
-    frame_skip = int(checkpoint_card(state, ckpt_file)['frame_skip'])
+    from pg_node.rl.trained_policy import card_position_delta, checkpoint_card
+    card = checkpoint_card(state, ckpt_file)
+    # the run's control step and, for a position policy, its bounded changes
+    frame_skip, delta = int(card['frame_skip']), card_position_delta(card)
     if args.engine == 'pybullet':
-        res = _in_pybullet(args, state, model, task.model, frame_skip)
+        res = _in_pybullet(args, state, model, task.model, frame_skip, delta)
         if res is None:
             return 2
     else:
         res = evaluate_policy(policy_from_checkpoint(state), model, args.episodes, args.seed,
-                              perturbation=perturbation, frame_skip=frame_skip)
+                              perturbation=perturbation, frame_skip=frame_skip,
+                              position_delta=delta)
     res['policy_version'] = int(state['version'])
     res['perturbation'] = {t: s.text() for t, s in perturbation.items()}
     del res['eval_returns'], res['eval_final_distances']
@@ -113,7 +116,7 @@ def main(argv=None) -> int:
     return 0
 
 
-def _in_pybullet(args, state, model: str, mj_model, frame_skip: int):
+def _in_pybullet(args, state, model: str, mj_model, frame_skip: int, position_delta=None):
     """Return :func:`evaluate_in_pybullet`'s result, or None after saying why it cannot run."""
     from pg_node.rl.evaluate import evaluate_in_pybullet
     from pg_node.rl.learner import policy_from_checkpoint
@@ -128,7 +131,8 @@ def _in_pybullet(args, state, model: str, mj_model, frame_skip: int):
         return None
     try:
         res = evaluate_in_pybullet(policy_from_checkpoint(state), model, urdf, args.episodes,
-                                   args.seed, frame_skip=frame_skip)
+                                   args.seed, frame_skip=frame_skip,
+                                   position_delta=position_delta)
     except (PybulletError, ValueError) as exc:
         print(f'eval: --engine pybullet: {exc}', file=sys.stderr)
         return None

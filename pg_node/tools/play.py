@@ -24,6 +24,9 @@ the card's: effort for motors, else the servos' position or velocity;
 (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` unless the environment sets it): a real
 controller on the lab network never hears them.
 
+Either stand-in steps its physics the card's ``frame_skip`` times per control step: the
+control step the policy was trained with (:func:`robot_argv`).
+
 ``--robot pybullet`` puts ``pybullet_node`` in the simulator's place: PyBullet on the robot's
 own URDF (``--urdf``, default the one ``arm import`` made the model from), one arm, behind the
 same controller topics and on the card's command interface, its ``~/reset_world`` called as
@@ -258,7 +261,7 @@ def play(args, card, source: Path, perturbation, log_dir: Path, temporary: bool)
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
     from std_msgs.msg import Float64MultiArray
     from std_srvs.srv import Trigger
-    from pg_node.common.run import COMMANDS, CONTROLLER_COMMANDS, CONTROLLER_TRAJECTORY
+    from pg_node.common.run import CONTROLLER_TRAJECTORY
     from trajectory_msgs.msg import JointTrajectory
     from pg_node.tools.train import discovery_env
     os.environ.update(discovery_env(network=False)[0])
@@ -316,24 +319,10 @@ def play(args, card, source: Path, perturbation, log_dir: Path, temporary: bool)
                 while not ready and procs['policy_node'].poll() is None \
                         and time.monotonic() < deadline:
                     rclpy.spin_once(node, timeout_sec=0.1)
-                if args.robot == 'pybullet':
-                    urdf = ['-p', f'urdf:={Path(args.urdf).resolve()}'] if args.urdf else []
-                    procs['pybullet_node'] = processes.start_logged(
-                        [sys.executable, '-m', 'pg_node.ros.pybullet_node', '--ros-args',
-                         '-r', f'__ns:={namespace}', '-p', f'model:={model}',
-                         '-p', f'seed:={args.seed}', '-p', f'frame_skip:={card["frame_skip"]}',
-                         '-p', f'real_time_factor:={args.real_time_factor}',
-                         '-p', f'command_interface:={interface}', *urdf],
-                        log_dir / 'pybullet_node.log', env)
-                else:
-                    procs['sim_node'] = processes.start_logged(
-                        [sys.executable, '-m', 'pg_node.ros.sim_node', '--ros-args',
-                         '-r', f'__ns:={namespace}', '-r', f'{COMMANDS}:={CONTROLLER_COMMANDS}',
-                         '-p', 'mode:=real_time', '-p', f'command_interface:={interface}',
-                         '-p', f'num_envs:={args.arms}', '-p',
-                         f'seed:={args.seed}', '-p', f'model:={model}',
-                         '-p', f'real_time_factor:={args.real_time_factor}', *perturb_params],
-                        log_dir / 'sim_node.log', env)
+                name = 'pybullet_node' if args.robot == 'pybullet' else 'sim_node'
+                procs[name] = processes.start_logged(
+                    robot_argv(args, card, model, namespace, interface, perturb_params),
+                    log_dir / f'{name}.log', env)
                 deadline = time.monotonic() + 120 + 5 * args.episodes
 
                 def arm0_done():
@@ -401,6 +390,28 @@ def play(args, card, source: Path, perturbation, log_dir: Path, temporary: bool)
             return code, keep
     print(f'wrote {args.gif} ({len(images)} frames)')
     return code, keep
+
+
+def robot_argv(args, card, model: str, namespace: str, interface: str,
+               perturb_params) -> list:
+    """
+    Return the command line of the robot's stand-in (``--robot``): sim_node or pybullet_node.
+
+    Both step the physics ``frame_skip`` times per control step, the card's: the control
+    step the policy was trained with.
+    """
+    from pg_node.common.run import COMMANDS, CONTROLLER_COMMANDS
+    common = ['-r', f'__ns:={namespace}', '-p', f'model:={model}', '-p', f'seed:={args.seed}',
+              '-p', f'frame_skip:={card["frame_skip"]}',
+              '-p', f'real_time_factor:={args.real_time_factor}']
+    if args.robot == 'pybullet':
+        urdf = ['-p', f'urdf:={Path(args.urdf).resolve()}'] if args.urdf else []
+        return [sys.executable, '-m', 'pg_node.ros.pybullet_node', '--ros-args', *common,
+                '-p', f'command_interface:={interface}', *urdf]
+    return [sys.executable, '-m', 'pg_node.ros.sim_node', '--ros-args', *common,
+            '-r', f'{COMMANDS}:={CONTROLLER_COMMANDS}', '-p', 'mode:=real_time',
+            '-p', f'command_interface:={interface}', '-p', f'num_envs:={args.arms}',
+            *perturb_params]
 
 
 def _model_param(card, log_dir: Path) -> str:

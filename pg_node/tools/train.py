@@ -122,7 +122,7 @@ def resolve_config(args) -> dict:
     from pg_node.sim.arm_task import check_arm, NotAnArm
     try:
         model = resolve_model(cfg[SHARED]['model'])
-        check_arm(model)
+        check_arm(model, cfg['sim_node']['position_delta'])
     except NotAnArm as exc:
         raise ConfigError(f"parameter 'model': {exc}") from None
     if model == Path(os.path.expanduser(cfg[SHARED]['model'])):
@@ -481,19 +481,30 @@ def write_summary(path: Path, summary: dict):
 
 
 def evaluate_run(run_dir: Path, episodes: int) -> dict:
-    """Evaluate the newest checkpoint's deterministic policy."""
-    from pg_node.rl.checkpoint import load_latest
+    """
+    Evaluate the newest checkpoint's deterministic policy.
+
+    At the run's control step (its ``sim_node.frame_skip``, as ``python -m pg_node eval``
+    takes it from the policy's card): a policy trained at ``frame_skip:=20`` and evaluated
+    at the default 2 would act ten times as often, in episodes a tenth as long.
+    """
+    from pg_node.rl.checkpoint import list_checkpoints, load_latest
     from pg_node.rl.evaluate import evaluate_policy
     from pg_node.rl.learner import policy_from_checkpoint
+    from pg_node.rl.trained_policy import card_position_delta, checkpoint_card
     state, problems = load_latest(run_dir / 'checkpoints')
     for p in problems:
         print(p, file=sys.stderr)
     if state is None:
         return {}
+    ckpt = next(path for path, version in list_checkpoints(run_dir / 'checkpoints')
+                if version == state['version'])
+    card = checkpoint_card(state, ckpt)
     res = evaluate_policy(policy_from_checkpoint(state), state['config']['model'], episodes,
-                          state['config']['seed'])
+                          state['config']['seed'], frame_skip=int(card['frame_skip']),
+                          position_delta=card_position_delta(card))
     res['policy_version'] = int(state['version'])
-    res['checkpoint'] = str(sorted((run_dir / 'checkpoints').glob('ckpt_*.pt'))[-1])
+    res['checkpoint'] = str(ckpt)
     return res
 
 

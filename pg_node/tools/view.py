@@ -45,6 +45,8 @@ LIVE_TOPICS = {
 }
 #: topics a latecomer must still get: subscribed reliable and transient local
 LATCHED = ('robot_description', 'target')
+#: the scene bag mode rebuilds
+SCENE_TOPIC, SCENE_TYPE = '/pg_node/scene', 'visualization_msgs/msg/MarkerArray'
 
 
 def grid_offsets(n: int, spacing: float) -> np.ndarray:
@@ -59,16 +61,32 @@ def grid_offsets(n: int, spacing: float) -> np.ndarray:
 
 
 class Served:
-    """The Foxglove server and its channels: ROS messages as CDR, arm frames as ``/tf``."""
+    """
+    The Foxglove server and its channels: ROS messages as CDR, arm frames as ``/tf``.
 
-    def __init__(self, host: str, port: int, frame_id: str, spacing: float):
-        """Start the server (port 0: a free one)."""
+    Every channel whose topic is known in advance is made before the server starts: the
+    SDK (``foxglove-sdk`` 0.30) sends a channel made while a client is connected to that
+    client before it records the channel as advertised to it, so a client that subscribes
+    at once (as the Foxglove app does) can be told ``Unknown channel ID`` and never get a
+    message (``connected_client.rs``, ``advertise_channels``: ``send_control_msg`` before
+    ``advertised_channels.insert``). Channels that exist when a client connects are
+    advertised before the client's connection task sends anything, so they are safe.
+    """
+
+    def __init__(self, host: str, port: int, frame_id: str, spacing: float,
+                 topics: Optional[Dict[str, str]] = None):
+        """Make the channels of ``topics`` (name -> ROS type), then start the server."""
         import foxglove
         from foxglove.channels import FrameTransformsChannel
         self.foxglove = foxglove
-        self.server = foxglove.start_server(name='pg_node', host=host, port=port)
         self.channels: Dict[str, object] = {}
         self.tf = FrameTransformsChannel('/tf')
+        for topic, type_name in (topics or {}).items():
+            try:
+                self.channel(topic, type_name)
+            except KeyError:                # a type not installed: made, or not, on first use
+                pass
+        self.server = foxglove.start_server(name='pg_node', host=host, port=port)
         self.frame_id, self.spacing = frame_id, spacing
         self.arms = 0                       # arms whose frames are served (from /target)
 
@@ -77,8 +95,8 @@ class Served:
         """Return the port the server listens on."""
         return self.server.port
 
-    def publish(self, topic: str, type_name: str, cdr: bytes, log_ns: int) -> None:
-        """Serve one ROS message's CDR bytes on ``topic`` (its channel made on first use)."""
+    def channel(self, topic: str, type_name: str):
+        """Return the channel of ``topic``, made on first use (KeyError: type unknown)."""
         channel = self.channels.get(topic)
         if channel is None:
             from pg_node.bag.ros_types import message_definition
@@ -87,7 +105,11 @@ class Served:
                 topic, message_encoding='cdr',
                 schema=self.foxglove.Schema(name=type_name, encoding=encoding,
                                             data=text.encode()))
-        channel.log(bytes(cdr), log_time=log_ns)
+        return channel
+
+    def publish(self, topic: str, type_name: str, cdr: bytes, log_ns: int) -> None:
+        """Serve one ROS message's CDR bytes on ``topic``."""
+        self.channel(topic, type_name).log(bytes(cdr), log_time=log_ns)
 
     def see_target_frame(self, frame: str) -> None:
         """Note a target's frame: ``arm<i>`` makes sure arms 0..i have frames."""
@@ -172,17 +194,19 @@ def _bag_path(run: Path) -> Path:
     return run / 'bag' if (run / 'bag').is_dir() else run
 
 
-def serve_bag(served: Served, bag: Path, model_path: str, view_arms, rate: float,
+def serve_bag(served: Served, reader, model_path: str, view_arms, rate: float,
               scene_rate: float, loop: bool, stop_after: Optional[float]) -> int:
-    """Serve the bag's topics at ``rate`` x its pace, with the scene rebuilt; Ctrl-C stops."""
+    """
+    Serve the topics of ``reader`` (a BagReader) at ``rate`` x its pace, with the scene.
+
+    Ctrl-C (or ``stop_after`` s) stops.
+    """
     import mujoco
     from builtin_interfaces.msg import Time
-    from pg_node.bag.reader import BagReader
     from pg_node.ros.scene_msg import scene_markers
     from pg_node.sim.scene import Scene
     from rclpy.serialization import serialize_message
     model = mujoco.MjModel.from_xml_path(model_path)
-    reader = BagReader(bag, warn=False)
     arms = 0
     for conn in reader.messages(topics=['/target'], deserialize=True):
         served.see_target_frame(conn.msg.header.frame_id)
@@ -232,7 +256,7 @@ def serve_bag(served: Served, bag: Path, model_path: str, view_arms, rate: float
                     if scene_rate > 0 and now - last_scene >= 1.0 / scene_rate:
                         last_scene = now
                         stamp = Time(sec=js.header.stamp.sec, nanosec=js.header.stamp.nanosec)
-                        served.publish('/pg_node/scene', 'visualization_msgs/msg/MarkerArray',
+                        served.publish(SCENE_TOPIC, SCENE_TYPE,
                                        serialize_message(scene_markers(
                                            scene.views(datas), stamp, served.frame_id)),
                                        time.time_ns())
@@ -291,7 +315,9 @@ def main(argv=None) -> int:
     except ValueError as exc:
         print(f'view: --view-arms: {exc}', file=sys.stderr)
         return 2
-    bag = model_path = None
+    reader = model_path = None
+    # served as view serves them: live without the namespace, a bag's as recorded
+    topics = {'/' + topic.lstrip('/'): type_name for topic, type_name in LIVE_TOPICS.items()}
     if args.run:
         bag = _bag_path(Path(args.run))
         if not bag.exists():
@@ -303,8 +329,16 @@ def main(argv=None) -> int:
         except (ValueError, OSError) as exc:
             print(f'view: {exc}', file=sys.stderr)
             return 2
+        from pg_node.bag.reader import BagReader
+        try:
+            reader = BagReader(bag, warn=False)
+            topics = {name: info.msg_type for name, info in reader.topics.items()}
+        except (ValueError, OSError) as exc:
+            print(f'view: {bag}: {exc}', file=sys.stderr)
+            return 1
+        topics[SCENE_TOPIC] = SCENE_TYPE
     try:
-        served = Served(args.host, args.port, args.frame_id, args.spacing)
+        served = Served(args.host, args.port, args.frame_id, args.spacing, topics)
     except (RuntimeError, OSError, ValueError) as exc:   # the SDK's FoxgloveError: port taken
         print(f'view: cannot serve on {args.host}:{args.port}: {exc}', file=sys.stderr)
         return 2
@@ -312,10 +346,10 @@ def main(argv=None) -> int:
           '-> Foxglove WebSocket; layout config/pg_node.foxglove.json); Ctrl-C stops',
           flush=True)
     try:
-        if bag is None:
+        if reader is None:
             return serve_live(served, args.ns, args.stop_after)
         try:
-            return serve_bag(served, bag, model_path, view_arms, args.rate, args.scene_rate,
+            return serve_bag(served, reader, model_path, view_arms, args.rate, args.scene_rate,
                              args.loop, args.stop_after)
         except (ValueError, OSError) as exc:
             print(f'view: {bag}: {exc}', file=sys.stderr)
