@@ -85,6 +85,8 @@ def main() -> int:
     parser.add_argument('--episodes', type=int, default=100)
     parser.add_argument('--seed', type=int, default=0)
     parser.add_argument('--mujoco-timestep', type=float)
+    parser.add_argument('--urdf', help="the robot's URDF (default: the one arm import made "
+                                       'each model from)')
     args = parser.parse_args()
     from pg_node.common.paths import resolve_model
     from pg_node.rl.evaluate import evaluate_in_pybullet, evaluate_policy
@@ -100,7 +102,7 @@ def main() -> int:
         card = checkpoint_card(state, file)
         model = str(resolve_model(state['config']['model']))
         task = ArmTask(model)
-        urdf = model_urdf(task.model)
+        urdf = args.urdf or model_urdf(task.model)
         task.close()
         policy = policy_from_checkpoint(state)
         fs = int(card['frame_skip'])
