@@ -324,6 +324,8 @@ def play(args, card, source: Path, perturbation, log_dir: Path, temporary: bool)
                         [sys.executable, '-m', 'pg_node.ros.sim_node', '--ros-args',
                          '-r', f'__ns:={namespace}', '-r', f'{COMMANDS}:={CONTROLLER_COMMANDS}',
                          '-p', 'mode:=real_time', '-p', f'command_interface:={interface}',
+                         # the policy's control step (an import at 0.002 s trains at 20)
+                         '-p', f'frame_skip:={card["frame_skip"]}',
                          '-p', f'num_envs:={args.arms}', '-p',
                          f'seed:={args.seed}', '-p', f'model:={model}',
                          '-p', f'real_time_factor:={args.real_time_factor}', *perturb_params],
