@@ -8,6 +8,7 @@ trajectory controller's point and, ``jtc_cmd_timeout`` later, its zero-effort ho
 """
 import os
 from pathlib import Path
+import re
 import sys
 import time
 
@@ -69,7 +70,8 @@ def node(tmp_path_factory):
             assert time.monotonic() < deadline, log.read_text()
             executor.spin_once(timeout_sec=0.05)
 
-    yield {'heard': heard, 'pubs': pubs, 'spin_until': spin_until, 'log': log}
+    yield {'heard': heard, 'pubs': pubs, 'spin_until': spin_until, 'log': log,
+           'client': client}
     processes.stop_logged(proc)
     client.destroy_node()
     rclpy.try_shutdown(context=context)
@@ -113,6 +115,28 @@ def test_a_forward_command_is_held_then_a_trajectory_point_until_its_cmd_timeout
     node['pubs']['forward'].publish(Float64MultiArray(data=forward))
     np.testing.assert_allclose(efforts_after(node, 0.2), [0.0, 0.0])
     assert 'aborted due to command timeout' in node['log'].read_text()
+
+
+def test_reset_world_starts_the_first_episode_again(node):
+    """
+    ``~/reset_world`` as ``sim_node``'s: the first goal again, a new episode id (issue 46).
+
+    ``play --robot pybullet`` waits for it before it counts episodes: without it the play
+    never counted one ("no episodes finished in time").
+    """
+    from std_srvs.srv import Trigger
+    targets = node['heard']['target']
+    node['spin_until'](lambda: targets)
+    first = targets[0].point
+    reset = node['client'].create_client(Trigger, '/pybullet_node/reset_world')
+    node['spin_until'](reset.service_is_ready)
+    answer = reset.call_async(Trigger.Request())
+    node['spin_until'](answer.done)
+    assert answer.result().success
+    assert re.fullmatch(r'new episodes \[[1-9]\d*\]', answer.result().message)
+    node['spin_until'](lambda: len(targets) > 1)
+    again = targets[-1].point
+    assert (again.x, again.y, again.z) == (first.x, first.y, first.z)
 
 
 def test_play_refuses_what_the_pybullet_stand_in_does_not_do(tmp_path):

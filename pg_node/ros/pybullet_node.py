@@ -36,9 +36,12 @@ Subscribed, in SI units of ``command_interface`` (``effort`` N m, or ``position`
 Episodes: each ``max_episode_steps`` control periods the arm is put at a new start with a
 new goal, drawn as ``sim_node`` with the same ``seed`` draws them (an
 :class:`pg_node.sim.arm_task.ArmTask` of ``model``, never stepped), and the held command is
-kept. At start the node logs in one line where PyBullet's reading of the URDF and the MuJoCo
-model disagree (:func:`pg_node.sim.pybullet_check.compare`: joints, limits, masses,
-kinematics), and every warning of the URDF's loading.
+kept. The service ``~/reset_world`` (``std_srvs/Trigger``, as ``sim_node``'s) re-seeds the
+draws from ``seed`` and starts the first episode again (its id goes on counting), answering
+``new episodes [id]``: ``play`` calls it once the policy commands. At start the node logs
+in one line where PyBullet's reading of the URDF and the MuJoCo model disagree
+(:func:`pg_node.sim.pybullet_check.compare`: joints, limits, masses, kinematics), and every
+warning of the URDF's loading.
 
 Parameters: :data:`pg_node.common.params.PYBULLET_PARAMS`.
 """
@@ -67,6 +70,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, String
+from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory
 
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
@@ -130,6 +134,7 @@ class PybulletNode(Node):
         self.create_subscription(Float64MultiArray, CONTROLLER_COMMANDS, self.on_command, 10)
         self.create_subscription(JointTrajectory, CONTROLLER_TRAJECTORY, self.on_trajectory,
                                  10)
+        self.create_service(Trigger, '~/reset_world', self.on_reset_world)
         self.start_episode()
         self.create_timer(self.task.dt / p['real_time_factor'], self.on_tick)
         log.info(f'{p["model"]} in PyBullet from {urdf}: joints {", ".join(self.joints)}, '
@@ -142,9 +147,10 @@ class PybulletNode(Node):
         """Return the simulated time in s."""
         return self.steps * self.task.dt
 
-    def start_episode(self):
+    def start_episode(self, draw: bool = True):
         """Draw a new start and goal, put the arm there, publish the goal and a transition."""
-        self.task.reset_env(0)
+        if draw:
+            self.task.reset_env(0)
         q, qd, _ = self.task.joint_state()
         self.goal = self.task.target_pos()[0]
         self.arm.set_state(q[0], qd[0])
@@ -187,6 +193,15 @@ class PybulletNode(Node):
             self.get_logger().error(f'rejected a trajectory on {CONTROLLER_TRAJECTORY} as a '
                                     f'joint trajectory controller would: {reason}',
                                     throttle_duration_sec=1.0)
+
+    def on_reset_world(self, request, response):
+        """Start the episodes again as at start (``seed``), as ``sim_node``'s service does."""
+        self.task.reset(seed=self.params['seed'])
+        self.start_episode(draw=False)
+        response.success = True
+        response.message = f'new episodes [{self.episode_id}]'
+        self.get_logger().info(f'~/reset_world called: {response.message}')
+        return response
 
     def now(self) -> float:
         """Return the controllers' time (s): the simulated time."""

@@ -278,7 +278,9 @@ def play(args, card, source: Path, perturbation, log_dir: Path, temporary: bool)
         lambda m: episodes.add(transition.from_msg(m)),
         QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
                    durability=DurabilityPolicy.TRANSIENT_LOCAL))
-    reset_world = node.create_client(Trigger, 'sim_node/reset_world')
+    # the stand-in's (pybullet_node's had none: play waited for it and played no episode)
+    reset_world = node.create_client(
+        Trigger, f'{"pybullet_node" if args.robot == "pybullet" else "sim_node"}/reset_world')
     reset = None
     procs = {}
     code = shown = 0
