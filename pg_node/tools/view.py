@@ -16,7 +16,8 @@ For a viewer without a ROS install: a Foxglove WebSocket server (Foxglove's own 
   each arm's last ``target`` are served again every second.
 * **bag** (RUN: a run directory with ``bag/``, a bag directory or ``.mcap``): every topic of
   the bag, at ``--rate`` times the recorded pace (``--loop`` starts over), and the scene
-  rebuilt from its ``/joint_states`` and ``/target`` (a training bag records no markers):
+  rebuilt from its ``/joint_states`` and ``/target`` (in place of the bag's own
+  ``/pg_node/scene``, arm 0 once a second, ``record_scene_period``):
   the ``--view-arms`` of the recorded arms, on ``pg_node/scene`` as ``sim_node`` draws them
   (:mod:`pg_node.sim.scene`), at most ``--scene-rate`` Hz of wall time.
 
@@ -233,6 +234,8 @@ def serve_bag(served: Served, reader, model_path: str, view_arms, rate: float,
                     wait = due - (time.monotonic() - start_wall)
                     if wait > 0:
                         time.sleep(wait)
+                if m.topic == SCENE_TOPIC:      # the bag's own (arm 0, 1 Hz): rebuilt here
+                    continue
                 served.publish(m.topic, m.msg_type, m.data, time.time_ns())
                 if m.topic == '/target':
                     point = reader_msg(m)
