@@ -46,6 +46,8 @@ LIVE_TOPICS = {
 }
 #: topics a latecomer must still get: subscribed reliable and transient local
 LATCHED = ('robot_description', 'target')
+#: the metrics config/pg_node.foxglove.json plots (their channels are made before serving)
+LAYOUT_METRICS = ('episode_return', 'policy_loss', 'value_loss', 'entropy')
 #: the scene bag mode rebuilds
 SCENE_TOPIC, SCENE_TYPE = '/pg_node/scene', 'visualization_msgs/msg/MarkerArray'
 
@@ -319,8 +321,12 @@ def main(argv=None) -> int:
         print(f'view: --view-arms: {exc}', file=sys.stderr)
         return 2
     reader = model_path = None
-    # served as view serves them: live without the namespace, a bag's as recorded
+    # served as view serves them: live without the namespace (and what the shipped layout
+    # shows of the topics found later), a bag's as recorded
+    from pg_node.bag.recorder import metric_topic
     topics = {'/' + topic.lstrip('/'): type_name for topic, type_name in LIVE_TOPICS.items()}
+    topics.update({metric_topic(name): 'std_msgs/msg/Float64' for name in LAYOUT_METRICS})
+    topics['/arm0/joint_states'] = 'sensor_msgs/msg/JointState'
     if args.run:
         bag = _bag_path(Path(args.run))
         if not bag.exists():
