@@ -55,6 +55,7 @@ from pg_node.ros.qos import LATCHED, RELIABLE
 from pg_node.ros.run_protocol import (DONE, LEARNER_STATE, learner_state_msg, RANDOMIZATION,
                                       RunGuard, TRAINING)
 from pg_node.ros.runtime import run
+from pg_node.ros.scene_msg import scene_markers
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from std_msgs.msg import Float64, Float64MultiArray
@@ -120,7 +121,9 @@ class LearnerNode(Node):
                                                  EPISODE_QOS)
         self.recorder = EpisodeRecorder(bag_dir, model_path, record_arms=self.cfg['record_arms'],
                                         split_max_episodes=self.cfg['bag_split_episodes'],
-                                        on_summary=self.pub_episode.publish)
+                                        on_summary=self.pub_episode.publish,
+                                        draw_scene=scene_markers,
+                                        scene_period=self.cfg['record_scene_period'])
         self.recorder_t = time.time_ns()
         self.tensorboard = TensorBoardLog(self.run_dir / 'tensorboard')
         progress = self.run_dir / 'progress.csv'
