@@ -9,8 +9,8 @@ controller's command held past any timeout, then a joint trajectory controller's
 zero-velocity holds.
 """
 import os
-import re
 from pathlib import Path
+import re
 import sys
 import time
 
