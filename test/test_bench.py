@@ -184,6 +184,36 @@ def test_bench_runs_join_the_domain_ros_domain_id_sets(monkeypatch):
     assert all(1 <= i <= 99 for i in ids) and len(set(ids)) == 3
 
 
+def test_tax_alternates_and_reports_each_runs_load_median_and_spread(monkeypatch):
+    """``python -m bench tax``: the order turns round every other run; fixed rates in."""
+    from bench import tax
+    calls = []
+
+    def rate(steps, overrides=()):
+        calls.append(('inprocess', tuple(overrides)))
+        return 10_000.0 * len(calls)
+
+    def graph(steps, overrides=(), round_trips=False):
+        calls.append(('graph', tuple(overrides)))
+        return {'steps_per_second': 1_000.0 * len(calls)}
+
+    monkeypatch.setattr(tax, 'inprocess_rate', rate)
+    monkeypatch.setattr(tax, 'graph_run', graph)
+    res = tax.ratio_runs(100, 3, {'a': [], 'b': ['x=1']}, lambda text: None)
+    assert calls == [('inprocess', ()), ('graph', ()), ('graph', ('x=1',)),
+                     ('graph', ('x=1',)), ('graph', ()), ('inprocess', ()),
+                     ('inprocess', ()), ('graph', ()), ('graph', ('x=1',))]
+    assert [p['inprocess'] for p in res['pairs']] == [10_000, 60_000, 70_000]
+    assert res['pairs'][1] == {'b': 4_000, 'a': 5_000, 'inprocess': 60_000}
+    loads = res['pair_loads'][0]['a']
+    assert len(loads['before']) == 3 and loads['during_max'] >= 0
+    text = '\n'.join(tax.render_ratio(res, 'python -m bench tax'))
+    # ratios a: 0.2, 0.0833, 0.1143 -> median 0.114, spread 0.083-0.200
+    assert '| **median** | **60,000** | **5,000** | **0.114** |' in text, text
+    assert '| min-max | 10,000-70,000 | 2,000-8,000 | 0.083-0.200 |' in text, text
+    assert 'b: `train x=1`' in text and 'Load average (1/5/15 min)' in text
+
+
 def test_rejects_unknown_section():
     res = subprocess.run([sys.executable, '-m', 'bench', '--only', 'nope'],
                          capture_output=True, text=True, cwd=REPO)

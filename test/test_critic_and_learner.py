@@ -16,6 +16,8 @@ import textwrap
 import time
 
 from domains import ros_domain
+import mujoco
+from pg_node.common.paths import resolve_model
 from pg_node.ros import messages
 from pg_node.ros import table_msg
 from pg_node.ros.qos import LATCHED, RELIABLE
@@ -25,6 +27,7 @@ import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from sample_messages import make_rollout, N, T
 from std_msgs.msg import Float64MultiArray
+import yaml
 
 DOMAIN_ID = ros_domain(base=130, spread=40)
 
@@ -33,6 +36,13 @@ DOMAIN_ID = ros_domain(base=130, spread=40)
 @pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM])
 def test_critic_and_learner_learn_in_one_process_and_both_stop_cleanly(tmp_path, sig):
     run_dir = tmp_path / 'run'
+    # with SIGTERM, the run's params.yaml (as train writes it) sets the simulator's
+    # frame_skip: the bag's clock follows it (the learner took the default 2 before)
+    frame_skip = 3 if sig == signal.SIGTERM else 2
+    if sig == signal.SIGTERM:
+        run_dir.mkdir()
+        (run_dir / 'params.yaml').write_text(yaml.safe_dump(
+            {'/**/sim_node': {'ros__parameters': {'frame_skip': frame_skip}}}))
     args = [sys.executable, '-m', 'pg_node.ros.critic_and_learner', '--ros-args']
     for p in (f'run_dir:={run_dir}', f'num_envs:={N}', f'n_steps:={T}'):
         args += ['-p', p]
@@ -81,7 +91,10 @@ def test_critic_and_learner_learn_in_one_process_and_both_stop_cleanly(tmp_path,
         'ckpt_00000002.pt'
     assert [p.name for p in sorted((run_dir / 'checkpoints').glob('*.pt'))][-1] == \
         'ckpt_00000002.pt'
-    assert (run_dir / 'bag' / 'metadata.yaml').is_file()
+    meta = yaml.safe_load((run_dir / 'bag' / 'metadata.yaml').read_text())
+    timestep = mujoco.MjModel.from_xml_path(str(resolve_model('reacher2'))).opt.timestep
+    assert float(meta['rosbag2_bagfile_information']['custom_data']['pg_node.dt']) == \
+        pytest.approx(timestep * frame_skip)
 
 
 ORDER_SCRIPT = textwrap.dedent("""

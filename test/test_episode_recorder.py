@@ -275,3 +275,50 @@ def test_docstring_examples():
     import pg_node.bag.recorder
     failures, tried = doctest.testmod(pg_node.bag.recorder)
     assert tried >= 1 and failures == 0
+
+
+def test_the_scene_of_arm_0_is_drawn_at_most_once_per_period(tmp_path):
+    """
+    With ``draw_scene``, ``/pg_node/scene`` holds arm 0 as sim_node draws it, for RViz.
+
+    At most one message per 0.5 s of log time (the steps come 50 ms apart), the first at
+    the first step; each has the fingertip where MuJoCo puts it for the recorded angles,
+    the episode's goal, and the trail of the episode's steps so far.
+    """
+    import mujoco
+    from pg_node.ros.scene_msg import scene_markers
+    from pg_node.sim.arm_task import ArmSpec
+    path = tmp_path / 'bag'
+    src = Source()
+    rec = EpisodeRecorder(path, MODEL, record_arms=2, split_max_episodes=0,
+                          draw_scene=scene_markers, scene_period=0.5)
+    goals, at = [], ArmSpec.from_model(src.tasks[0].model).obs_layout.slices['target']
+    for b in range(8):
+        batch = src.batch(5)
+        goals += [obs[0, at] for obs in batch.obs]
+        rec.record_batch(batch, policy_version=b, t_wall_ns=T0 + (b + 1) * WALL_STEP)
+    rec.close()
+    src.close()
+    msgs, conns, meta = read_bag(path)
+    assert conns['/pg_node/scene'].msgtype == 'visualization_msgs/msg/MarkerArray'
+    steps = [t for t, _ in msgs['/clock']]
+    scenes = msgs['/pg_node/scene']
+    times = [t for t, _ in scenes]
+    assert times[0] == steps[0] and set(times) <= set(steps) and len(scenes) >= 3
+    for a, b in zip(times, times[1:]):              # the first step 0.5 s after the last
+        assert b - a >= 500_000_000 and not [t for t in steps if a + 500_000_000 <= t < b]
+    model = mujoco.MjModel.from_xml_path(str(MODEL))
+    spec, data = ArmSpec.from_model(model), mujoco.MjData(model)
+    for t, msg in scenes:
+        k = steps.index(t)
+        data.qpos[spec.qpos_adr] = src.truth[k][0][0]
+        mujoco.mj_kinematics(model, data)
+        spheres = [m for m in msg.markers if m.type == 2]
+        goal, tip = spheres[-2].pose.position, spheres[-1].pose.position
+        np.testing.assert_allclose([tip.x, tip.y, tip.z], data.site_xpos[spec.fingertip_site],
+                                   atol=1e-9)
+        np.testing.assert_allclose([goal.x, goal.y], goals[k], atol=1e-9)
+        trail = [m for m in msg.markers if m.type == 4]             # LINE_STRIP
+        episode_step = k % 7                        # episodes of 7 steps from step 0
+        assert len(trail[0].points) == (episode_step + 1 if episode_step else 0)
+        assert {m.header.frame_id for m in msg.markers} == {'world'}

@@ -24,8 +24,8 @@ NOT_A_PRESET_SETTING = {
     SHARED: ('model', 'seed', 'sync_mode', 'max_policy_lag', 'num_actors', 'run_dir'),
     'actor_node': ('actor_id', 'rollout_resend_timeout'),
     'critic_node': ('checkpoint_every',),
-    'learner_node': ('total_steps', 'checkpoint_every', 'record_arms', 'bag_split_episodes',
-                     'exit_when_done'),
+    'learner_node': ('total_steps', 'checkpoint_every', 'record_arms', 'record_scene_period',
+                     'bag_split_episodes', 'exit_when_done'),
     'sim_node': tuple(SCHEMA['sim_node']),
 }
 

@@ -10,6 +10,7 @@ zero-velocity holds.
 """
 import os
 from pathlib import Path
+import re
 import sys
 import time
 
@@ -77,7 +78,7 @@ def start_node(tmp, interface: str, namespace: str, urdf: Path = URDF):
         client.destroy_node()
         rclpy.try_shutdown(context=context)
     return {'heard': heard, 'pubs': pubs, 'spin_until': spin_until, 'log': log,
-            'stop': stop}
+            'stop': stop, 'client': client}
 
 
 def velocity_urdf(tmp, speed: float) -> Path:
@@ -142,6 +143,7 @@ def test_the_stand_in_offers_itself_as_a_robot(node):
 
 def test_a_forward_command_is_held_then_a_trajectory_point_until_its_cmd_timeout(node):
     forward = [0.0, 1e-4]
+    node['spin_until'](lambda: node['heard']['joints'])
     node['pubs']['forward'].publish(Float64MultiArray(data=forward))
     node['spin_until'](lambda: np.allclose(node['heard']['joints'][-1].effort, forward))
     # held: a second later (twice sim_node's command_timeout) the effort is the command
@@ -257,3 +259,25 @@ def test_play_refuses_what_the_pybullet_stand_in_does_not_do(tmp_path):
                           text=True, timeout=60)
     assert done.returncode == 2 and 'Traceback' not in done.stderr
     assert 'one arm as it is' in done.stderr
+
+
+def test_reset_world_starts_the_first_episode_again(node):
+    """
+    ``~/reset_world`` as ``sim_node``'s: the first goal again, a new episode id (issue 46).
+
+    ``play --robot pybullet`` waits for it before it counts episodes: without it the play
+    never counted one ("no episodes finished in time").
+    """
+    from std_srvs.srv import Trigger
+    targets = node['heard']['target']
+    node['spin_until'](lambda: targets)
+    first = targets[0].point
+    reset = node['client'].create_client(Trigger, '/effort/pybullet_node/reset_world')
+    node['spin_until'](reset.service_is_ready)
+    answer = reset.call_async(Trigger.Request())
+    node['spin_until'](answer.done)
+    assert answer.result().success
+    assert re.fullmatch(r'new episodes \[[1-9]\d*\]', answer.result().message)
+    node['spin_until'](lambda: len(targets) > 1)
+    again = targets[-1].point
+    assert (again.x, again.y, again.z) == (first.x, first.y, first.z)

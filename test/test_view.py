@@ -20,6 +20,7 @@ import subprocess
 import sys
 import time
 
+from domains import ros_domain
 import mujoco
 import numpy as np
 from pg_node.bag.writer import BagWriter
@@ -114,11 +115,45 @@ def test_view_serves_a_bags_scene_over_foxglove_websocket(tmp_path):
     assert np.min(np.linalg.norm(np.array(tips) - got, axis=1)) < 1e-9
 
 
+def test_live_view_advertises_the_layouts_channels_on_connection():
+    """
+    Live, the channels of the topics the layout shows exist before a client connects.
+
+    No graph runs: nothing has been received, yet the advertisement sent on connection
+    holds the scene, the metrics the layout plots and arm 0's joint states, so a client
+    subscribing at once is never told ``Unknown channel ID``.
+    """
+    from websockets.sync.client import connect
+    from pg_node.bag.recorder import metric_topic
+    from pg_node.tools.view import LAYOUT_METRICS
+    env = dict(os.environ, PYTHONPATH=REPO, PYTHONUNBUFFERED='1',
+               ROS_DOMAIN_ID=str(ros_domain(base=200, spread=10)))
+    proc = subprocess.Popen(
+        [sys.executable, '-m', 'pg_node', 'view', '--port', '0', '--stop-after', '30'],
+        env=env, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+        start_new_session=True)
+    try:
+        line = proc.stdout.readline()
+        port = re.search(r'ws://127\.0\.0\.1:(\d+)', line)
+        assert port, line + proc.stdout.read() if proc.poll() is not None else line
+        with connect(f'ws://127.0.0.1:{port.group(1)}', subprotocols=[SUBPROTOCOL],
+                     open_timeout=10) as ws:
+            msg = {}
+            while msg.get('op') != 'advertise':
+                msg = json.loads(ws.recv(timeout=20))
+    finally:
+        proc.terminate()
+        proc.wait(10)
+    first = {c['topic'] for c in msg['channels']}
+    assert {'/pg_node/scene', '/robot_description', '/target', '/arm0/joint_states',
+            '/tf'} | {metric_topic(n) for n in LAYOUT_METRICS} <= first
+
+
 def test_the_shipped_views_open_on_the_scene_and_the_metrics():
     """The RViz config and the Foxglove layout name topics the graph and ``view`` serve."""
     import yaml
     from pg_node.bag.recorder import metric_topic
-    from pg_node.tools.view import LIVE_TOPICS
+    from pg_node.tools.view import LAYOUT_METRICS, LIVE_TOPICS
     rviz = yaml.safe_load(open(os.path.join(REPO, 'config', 'pg_node.rviz')))
     manager = rviz['Visualization Manager']
     assert manager['Global Options']['Fixed Frame'] == 'world'
@@ -132,8 +167,7 @@ def test_the_shipped_views_open_on_the_scene_and_the_metrics():
     assert set(scene['topics']) <= served
     paths = [p['value'] for k, c in layout['configById'].items() if k.startswith('Plot!')
              for p in c['paths']]
-    metrics = {metric_topic(n) for n in ('episode_return', 'policy_loss', 'value_loss',
-                                         'entropy')}
+    metrics = {metric_topic(n) for n in LAYOUT_METRICS}
     for path in paths:
         topic = path.split('.')[0]
         assert topic in metrics or topic in served, path

@@ -33,7 +33,13 @@ Topics (the contract the replay, plot and render tools and the README rely on):
   recording began mid-episode, whose return is then partial). Booleans are ``true`` /
   ``false``. ``split_max_episodes`` counts these messages;
 * ``/pg_node/metrics/<name>`` (``std_msgs/Float64``): each finite value given to
-  :meth:`EpisodeRecorder.record_metrics` (``episode_return``, ``policy_loss``, ...).
+  :meth:`EpisodeRecorder.record_metrics` (``episode_return``, ``policy_loss``, ...);
+* ``/pg_node/scene`` (``visualization_msgs/MarkerArray``), with ``draw_scene``: recorded
+  arm 0 as ``sim_node`` draws it (:class:`pg_node.sim.scene.Scene`: its links at the
+  recorded angles, the goal, the fingertip and its trail), in frame ``world``, at most one
+  message per ``scene_period`` seconds of log time (0: none), so that ``ros2 bag play``
+  into RViz shows the arm without TF. ``draw_scene`` (``pg_node.ros.scene_msg.
+  scene_markers``) is given by the owner: this layer makes no markers.
 
 Log times: a batch's step messages are spread evenly over ``(previous call, t_wall_ns]``, so
 that replay at the original rate goes at training pace; episode summaries and metrics are
@@ -77,6 +83,8 @@ RANDOMIZATION_TOPIC = '/pg_node/randomization'
 #: the recorded actions (training's command topic, never a real controller's)
 COMMANDS_TOPIC = '/pg_node/commands'
 METRICS_PREFIX = '/pg_node/metrics/'
+#: recorded arm 0 drawn as sim_node draws it (with ``draw_scene``)
+SCENE_TOPIC = '/pg_node/scene'
 EPISODE_KEYS = ('actor', 'arm', 'episode_id', 'return', 'length', 'terminated', 'truncated',
                 'cut_short', 'policy_version', 'recorded_steps')
 _DEFAULT = QoSProfile(depth=10)
@@ -156,13 +164,17 @@ class EpisodeRecorder:
     :param on_summary: called with each episode summary (a ``DiagnosticStatus``, as the
         CDR bytes the bag holds) after it is written, e.g. a publisher's ``publish`` (which
         sends bytes as they are), so that live tools see what the bag gets.
+    :param draw_scene: ``(views, stamp, frame_id) -> MarkerArray`` (``scene_markers``):
+        with it and a ``scene_period`` > 0 s, recorded arm 0 is drawn on ``/pg_node/scene``
+        at most once per ``scene_period`` seconds of log time.
     """
 
     def __init__(self, directory, model_path, record_arms: int = 4,
                  split_max_episodes: int = 200, split_max_bytes: int = 64 << 20,
                  dt: Optional[float] = None, frame_skip: int = 2, record_actor: int = 0,
                  compression: str = 'zstd',
-                 on_summary: Optional[Callable[[bytes], None]] = None):
+                 on_summary: Optional[Callable[[bytes], None]] = None,
+                 draw_scene: Optional[Callable] = None, scene_period: float = 0.0):
         """Read the model and create the bag with its topics declared."""
         self.model_path = str(resolve_model(str(model_path)))
         model = mujoco.MjModel.from_xml_path(self.model_path)
@@ -205,6 +217,16 @@ class EpisodeRecorder:
         w.add_topic(COMMANDS_TOPIC, Float64MultiArray, _DEFAULT)
         w.add_topic('/pg_node/reward', Float64MultiArray, _DEFAULT)
         w.add_topic(EPISODE_TOPIC, DiagnosticStatus, EPISODE_QOS)
+        self.scene = None
+        if draw_scene is not None and scene_period > 0 and self.record_arms > 0:
+            from visualization_msgs.msg import MarkerArray
+            from pg_node.sim.scene import Scene
+            self.draw_scene, self.scene_period_ns = draw_scene, int(scene_period * 1e9)
+            self.scene_model = model
+            self.scene_data = mujoco.MjData(model)
+            self.scene = Scene(model, [0], np.zeros((1, 3)))
+            self._scene_t: Optional[int] = None
+            w.add_topic(SCENE_TOPIC, MarkerArray, _DEFAULT)
 
     # -- time ------------------------------------------------------------------------------
     def _clamp(self, t_ns) -> int:
@@ -330,6 +352,23 @@ class EpisodeRecorder:
         w.write(COMMANDS_TOPIC, cmd, t_log)
         reward.data = float64_field(rew)
         w.write('/pg_node/reward', reward, t_log)
+        if self.scene is not None and arms[0] == 0:
+            self._draw(t_log, stamp, angles[0], obs[0, at['target']], ep_step[:1])
+
+    def _draw(self, t_log, stamp, angles, goal, ep_step) -> None:
+        """Move arm 0's scene to this step (its trail grows); write it when one is due."""
+        d, spec = self.scene_data, self.spec
+        d.qpos[spec.qpos_adr] = angles
+        if spec.target_mocap >= 0:
+            d.mocap_pos[spec.target_mocap, :self.target_dim] = goal
+        else:
+            d.qpos[spec.target_qpos_adr] = goal
+        mujoco.mj_kinematics(self.scene_model, d)
+        self.scene.record([d], ep_step)
+        if self._scene_t is None or t_log - self._scene_t >= self.scene_period_ns:
+            self._scene_t = t_log
+            self.writer.write(SCENE_TOPIC, self.draw_scene(self.scene.views([d]), stamp,
+                                                           'world'), t_log)
 
     def _accumulate(self, rew, term, trunc, ep_step, ep_id, actors, arm_of, version, t_ns):
         """Update the running sums of every arm; write the episodes that end. Return count."""

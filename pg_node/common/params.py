@@ -240,6 +240,9 @@ LEARNER_PARAMS: Dict[str, Param] = {
     'checkpoint_every': Param(100, 'policy versions between checkpoints', low=1, live=True),
     'record_arms': Param(4, 'arms of actor 0 whose every step is written to the bag '
                             '(episode summaries are written for all arms)', low=0),
+    'record_scene_period': Param(1.0, 'seconds between pg_node/scene messages of recorded '
+                                      'arm 0 written to the bag (the arm as sim_node draws '
+                                      'it, for RViz on ros2 bag play); 0: none', low=0.0),
     'bag_split_episodes': Param(2000, 'episode summaries per bag file before a split', low=1),
     'exit_when_done': Param(True, 'stop the learner once total_steps are learned'),
     'nice': NICE,

@@ -484,9 +484,11 @@ class CommandGuard:
         """
         Step 4b (velocity): the commanded speed changes by at most ``max_acceleration`` per s.
 
-        ``|v - v_previous| <= max_acceleration x period`` rad/s per tick, holds included (the
-        ramp from a hold too; the first command from rest); the joint-limit cap and the
-        over-speed hold act after it.
+        ``|v - v_previous| <= max_acceleration x period`` rad/s per tick: the policy's
+        commands and the ramp out of a hold (the first command from rest too). The change
+        into a hold is not bounded: the joint-limit cap and the over-speed hold act after
+        it, so that no stop is delayed; the robot's velocity loop decelerates the stop
+        (docs/deploy.md, "A change into a hold is not acceleration-limited").
         """
         if self.interface.hold != HOLD_ZERO_VELOCITY:
             return u

@@ -68,9 +68,14 @@ def find_checkpoint(path) -> Tuple[dict, Path]:
 
 
 def _run_sim_params(ckpt_file: Path) -> Dict:
-    """Return ``sim_node``'s parameters from the run's ``params.yaml`` (none: ``{}``)."""
+    """Return ``sim_node``'s parameters from the checkpoint's run's ``params.yaml``."""
+    return run_sim_params(ckpt_file.resolve().parent.parent)
+
+
+def run_sim_params(run_dir: Path) -> Dict:
+    """Return ``sim_node``'s parameters from ``run_dir/params.yaml`` (none: ``{}``)."""
     import yaml
-    params = ckpt_file.resolve().parent.parent / 'params.yaml'
+    params = Path(run_dir) / 'params.yaml'
     try:
         raw = yaml.safe_load(params.read_text()) or {}
     except (OSError, yaml.YAMLError):
@@ -85,8 +90,13 @@ def _run_sim_params(ckpt_file: Path) -> Dict:
 
 
 def _run_frame_skip(ckpt_file: Path) -> Optional[int]:
-    """Return ``sim_node.frame_skip`` from the run's ``params.yaml``, if there is one."""
-    value = _run_sim_params(ckpt_file).get('frame_skip')
+    """Return ``sim_node.frame_skip`` from the checkpoint's run, if it says one."""
+    return run_frame_skip(ckpt_file.resolve().parent.parent)
+
+
+def run_frame_skip(run_dir: Path) -> Optional[int]:
+    """Return ``sim_node.frame_skip`` from ``run_dir/params.yaml``, if there is one."""
+    value = run_sim_params(run_dir).get('frame_skip')
     return value if isinstance(value, int) else None
 
 

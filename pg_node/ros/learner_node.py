@@ -55,6 +55,7 @@ from pg_node.ros.qos import LATCHED, RELIABLE
 from pg_node.ros.run_protocol import (DONE, LEARNER_STATE, learner_state_msg, RANDOMIZATION,
                                       RunGuard, TRAINING)
 from pg_node.ros.runtime import run
+from pg_node.ros.scene_msg import scene_markers
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from std_msgs.msg import Float64, Float64MultiArray
@@ -120,7 +121,10 @@ class LearnerNode(Node):
                                                  EPISODE_QOS)
         self.recorder = EpisodeRecorder(bag_dir, model_path, record_arms=self.cfg['record_arms'],
                                         split_max_episodes=self.cfg['bag_split_episodes'],
-                                        on_summary=self.pub_episode.publish)
+                                        on_summary=self.pub_episode.publish,
+                                        draw_scene=scene_markers,
+                                        scene_period=self.cfg['record_scene_period'],
+                                        frame_skip=self.bag_frame_skip())
         self.recorder_t = time.time_ns()
         self.tensorboard = TensorBoardLog(self.run_dir / 'tensorboard')
         progress = self.run_dir / 'progress.csv'
@@ -148,6 +152,18 @@ class LearnerNode(Node):
         self.get_logger().info(
             f'learner: {self.cfg["algo"]}, version {self.learner.version}, '
             f'{self.learner.env_steps}/{self.cfg["total_steps"]} steps, run dir {self.run_dir}')
+
+    def bag_frame_skip(self) -> int:
+        """
+        Return the simulator's ``frame_skip`` for the bag's clock: the run's ``params.yaml``.
+
+        The bag's stamps, ``/clock`` and ``pg_node.dt`` are simulated time (timestep x
+        frame_skip per step); an arm imported at 0.002 s trains at 20. Without a run file
+        (a launch by hand): sim_node's default.
+        """
+        from pg_node.common.params import SIM_PARAMS
+        from pg_node.rl.trained_policy import run_frame_skip
+        return run_frame_skip(self.run_dir) or SIM_PARAMS['frame_skip'].default
 
     def refuse_other_updates_settings(self, params) -> SetParametersResult:
         """Refuse (``ros2 param set``) a setting the update lacks, naming the ones it has."""

@@ -16,7 +16,8 @@ For a viewer without a ROS install: a Foxglove WebSocket server (Foxglove's own 
   each arm's last ``target`` are served again every second.
 * **bag** (RUN: a run directory with ``bag/``, a bag directory or ``.mcap``): every topic of
   the bag, at ``--rate`` times the recorded pace (``--loop`` starts over), and the scene
-  rebuilt from its ``/joint_states`` and ``/target`` (a training bag records no markers):
+  rebuilt from its ``/joint_states`` and ``/target`` (in place of the bag's own
+  ``/pg_node/scene``, arm 0 once a second, ``record_scene_period``):
   the ``--view-arms`` of the recorded arms, on ``pg_node/scene`` as ``sim_node`` draws them
   (:mod:`pg_node.sim.scene`), at most ``--scene-rate`` Hz of wall time.
 
@@ -45,6 +46,8 @@ LIVE_TOPICS = {
 }
 #: topics a latecomer must still get: subscribed reliable and transient local
 LATCHED = ('robot_description', 'target')
+#: the metrics config/pg_node.foxglove.json plots (their channels are made before serving)
+LAYOUT_METRICS = ('episode_return', 'policy_loss', 'value_loss', 'entropy')
 #: the scene bag mode rebuilds
 SCENE_TOPIC, SCENE_TYPE = '/pg_node/scene', 'visualization_msgs/msg/MarkerArray'
 
@@ -233,6 +236,8 @@ def serve_bag(served: Served, reader, model_path: str, view_arms, rate: float,
                     wait = due - (time.monotonic() - start_wall)
                     if wait > 0:
                         time.sleep(wait)
+                if m.topic == SCENE_TOPIC:      # the bag's own (arm 0, 1 Hz): rebuilt here
+                    continue
                 served.publish(m.topic, m.msg_type, m.data, time.time_ns())
                 if m.topic == '/target':
                     point = reader_msg(m)
@@ -316,8 +321,12 @@ def main(argv=None) -> int:
         print(f'view: --view-arms: {exc}', file=sys.stderr)
         return 2
     reader = model_path = None
-    # served as view serves them: live without the namespace, a bag's as recorded
+    # served as view serves them: live without the namespace (and what the shipped layout
+    # shows of the topics found later), a bag's as recorded
+    from pg_node.bag.recorder import metric_topic
     topics = {'/' + topic.lstrip('/'): type_name for topic, type_name in LIVE_TOPICS.items()}
+    topics.update({metric_topic(name): 'std_msgs/msg/Float64' for name in LAYOUT_METRICS})
+    topics['/arm0/joint_states'] = 'sensor_msgs/msg/JointState'
     if args.run:
         bag = _bag_path(Path(args.run))
         if not bag.exists():
