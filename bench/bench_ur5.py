@@ -100,7 +100,7 @@ def main() -> int:
                         help="randomize_servo_latency (s), or 'none' (default: 'uniform 0 "
                         "0.02' for velocity, 'uniform 0 0.01' for motor)")
     parser.add_argument('--payload', default=TORQUE_TERMS['payload'],
-                        help="motor: randomize_payload (kg at the fingertip that the gravity "
+                        help='motor: randomize_payload (kg at the fingertip that the gravity '
                         "compensation does not know), or 'none'")
     args = parser.parse_args()
     if args.servo_latency is None:
