@@ -920,8 +920,8 @@ def test_the_import_prints_the_recipe_measured_for_its_interface(tmp_path, capsy
     """
     Issue 46 item 6: the recipe that learned, per command interface, or that none was.
 
-    Velocity servos and velocity-damped motors have one (measured on the UR5, BENCHMARKS.md);
-    undamped motors and position servos say none was measured yet.
+    Velocity servos and velocity-damped motors have one (measured on the UR5, BENCHMARKS.md),
+    undamped motors one measured on the Panda; position servos say none was measured yet.
     """
     out = tmp_path / 'arm.xml'
     cases = ((['--actuator', 'velocity', '--armature', 0.1],
@@ -929,7 +929,8 @@ def test_the_import_prints_the_recipe_measured_for_its_interface(tmp_path, capsy
              (['--velocity-damping', '--timestep', 0.02],
               'recipe measured for motor, velocity damping actuators: import with '
               '--velocity-damping --timestep 0.02, '),
-             ([], 'recipe: none measured yet for motor actuators; '),
+             ([], 'recipe measured for motor actuators: import with the defaults '),
+             (['--actuator', 'position'], 'recipe: none measured yet for position actuators; '),
              (['--actuator', 'position', '--position-delta', 0.05],
               'recipe: none measured yet for position, bounded changes actuators; '))
     for flags, said in cases:
