@@ -77,6 +77,8 @@ def import_and_train_args(args):
         physics = ['--velocity-damping', '--timestep', '0.02']
         terms = {}
         extra = []
+    if args.nominal:
+        terms = {}
     servo = [f'randomize_{name}={value}' for name, value in terms.items() if value != 'none']
     return physics, extra + servo
 
@@ -89,6 +91,9 @@ def main() -> int:
     parser.add_argument('--steps', type=int, default=5_000_000)
     parser.add_argument('--seed', type=int, default=0)
     parser.add_argument('--full-workspace', action='store_true')
+    parser.add_argument('--nominal', action='store_true',
+                        help='no randomized term at all: the nominal policy of the sim-to-sim '
+                        'table (docs/sim_to_sim.md)')
     parser.add_argument('--actuator', choices=('damped-motor', 'velocity', 'motor'),
                         default='damped-motor',
                         help='damped-motor: effort with --velocity-damping (the first '
