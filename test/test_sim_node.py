@@ -668,7 +668,7 @@ def test_sim_and_actor_publish_every_transition_and_command_for_others(tmp_path,
             pub_w.publish(table_msg.to_msg(*messages.pack_weights(layout, vec, version, 0)))
             answered = n_steps * (version + 1)
             client.spin_until(lambda: len(commands) >= answered
-                              and len(client.transitions) >= answered + 1)
+                              and len(client.transitions) >= answered + 1, timeout=30.0)
         client.spin_for(0.3)          # nothing more, nothing twice
     finally:
         _, text = stop_node(proc)

@@ -332,6 +332,10 @@ SIM_PARAMS: Dict[str, Param] = {
                              'subscriber; 0 turns it off', low=0.0, live=True),
     'trail_length': Param(50, "fingertip positions in pg_node/scene's trail", low=0),
     'diagnostics_rate': Param(1.0, 'diagnostics rate in Hz of wall time', **POSITIVE, live=True),
+    'physics_threads': Param(0, 'threads stepping the arms (0: as the in-process training '
+                                'does, 1 below 32 arms, else one per core up to 4); fewer '
+                                'leave a core to the critic and learner while the arms step',
+                             low=0),
     'in_process_hop': Param(True, 'when the actor shares the process (sim_and_actor, what '
                                   'train starts): hand transitions and commands to it inside '
                                   'the process, without DDS or an executor wake-up; each '

@@ -8,7 +8,8 @@ process (:mod:`pg_node.ros.sim_and_actor`) each control step then costs two DDS 
 takes and two executor wake-ups. A :class:`LocalHop` is that fast path for one topic, in
 the spirit of rclcpp's: a message published through it is queued for the peer's callback
 (:data:`PENDING`, delivered by :func:`deliver` in the process's spin loop,
-:func:`pg_node.ros.runtime.run`), in order, the same object the callback would get from DDS.
+:func:`pg_node.ros.runtime.run`), in order: the message itself, for the sim and the actor
+the same CDR bytes their raw subscriptions take from DDS.
 
 What the rest of the graph sees does not change:
 

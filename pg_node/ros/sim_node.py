@@ -202,6 +202,7 @@ class SimNode(Node):
                             reward_dist_weight=p['reward_dist_weight'],
                             reward_control_weight=p['reward_control_weight'],
                             randomization=from_params(p),
+                            num_threads=p['physics_threads'] or None,
                             # a robot's stand-in gets absolute angles from policy_node
                             relative_actions=p['command_interface'] == 'control',
                             position_delta=p['position_delta'])
