@@ -198,7 +198,7 @@ def test_velocity_commands_are_rad_per_s_held_forever_and_zero_holds(velocity_no
     assert 'aborted due to command timeout' in text and 'rejected' not in text, text
 
 
-#: the reaching policy's training: test_policy_node's settings, 100k steps (about 10 s)
+#: the reaching policy's training: test_policy_node's settings, 100k steps (10-20 s)
 REACH_TRAIN = ['seed=0', 'num_envs=8', 'learning_rate=0.003', 'n_steps=16', 'gamma=0.9',
                'vf_epochs=1']
 REACH_STEPS = 100_000
