@@ -172,6 +172,39 @@ def test_gravity_compensation_holds_the_ur5_and_without_it_the_arm_falls():
     assert moved[0] < 5e-3 and moved[1] > 0.1, moved
 
 
+def test_a_payload_pulls_its_weight_at_the_tip_unknown_to_the_gravity_compensation():
+    """
+    ``set_payload``: m g at a point of the tip link, which the compensation does not hold.
+
+    The arm sags under the payload; given the torque ``-J^T m g`` (J the point's linear
+    Jacobian) on top of the compensation it holds still again, so the force is m g, there.
+    """
+    pose, offset, kg = [0.0, -1.0, 1.0, -1.0, -1.5, 0.0], [0.0, 0.0, 0.05], 2.0
+    a = PybulletArm(UR5, UR5_JOINTS, control_period=0.04, gravity_compensation=True,
+                    package_paths=[str(SHARE)])
+    try:
+        a.set_state(pose)
+        a.set_payload('tool0', offset, kg)
+        a.step(np.zeros(6), periods=5)
+        sag = np.abs(a.state()[0] - pose).max()
+        a.set_state(pose)
+        zero = [0.0] * len(a.dof_ids)
+        q = [s[0] for s in a.client.getJointStates(a.body, a.dof_ids)]
+        jac = np.array(a.client.calculateJacobian(a.body, a.links['tool0'], offset, q, zero,
+                                                  zero)[0])[:, a._dof_index]
+        a.step(-jac.T @ (kg * np.array([0.0, 0.0, -9.81])), periods=5)
+        held = np.abs(a.state()[0] - pose).max()
+        with pytest.raises(PybulletError, match='no moving link'):
+            a.set_payload('nowhere', offset, kg)
+        with pytest.raises(PybulletError, match='kg >= 0'):
+            a.set_payload('tool0', offset, -1.0)
+        a.set_payload('tool0', offset, 0.0)
+        assert a.payload is None
+    finally:
+        a.close()
+    assert sag > 0.02 and held < 1e-3, (sag, held)
+
+
 @pytest.mark.parametrize('urdf, tip', [(UR5, 'tool0'), (PANDA, 'panda_link8'),
                                        (TWO_LINK, 'fingertip')])
 def test_pybullet_reads_the_vendor_arm_as_pg_node_imports_it(tmp_path, urdf, tip):
@@ -245,6 +278,14 @@ def test_eval_engine_pybullet_runs_the_policy_on_the_urdf_it_was_imported_from(t
     assert bad.returncode == 2 and 'no URDF' in bad.stderr and 'Traceback' not in bad.stderr
     bad = run('--engine', 'pybullet', '--perturb', 'mass_scale=2')
     assert bad.returncode == 2 and '--perturb is for --engine mujoco' in bad.stderr
+    # a payload applies in PyBullet (its effect: the test above); this arm's joints turn
+    # about the vertical, so its weight turns none of them: the same episodes, the same end
+    heavy = run('--engine', 'pybullet', '--episodes', '2', '--perturb', 'payload=5')
+    assert heavy.returncode == 0 and ', with payload=5:' in heavy.stdout, heavy.stderr
+    heavy = json.loads(run('--engine', 'pybullet', '--episodes', '2', '--perturb', 'payload=5',
+                           '--json').stdout)
+    assert heavy['eval_final_distance'] == pytest.approx(res['eval_final_distance'], abs=1e-9)
+    assert heavy['perturbation'] == {'payload': 'abs 5 startup'}
 
 
 def test_velocity_servos_run_as_velocity_commands(tmp_path):

@@ -65,7 +65,7 @@ def evaluate_in_pybullet(policy, model: str, urdf, n_episodes: int = 100, seed: 
                          max_episode_steps: int = 50, frame_skip: int = 2,
                          gravity_compensation: Optional[bool] = None,
                          package_paths=(), max_timestep: Optional[float] = None,
-                         position_delta=None) -> Dict[str, float]:
+                         position_delta=None, payload: float = 0.0) -> Dict[str, float]:
     """
     Run :func:`evaluate_policy`'s episodes with the arm in PyBullet, read from ``urdf``.
 
@@ -83,6 +83,8 @@ def evaluate_in_pybullet(policy, model: str, urdf, n_episodes: int = 100, seed: 
     A policy of relative position targets (the model's ``pg_position_delta`` or the run's
     ``position_delta``) commands ``q + u d`` around PyBullet's angles, as ``policy_node`` does.
     ``gravity_compensation``: None follows the model (its links' ``gravcomp``).
+    ``payload``: kg hung at the fingertip that the compensation does not know, as MuJoCo's
+    ``payload`` term (:meth:`pg_node.sim.pybullet_arm.PybulletArm.set_payload`).
     The result also holds ``pybullet_timestep`` and ``pybullet_warnings``.
     """
     from pg_node.control.interfaces import check, INTERFACES
@@ -115,6 +117,8 @@ def evaluate_in_pybullet(policy, model: str, urdf, n_episodes: int = 100, seed: 
     obs_of = ObservationBuilder(m)
     arm = PybulletArm(urdf, s.joint_names, control_period=task.dt, max_timestep=max_timestep,
                       gravity_compensation=gravity_compensation, package_paths=package_paths)
+    if payload:
+        arm.set_payload(tip_link, tip_offset, payload)
     returns, final = np.empty(n_episodes), np.empty(n_episodes)
     lo, hi = s.ctrl_low, s.ctrl_high
     try:

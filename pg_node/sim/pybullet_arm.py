@@ -153,6 +153,8 @@ class PybulletArm:
         self.pb = pybullet
         self.joint_names = tuple(joints)
         self.gravity_compensation = bool(gravity_compensation)
+        self.gravity = tuple(float(g) for g in gravity)
+        self.payload = None             # (link, offset, kg): set_payload
         text, self.warnings = prepare_urdf(urdf_path, self.joint_names, package_paths)
         with _quiet():
             self.client = BulletClient(connection_mode=pybullet.DIRECT)
@@ -292,6 +294,8 @@ class PybulletArm:
                                         targetVelocities=cmd.tolist(), forces=force.tolist())
         weight = np.zeros(len(self.ids))
         for k in range(int(periods) * self.substeps):
+            if self.payload is not None:
+                self._pull_payload()
             if mode == 'effort':
                 if self.gravity_compensation and k % self._compensate_every == 0:
                     weight = self.gravity_torque()
@@ -302,6 +306,28 @@ class PybulletArm:
         if mode != 'effort':
             states = c.getJointStates(self.body, self.ids)
             self.applied = np.array([s[3] for s in states])
+
+    def set_payload(self, link: str, offset, kg: float) -> None:
+        """
+        Hang ``kg`` at the point ``offset`` of ``link`` that the arm's own model lacks.
+
+        Its weight pulls there at every physics step as an external force, so
+        :meth:`gravity_torque` (the URDF's masses) does not know it: the gravity
+        compensation's error that ``randomize_payload`` trains for (and MuJoCo's
+        ``--perturb payload``, :mod:`pg_node.common.perturbations`). 0 kg removes it.
+        """
+        if link not in self.links:
+            raise PybulletError(f'the URDF has no moving link {link!r} to hang a payload on')
+        if not np.isfinite(kg) or kg < 0:
+            raise PybulletError(f'a payload is a mass in kg >= 0, not {kg!r}')
+        self.payload = (link, np.asarray(offset, dtype=float), float(kg)) if kg else None
+
+    def _pull_payload(self):
+        link, offset, kg = self.payload
+        force = (kg * np.asarray(self.gravity)).tolist()
+        self.client.applyExternalForce(self.body, self.links[link], force,
+                                       self.link_position(link, offset).tolist(),
+                                       self.pb.WORLD_FRAME)
 
     def link_position(self, link: str, offset=(0.0, 0.0, 0.0)) -> np.ndarray:
         """Return the world position (m) of a point ``offset`` in link ``link``'s URDF frame."""

@@ -14,7 +14,8 @@ nominal evaluation's, so the two reports compare episode for episode.
 ``--engine pybullet`` runs the same episodes with the arm in PyBullet, loaded from the
 robot's own URDF (``--urdf``, default: the one ``arm import`` made the model from, named in
 its ``pg_import_command``), as :func:`pg_node.rl.evaluate.evaluate_in_pybullet` describes
-(docs/sim_to_sim.md); ``--perturb`` does not apply there.
+(docs/sim_to_sim.md); of ``--perturb`` only ``payload=KG`` applies there (a weight at the
+fingertip that the gravity compensation does not know, :meth:`PybulletArm.set_payload`).
 """
 import argparse
 import json
@@ -59,9 +60,9 @@ def main(argv=None) -> int:
     except BadTerm as exc:
         print(f'eval: {exc}', file=sys.stderr)
         return 2
-    if args.engine == 'pybullet' and args.perturb:
-        print('eval: --perturb is for --engine mujoco; PyBullet is the other arm',
-              file=sys.stderr)
+    if args.engine == 'pybullet' and set(perturbation) - {'payload'}:
+        print('eval: --perturb is for --engine mujoco (PyBullet is the other arm), but for '
+              'payload=KG', file=sys.stderr)
         return 2
     try:
         state, ckpt_file = find_checkpoint(args.checkpoint)
@@ -93,7 +94,8 @@ def main(argv=None) -> int:
     # the run's control step and, for a position policy, its bounded changes
     frame_skip, delta = int(card['frame_skip']), card_position_delta(card)
     if args.engine == 'pybullet':
-        res = _in_pybullet(args, state, model, task.model, frame_skip, delta)
+        payload = perturbation['payload'].a if 'payload' in perturbation else 0.0
+        res = _in_pybullet(args, state, model, task.model, frame_skip, delta, payload)
         if res is None:
             return 2
     else:
@@ -108,7 +110,8 @@ def main(argv=None) -> int:
     else:
         on = (' on an arm with ' + ' '.join(args.perturb)) if args.perturb else ''
         if args.engine == 'pybullet':
-            on = f" in PyBullet ({res['pybullet_urdf']}, step {res['pybullet_timestep']:.3g} s)"
+            on = (f" in PyBullet ({res['pybullet_urdf']}, step {res['pybullet_timestep']:.3g} s)"
+                  + on.replace(' on an arm', ','))
         print(f"policy version {res['policy_version']}{on}: return {res['eval_return']:.2f} "
               f"+/- {res['eval_return_std']:.2f} over {args.episodes} episodes; final "
               f"distance {100 * res['eval_final_distance']:.2f} cm, "
@@ -116,7 +119,8 @@ def main(argv=None) -> int:
     return 0
 
 
-def _in_pybullet(args, state, model: str, mj_model, frame_skip: int, position_delta=None):
+def _in_pybullet(args, state, model: str, mj_model, frame_skip: int, position_delta=None,
+                 payload: float = 0.0):
     """Return :func:`evaluate_in_pybullet`'s result, or None after saying why it cannot run."""
     from pg_node.rl.evaluate import evaluate_in_pybullet
     from pg_node.rl.learner import policy_from_checkpoint
@@ -132,7 +136,7 @@ def _in_pybullet(args, state, model: str, mj_model, frame_skip: int, position_de
     try:
         res = evaluate_in_pybullet(policy_from_checkpoint(state), model, urdf, args.episodes,
                                    args.seed, frame_skip=frame_skip,
-                                   position_delta=position_delta)
+                                   position_delta=position_delta, payload=payload)
     except (PybulletError, ValueError) as exc:
         print(f'eval: --engine pybullet: {exc}', file=sys.stderr)
         return None
