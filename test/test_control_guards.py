@@ -158,16 +158,22 @@ def test_after_every_hold_the_command_ramps_in_from_the_hold(kind, interface, re
 
 
 def drive_at_the_limit(max_change: float, ticks: int = 200, period: float = 0.02,
-                       limit_rule=None):
-    """Push joint1 of reacher2 (no damping here) at full torque towards its limit at 3 rad."""
-    g = CommandGuard(REACHER2, JOINTS, 'effort', GuardSettings(max_change=max_change), period)
+                       limit_rule=None, inertia=REACHER2.inertia, inertia_at=None):
+    """
+    Push joint1 of reacher2 (no damping here) at full torque towards its limit at 3 rad.
+
+    ``inertia``: the joints' true inertia (the record's, the largest, unless given);
+    ``inertia_at``: the guard's (:class:`CommandGuard`'s argument).
+    """
+    g = CommandGuard(REACHER2, JOINTS, 'effort', GuardSettings(max_change=max_change), period,
+                     inertia_at=inertia_at)
     if limit_rule is not None:
         g.joint_limits = limit_rule.__get__(g)
     q, qdot = np.zeros((1, 2)), np.zeros((1, 2))
     cmds, angles = [], []
     for k in range(ticks):
         u, _ = g(np.array([[0.0, 1.0]]), q, qdot, k * period)
-        qdot = qdot + to_si(u) / REACHER2.inertia * period      # semi-implicit Euler
+        qdot = qdot + to_si(u) / inertia * period      # semi-implicit Euler
         q = q + qdot * period
         cmds.append(u[0, 1])
         angles.append(q[0, 1])
@@ -196,9 +202,29 @@ def test_braking_guard_stops_a_joint_at_its_limit_without_flip_flop(max_change):
     assert reversals(cmds) <= 3 and np.all(cmds[-150:] == cmds[-1]), cmds[:30]
 
 
+@pytest.mark.parametrize('given', [False, True])
+def test_braking_guard_sizes_its_brake_with_the_poses_inertia(given):
+    """
+    A joint 10 times lighter than its largest inertia (a folded arm's shoulder) brakes calmly.
+
+    The cap is a one-tick controller of gain ``I / I_pose``: sized with the record's largest
+    inertia it overshot and reversed at full torque tick after tick (issue 46: the Panda
+    thrown 130 cm off its goal); with ``inertia_at`` it stops the joint as the heavy one.
+    """
+    light = REACHER2.inertia / 10
+    cmds, angles, speed = drive_at_the_limit(
+        0.0, inertia=light, inertia_at=(lambda q: np.tile(light, (len(q), 1))) if given
+        else None)
+    if given:
+        assert angles.max() < 3.0 and 3.0 - 0.1 < angles[-1] and abs(speed) < 1e-9
+        assert reversals(cmds) <= 3, cmds[:30]
+    else:           # the record's largest inertia: a brake that flip-flops, for the record
+        assert reversals(cmds) > 20, cmds[:30]
+
+
 def test_the_old_fixed_margin_let_the_joint_coast_past_its_limit():
     """The rule the braking guard replaced (zero torque within 0.05 rad), for the record."""
-    def fixed_margin(self, u, q, qdot, acted):
+    def fixed_margin(self, u, q, qdot, acted, inertia=None):
         torque = to_si(u)
         outward = (((q >= self.q_high - 0.05) & (torque > 0))
                    | ((q <= self.q_low + 0.05) & (torque < 0)))

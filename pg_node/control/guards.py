@@ -72,7 +72,7 @@ Defaults from the model (:func:`model_limits`): a parameter at 0 takes its value
 actuators' record, per actuator, and :meth:`CommandGuard.describe` says which was taken.
 """
 from dataclasses import dataclass
-from typing import Dict, Optional, Sequence, Tuple
+from typing import Callable, Dict, Optional, Sequence, Tuple
 
 import numpy as np
 from pg_node.control import position_delta
@@ -181,7 +181,8 @@ class CommandGuard:
 
     def __init__(self, act: Actuators, joint_names: Sequence[str], interface: str,
                  settings: Optional[GuardSettings] = None, period: float = 0.02,
-                 position_delta: Optional[np.ndarray] = None):
+                 position_delta: Optional[np.ndarray] = None,
+                 inertia_at: Optional[Callable[[np.ndarray], np.ndarray]] = None):
         """
         Take the actuators, the limits of their joints and the interface that commands them.
 
@@ -190,8 +191,13 @@ class CommandGuard:
         period in s (the braking guard's and the position rate limit's tick).
         ``position_delta`` (rad per actuator, the card's ``max_position_delta``): the
         actions are changes around the measured angles (step 0), not absolute targets.
+        ``inertia_at``: a function of the angles ``(arms, joints)`` (``joint_names``' order)
+        returning each actuator's inertia at that pose ``(arms, actuators)`` in kg m^2, the
+        braking guard's ``I`` (:func:`pg_node.sim.actuation.inertia_at`); None: the
+        record's largest, ``Actuators.inertia``.
         """
         self.act = act
+        self.inertia_at = inertia_at
         self.interface = INTERFACES[interface]
         self.settings = settings or GuardSettings()
         self.period = period
@@ -327,7 +333,8 @@ class CommandGuard:
         u = self.smooth(u, previous)
         u = self.rate_limit(u, previous, acted)
         u = self.accelerate(u, previous, acted)
-        u = self.joint_limits(u, q[:, self.cols], qdot[:, self.cols], acted)
+        inertia = None if self.inertia_at is None else self.inertia_at(q)
+        u = self.joint_limits(u, q[:, self.cols], qdot[:, self.cols], acted, inertia)
         u = self.bound_change(u, q[:, self.cols], acted)
         u = self.over_speed(u, qdot[:, self.cols], hold, acted)
         self._begin_hold(q, acted[GuardEvent.NONFINITE] | acted[GuardEvent.OVER_SPEED])
@@ -406,8 +413,8 @@ class CommandGuard:
             return u
         return s * previous + (1.0 - s) * u
 
-    def joint_limits(self, u: np.ndarray, q: np.ndarray, qdot: np.ndarray,
-                     acted) -> np.ndarray:
+    def joint_limits(self, u: np.ndarray, q: np.ndarray, qdot: np.ndarray, acted,
+                     inertia: Optional[np.ndarray] = None) -> np.ndarray:
         """
         Step 5: brake a joint whose braking distance reaches a limit; keep targets inside.
 
@@ -415,12 +422,17 @@ class CommandGuard:
         ``s`` rad from ``limit - m`` may move towards it at ``v_allowed = sqrt(2 a s)`` at
         most (its stop distance ``qdot^2 / (2 a)`` is then ``s``). The torque towards the
         limit is capped at ``I (v_allowed - qdot) / period``, the torque that brings the
-        joint to ``v_allowed`` in one tick (``I`` its inertia): far from the limit the cap
+        joint to ``v_allowed`` in one tick (``I`` its inertia, ``inertia``: at this pose,
+        or else the largest over the model's poses): far from the limit the cap
         is out of reach, on the braking curve it is zero, past it a brake, at rest within
         the margin it is zero (no push outward). The cap is a continuous function of the
         state, so the command follows it smoothly instead of switching between the policy's
-        command and a hold. Position: the target is kept ``m`` inside the range (the robot's
-        position loop brakes).
+        command and a hold. The cap is a one-tick controller of gain ``I / I_pose``: sized
+        with the largest inertia where the joint is light (the Panda's shoulder, folded,
+        meets 18 times less) it overshot, reversed at full torque tick after tick and threw
+        the arm 130 cm off its goal (issue 46); hence the pose's inertia where it is known.
+        Position: the target is kept ``m`` inside the range (the robot's position loop
+        brakes).
         """
         margin = self.settings.joint_limit_margin
         if self.interface.limit == LIMIT_INSIDE:
@@ -437,7 +449,8 @@ class CommandGuard:
             return self._velocity_cap(u, q, acted)
         torque = self.interface.to_si(self.act, u)
         lim = self.limits()
-        inertia, tau = self.act.inertia, effort_limit(self.act, self.interface)
+        inertia = self.act.inertia if inertia is None else inertia
+        tau = effort_limit(self.act, self.interface)
         with np.errstate(invalid='ignore'):
             up = np.sqrt(2 * lim.max_deceleration * np.maximum(self.q_high - margin - q, 0.0))
             down = np.sqrt(2 * lim.max_deceleration * np.maximum(q - self.q_low - margin, 0.0))

@@ -139,7 +139,7 @@ from pg_node.ros.diagnostics import Diagnostics, RateCounter
 from pg_node.ros.parameters import declare_params
 from pg_node.ros.policy_markers import policy_markers
 from pg_node.ros.runtime import params_help, run
-from pg_node.sim.actuation import actuators
+from pg_node.sim.actuation import actuators, inertia_at
 from pg_node.sim.kinematics_check import compare_kinematics
 from pg_node.sim.observation import ObservationBuilder
 from rcl_interfaces.msg import ParameterType
@@ -342,7 +342,7 @@ class PolicyNode(LifecycleNode):
         delta = (card.get('command_interfaces') or {}).get(interface, {}).get(
             'max_position_delta')
         guard = CommandGuard(arm, joints, interface, self.settings, 1.0 / self.control_rate(),
-                             position_delta=delta)
+                             position_delta=delta, inertia_at=inertia_at(model, joints))
         commanded = arm_joint_names([joints[c] for c in guard.cols], len(index),
                                     joints[0] in self._names)
         reason = self._check_controller(commanded)

@@ -8,6 +8,8 @@ dynamics, a joint transmission); the command interfaces, their units and maps li
 It reads too what the guards take their defaults from: each joint's damping, the largest
 joint torque its actuator may apply, and its largest inertia (:func:`joint_inertia`).
 """
+from typing import Callable, Sequence
+
 import mujoco
 import numpy as np
 from pg_node.control.interfaces import Actuators
@@ -86,6 +88,46 @@ def joint_inertia(model: mujoco.MjModel) -> np.ndarray:
         diag = np.diag(full)
         largest = np.maximum(largest, diag)
     return largest
+
+
+def inertia_at(model: mujoco.MjModel, joint_names: Sequence[str]
+               ) -> Callable[[np.ndarray], np.ndarray]:
+    """
+    Return a function: angles ``(arms, len(joint_names))`` to each actuator's inertia there.
+
+    The inertia an actuator's torque meets at that pose with the other joints free to move,
+    ``1 / (M^-1)_ii`` of the joint-space inertia matrix ``M`` (armature included; the other
+    joints of the model at their reference angles), at most the record's largest
+    (:func:`joint_inertia`): what the braking guard sizes a torque that changes the joint's
+    speed by a given amount in one tick with
+    (:meth:`pg_node.control.guards.CommandGuard.joint_limits`). Infinite for an actuator
+    without a joint of its own.
+
+    >>> from pg_node.common.paths import resolve_model
+    >>> m = mujoco.MjModel.from_xml_path(str(resolve_model('arm7')))
+    >>> names = [m.joint(j).name for j in range(7)]
+    >>> folded = [[0, -0.8, 2.0, -2.1, 2.8, 2.4, 1.9]]
+    >>> at = inertia_at(m, names)(np.array(folded))[0]
+    >>> bool(at[0] < actuators(m).inertia[0] / 5)     # the shoulder, 5+ times lighter
+    True
+    """
+    largest = actuators(model).inertia
+    data = mujoco.MjData(model)
+    adr = np.array([model.joint(n).qposadr[0] for n in joint_names])
+    on_joint = model.actuator_trntype == mujoco.mjtTrn.mjTRN_JOINT
+    dof = model.jnt_dofadr[np.where(on_joint, model.actuator_trnid[:, 0], 0)]
+    full = np.zeros((model.nv, model.nv))
+
+    def at(q: np.ndarray) -> np.ndarray:
+        out = np.empty((len(q), model.nu))
+        for i, angles in enumerate(q):
+            data.qpos[:] = model.qpos0
+            data.qpos[adr] = angles
+            mujoco.mj_fwdPosition(model, data)
+            mujoco.mj_fullM(model, data, full)
+            out[i] = np.where(on_joint, 1.0 / np.diag(np.linalg.inv(full))[dof], np.inf)
+        return np.minimum(out, largest)
+    return at
 
 
 def ctrl_range(model: mujoco.MjModel):
