@@ -97,8 +97,13 @@ def make_sb3(algo: str, env_id: str, seed: int, n_envs: int = 8):
     # make_vec_env asks for render_mode='rgb_array' unless told otherwise; nothing is
     # rendered here, so say so (Gymnasium's own Reacher-v5 gets the same)
     env = make_vec_env(env_id, n_envs=n_envs, seed=seed, env_kwargs={'render_mode': None})
+    from stable_baselines3.common.logger import Logger
     cls = {'a2c': A2C, 'ppo': PPO}[algo]
-    return cls('MlpPolicy', env, seed=seed, device='cpu', verbose=0)
+    model = cls('MlpPolicy', env, seed=seed, device='cpu', verbose=0)
+    # learn() would otherwise configure a logger that makes an empty $TMPDIR/SB3-<time>
+    # folder at every call; nothing is logged here
+    model.set_logger(Logger(folder=None, output_formats=[]))
+    return model
 
 
 def sb3_throughput(steps: int, algo: str = 'a2c', seed: int = 0) -> Dict:

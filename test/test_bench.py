@@ -228,12 +228,15 @@ def numbers(line):
 @pytest.mark.slow
 @pytest.mark.e2e
 def test_quick_bench_writes_every_table(tmp_path):
-    env = dict(os.environ, PYTHONPATH=str(REPO))
+    scratch = tmp_path / 'tmpdir'     # the bench's TMPDIR: SB3 must leave nothing there
+    scratch.mkdir()
+    env = dict(os.environ, PYTHONPATH=str(REPO), TMPDIR=str(scratch))
     cmd = [sys.executable, '-m', 'bench', '--quick', '--out', str(tmp_path),
            '--seconds', '0.2', '--latency-steps', '100', '--graph-steps', '2048',
            '--learning-steps', '2048', '--learners', 'pg_node_graph,pg_node_inprocess,sb3_a2c']
     res = subprocess.run(cmd, capture_output=True, text=True, cwd=REPO, env=env, timeout=900)
     assert res.returncode == 0, res.stderr[-3000:]
+    assert [p.name for p in scratch.glob('SB3-*')] == []
     text = (tmp_path / 'BENCHMARKS.md').read_text()
     data = json.loads((tmp_path / 'bench_results.json').read_text())
     for heading in ('## Machine', '## Targets', '## 1. Throughput ladder',
