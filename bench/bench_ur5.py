@@ -57,7 +57,7 @@ ARMS = {
 #: joint damping (N m s/rad) and dry friction (N m) near zero, a payload (kg) its gravity
 #: compensation does not know of, a dead time (s) below the control step
 TORQUE_TERMS = {'damping': 'abs uniform 0 0.1', 'frictionloss': 'abs uniform 0 0.2',
-                'payload': 'uniform 0 0.3', 'servo_latency': 'uniform 0 0.01'}
+                'payload': 'uniform 0 0.3', 'servo_latency': 'uniform 0 0.04'}
 
 
 def import_and_train_args(args):
@@ -103,7 +103,7 @@ def main() -> int:
                         help="velocity: randomize_servo_bandwidth (Hz), or 'none'")
     parser.add_argument('--servo-latency', default=None,
                         help="randomize_servo_latency (s), or 'none' (default: 'uniform 0 "
-                        "0.02' for velocity, 'uniform 0 0.01' for motor)")
+                        "0.02' for velocity, 'uniform 0 0.04' for motor)")
     parser.add_argument('--payload', default=TORQUE_TERMS['payload'],
                         help='motor: randomize_payload (kg at the fingertip that the gravity '
                         "compensation does not know), or 'none'")
