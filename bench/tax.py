@@ -392,15 +392,16 @@ GRAPHS = {'graph': [], 'graph_over_dds': ['sim_node.in_process_hop=false']}
 
 
 def ratio_runs(steps: int, runs: int, graphs: Dict[str, List[str]],
-               log: Callable[[str], None]) -> Dict:
+               log: Callable[[str], None], common: Sequence[str] = ()) -> Dict:
     """
     Train in-process and through each of ``graphs`` in turn, ``runs`` times; every load.
 
     The order turns round every other run (in-process first, then last), so that a load
     that drifts through a run weighs on both sides alike. ``graphs``: a name for each graph
-    and its ``train`` overrides.
+    and its ``train`` overrides; ``common``: overrides of both sides (``gamma=0.9``).
     """
-    out = {'steps': steps, 'graphs': graphs, 'pairs': [], 'pair_loads': [],
+    out = {'steps': steps, 'graphs': graphs, 'common': list(common), 'pairs': [],
+           'pair_loads': [],
            'load_start': [round(x, 2) for x in os.getloadavg()]}
     for k in range(runs):
         order = ['inprocess', *graphs]
@@ -410,8 +411,8 @@ def ratio_runs(steps: int, runs: int, graphs: Dict[str, List[str]],
         for side in order:
             log(f'tax: run {k + 1}/{runs}, {side}, {steps:,} steps')
             with LoadWatch() as load:
-                rates[side] = (inprocess_rate(steps) if side == 'inprocess' else
-                               graph_run(steps, graphs[side])['steps_per_second'])
+                rates[side] = (inprocess_rate(steps, common) if side == 'inprocess' else
+                               graph_run(steps, [*common, *graphs[side]])['steps_per_second'])
             loads[side] = load.result()
             log(f'tax: {side} {rates[side]:,.0f} steps/s, load {load_text(loads, [side])}')
         out['pairs'].append(rates)
@@ -443,7 +444,9 @@ def render_ratio(res: Dict, command: str) -> List[str]:
     lines += ['| ' + ' | '.join(r) + ' |' for r in rows]
     described = '; '.join(f'{g}: `train {" ".join(o)}`' if o else f'{g}: `train`'
                           for g, o in res['graphs'].items())
-    return [f'`{command}`: default settings (64 arms, 8-step rollouts, A2C, lock-step, sync), '
+    settings = ('default settings' if not res.get('common') else
+                f'default settings but {" ".join(res["common"])}')
+    return [f'`{command}`: {settings} (64 arms, 8-step rollouts, A2C, lock-step, sync), '
             f'{res["steps"]:,} steps per training, in-process and each graph in turn '
             f'({described}), {len(pairs)} times, the order reversed every other time; steps/s '
             'from the first update to the last. The ratio is read within each run, its median '
@@ -468,6 +471,9 @@ def main(argv=None) -> int:
                         help='a graph to measure, with its train overrides (repeatable; '
                              'default: graph, and graph_over_dds with '
                              'sim_node.in_process_hop=false)')
+    parser.add_argument('--set', action='append', default=[], metavar='KEY=VALUE',
+                        help='a setting of both sides, in-process and every graph '
+                             '(repeatable; e.g. --set gamma=0.9 --set vf_epochs=1)')
     parser.add_argument('--out', metavar='FILE.md',
                         help='also write the table there, and every number to FILE.json')
     args = parser.parse_args(argv)
@@ -488,7 +494,7 @@ def main(argv=None) -> int:
         print(f'[tax {time.perf_counter() - start:7.1f} s] {text}', file=sys.stderr, flush=True)
 
     log(f'commit {_commit(REPO)}')
-    res = ratio_runs(args.steps, args.runs, graphs, log)
+    res = ratio_runs(args.steps, args.runs, graphs, log, args.set)
     res['command'], res['commit'] = command, _commit(REPO)
     text = '\n'.join(render_ratio(res, command))
     print(text)

@@ -212,6 +212,11 @@ def test_tax_alternates_and_reports_each_runs_load_median_and_spread(monkeypatch
     assert '| **median** | **60,000** | **5,000** | **0.114** |' in text, text
     assert '| min-max | 10,000-70,000 | 2,000-8,000 | 0.083-0.200 |' in text, text
     assert 'b: `train x=1`' in text and 'Load average (1/5/15 min)' in text
+    # --set: both sides take the common settings, the graph's own after them
+    calls.clear()
+    res = tax.ratio_runs(100, 3, {'b': ['x=1']}, lambda text: None, ['gamma=0.9'])
+    assert calls[:2] == [('inprocess', ('gamma=0.9',)), ('graph', ('gamma=0.9', 'x=1'))]
+    assert 'default settings but gamma=0.9' in '\n'.join(tax.render_ratio(res, 'tax'))
 
 
 def test_rejects_unknown_section():
