@@ -51,22 +51,27 @@ def write_bag(path, angles):
             w.write('/joint_states', js, 2_000_000 + 20_000_000 * k)
 
 
+
+def start_view(args, env):
+    """Start ``python -m pg_node view ARGS --port 0``; return the process and its port."""
+    proc = subprocess.Popen([sys.executable, '-m', 'pg_node', 'view', *args, '--port', '0'],
+                            env=env, cwd=REPO, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    line = proc.stdout.readline()
+    port = re.search(r'ws://127\.0\.0\.1:(\d+)', line)
+    assert port, line + proc.stdout.read() if proc.poll() is not None else line
+    return proc, port.group(1)
+
 def test_view_serves_a_bags_scene_over_foxglove_websocket(tmp_path):
     from websockets.sync.client import connect
     angles = [(0.02 * k, -0.5 + 0.01 * k) for k in range(50)]
     write_bag(tmp_path / 'bag', angles)
     env = dict(os.environ, PYTHONPATH=REPO, PYTHONUNBUFFERED='1')
-    proc = subprocess.Popen(
-        [sys.executable, '-m', 'pg_node', 'view', str(tmp_path / 'bag'), '--port', '0',
-         '--loop', '--scene-rate', '20', '--stop-after', '90'],
-        env=env, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-        start_new_session=True)
+    proc, port = start_view([str(tmp_path / 'bag'), '--loop', '--scene-rate', '20',
+                             '--stop-after', '90'], env)
     try:
-        line = proc.stdout.readline()
-        port = re.search(r'ws://127\.0\.0\.1:(\d+)', line)
-        assert port, line + proc.stdout.read() if proc.poll() is not None else line
         channels, scene, first, statuses = {}, None, None, []
-        with connect(f'ws://127.0.0.1:{port.group(1)}', subprotocols=[SUBPROTOCOL],
+        with connect(f'ws://127.0.0.1:{port}', subprotocols=[SUBPROTOCOL],
                      open_timeout=10) as ws:
             assert ws.subprotocol == SUBPROTOCOL
             # generous: a loaded CI machine starves the server's process for seconds
@@ -128,15 +133,9 @@ def test_live_view_advertises_the_layouts_channels_on_connection():
     from pg_node.tools.view import LAYOUT_METRICS
     env = dict(os.environ, PYTHONPATH=REPO, PYTHONUNBUFFERED='1',
                ROS_DOMAIN_ID=str(ros_domain(base=200, spread=10)))
-    proc = subprocess.Popen(
-        [sys.executable, '-m', 'pg_node', 'view', '--port', '0', '--stop-after', '30'],
-        env=env, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-        start_new_session=True)
+    proc, port = start_view(['--stop-after', '30'], env)
     try:
-        line = proc.stdout.readline()
-        port = re.search(r'ws://127\.0\.0\.1:(\d+)', line)
-        assert port, line + proc.stdout.read() if proc.poll() is not None else line
-        with connect(f'ws://127.0.0.1:{port.group(1)}', subprotocols=[SUBPROTOCOL],
+        with connect(f'ws://127.0.0.1:{port}', subprotocols=[SUBPROTOCOL],
                      open_timeout=10) as ws:
             msg = {}
             while msg.get('op') != 'advertise':
