@@ -51,7 +51,6 @@ def write_bag(path, angles):
             w.write('/joint_states', js, 2_000_000 + 20_000_000 * k)
 
 
-
 def start_view(args, env):
     """Start ``python -m pg_node view ARGS --port 0``; return the process and its port."""
     proc = subprocess.Popen([sys.executable, '-m', 'pg_node', 'view', *args, '--port', '0'],
@@ -61,6 +60,7 @@ def start_view(args, env):
     port = re.search(r'ws://127\.0\.0\.1:(\d+)', line)
     assert port, line + proc.stdout.read() if proc.poll() is not None else line
     return proc, port.group(1)
+
 
 def test_view_serves_a_bags_scene_over_foxglove_websocket(tmp_path):
     from websockets.sync.client import connect
