@@ -218,6 +218,24 @@ def test_discovery_ends_early_on_an_idle_graph_and_at_the_longest_on_an_empty_on
     assert 5.0 - 1e-9 <= empty.now <= 5.1 + 1e-9
 
 
+def test_one_runs_discovery_waits_for_that_runs_topics():
+    """Another participant's topics settle first; the run asked for comes 2 s later."""
+    from pg_node.tools.topics import wait_for_discovery
+    other = BASIC + ['/diagnostics', '/exp_a/pg_node/episode']
+    late = other + ['/exp_b/pg_node/episode']
+    graph = Graph((0.0, other), (2.0, late))
+
+    def wanted(name):
+        return name.startswith('/exp_b/')
+    assert wait_for_discovery(graph.names, graph.spin, settle=0.5, longest=5.0,
+                              clock=lambda: graph.now, wanted=wanted)
+    assert graph.asked[-1][1] == late and 2.5 - 1e-9 <= graph.now <= 2.6 + 1e-9
+    absent = Graph((0.0, other))                   # the run never comes: the longest wait
+    assert not wait_for_discovery(absent.names, absent.spin, settle=0.5, longest=5.0,
+                                  clock=lambda: absent.now, wanted=wanted)
+    assert 5.0 - 1e-9 <= absent.now <= 5.1 + 1e-9
+
+
 def test_topics_help_says_how_long_it_waits_for_discovery():
     done = run('topics', '--help', columns=100)
     assert done.returncode == 0, done.stderr
@@ -292,11 +310,16 @@ def test_monitor_and_topics_tell_two_runs_apart(publisher):
         node = next(line for line in done.stdout.splitlines() if 'fake_node: test' in line)
         assert "run 'exp_b'" in node                 # the other run's status is not shown
         assert "run ''" not in done.stdout
-        listed = run('topics', '--discovery', '4', '--duration', '0.5', '--json', '--run',
+        # waits for exp_b's own participant, not only for the first one's /diagnostics
+        listed = run('topics', '--discovery', '15', '--duration', '0.5', '--json', '--run',
                      'exp_b')
         names = {r['name'] for r in json.loads(listed.stdout)}
         assert '/exp_b/pg_node/metrics/policy_loss' in names and '/diagnostics' in names
         assert not any(n.startswith('/pg_node/') for n in names), names
+        absent = run('topics', '--discovery', '1', '--duration', '0', '--run', 'exp_zzz')
+        assert absent.returncode == 0 and absent.stderr.strip().splitlines() == [
+            'topics: no topic of run exp_zzz found in 1 s (is it on this ROS_DOMAIN_ID?)'
+        ], absent.stderr
         # two participants: under load the second may be found seconds after the first
         both = run('topics', '--discovery', '8', '--settle', '4', '--duration', '0.5')
         assert 'runs: (no run id), exp_b' in both.stdout, both.stdout

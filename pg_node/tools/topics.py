@@ -16,7 +16,8 @@ prints the same as JSON.
 
 Several training runs on one domain each have their topics under ``/<run_id>/``
 (:mod:`pg_node.common.run`): the table's title names the runs found, and ``--run NAME``
-lists (and listens to) only that run's topics and ``/diagnostics``.
+lists (and listens to) only that run's topics and ``/diagnostics``, and waits for discovery
+until a topic of that run has been seen (at most ``--discovery`` seconds).
 """
 import argparse
 import json
@@ -54,14 +55,17 @@ POLL = 0.1
 
 
 def wait_for_discovery(names, spin, settle=SETTLE, longest=DISCOVERY_MAX,
-                       clock=time.monotonic) -> bool:
+                       clock=time.monotonic, wanted=None) -> bool:
     """
     Spin until discovery settles; return whether it did (False: ``longest`` seconds passed).
 
     Settled: the topic names (``names()``, polled every :data:`POLL` s between calls of
     ``spin(seconds)``) have not changed for ``settle`` seconds and hold a topic besides
-    :data:`TRIVIAL_TOPICS`. On a loaded machine the first answers list only those two, and
-    the nodes' topics come later, one node at a time: each change starts the wait again.
+    :data:`TRIVIAL_TOPICS` (and, given ``wanted(name)``, a topic it accepts). On a loaded
+    machine the first answers list only those two, and the nodes' topics come later, one
+    node (one DDS participant) at a time, sometimes more than ``settle`` seconds apart: each
+    change starts the wait again, and ``wanted`` keeps it going until the topics asked for
+    (one run's, see :func:`survey`) have come, however long the others came before them.
     """
     start = clock()
     seen, since = None, start
@@ -70,7 +74,8 @@ def wait_for_discovery(names, spin, settle=SETTLE, longest=DISCOVERY_MAX,
         current = frozenset(names())
         if current != seen:
             seen, since = current, now
-        elif seen - TRIVIAL_TOPICS and now - since >= settle:
+        elif (seen - TRIVIAL_TOPICS and (wanted is None or any(map(wanted, seen)))
+              and now - since >= settle):
             return True
         if now - start >= longest:
             return False
@@ -126,8 +131,11 @@ def survey(discovery=DISCOVERY_MAX, duration=2.0, include_hidden=False, context=
             executor.spin_once(timeout_sec=max(0.0, min(0.05, end - time.monotonic())))
 
     try:
-        # what is found is listened to from then on, while discovery settles too
-        wait_for_discovery(refresh, spin, settle, discovery)
+        # what is found is listened to from then on, while discovery settles too; one run's
+        # listing waits for a topic of that run, not only for /diagnostics (any run's)
+        wanted = None if run is None else (
+            lambda name: name != '/diagnostics' and in_run(name, run))
+        wait_for_discovery(refresh, spin, settle, discovery, wanted=wanted)
         # discovery goes on while we listen: a topic found late is measured for less time
         end = time.monotonic() + duration
         next_refresh = 0.0
@@ -221,13 +229,17 @@ def main(argv=None) -> int:
     parser.add_argument('--include-hidden', action='store_true')
     parser.add_argument('--json', action='store_true', help='print JSON')
     parser.add_argument('--run', type=run_id_arg,
-                        help="only this run's topics (and /diagnostics)")
+                        help="only this run's topics (and /diagnostics); waits for discovery "
+                             'until one of them is seen')
     args = parser.parse_args(argv)
     try:
         rows = survey(args.discovery, args.duration, args.include_hidden, run=args.run,
                       settle=args.settle)
     except KeyboardInterrupt:
         return 130
+    if args.run is not None and not any(r['name'] != '/diagnostics' for r in rows):
+        print(f'topics: no topic of run {run_label(args.run)} found in {args.discovery:g} s '
+              '(is it on this ROS_DOMAIN_ID?)', file=sys.stderr)
     if args.json:
         print(json.dumps(rows, indent=1))
     else:
