@@ -67,11 +67,6 @@ def find_checkpoint(path) -> Tuple[dict, Path]:
     return state, file
 
 
-def _run_sim_params(ckpt_file: Path) -> Dict:
-    """Return ``sim_node``'s parameters from the checkpoint's run's ``params.yaml``."""
-    return run_sim_params(ckpt_file.resolve().parent.parent)
-
-
 def run_sim_params(run_dir: Path) -> Dict:
     """Return ``sim_node``'s parameters from ``run_dir/params.yaml`` (none: ``{}``)."""
     import yaml
@@ -89,26 +84,27 @@ def run_sim_params(run_dir: Path) -> Dict:
     return {}
 
 
-def _run_frame_skip(ckpt_file: Path) -> Optional[int]:
-    """Return ``sim_node.frame_skip`` from the checkpoint's run, if it says one."""
-    return run_frame_skip(ckpt_file.resolve().parent.parent)
+def _frame_skip_of(sim: Dict) -> int:
+    """Return a run's ``sim_node.frame_skip`` (its parameters ``sim``), else the default."""
+    from pg_node.common.params import SIM_PARAMS
+    value = sim.get('frame_skip')
+    return value if isinstance(value, int) and value else SIM_PARAMS['frame_skip'].default
 
 
-def run_frame_skip(run_dir: Path) -> Optional[int]:
-    """Return ``sim_node.frame_skip`` from ``run_dir/params.yaml``, if there is one."""
-    value = run_sim_params(run_dir).get('frame_skip')
-    return value if isinstance(value, int) else None
+def run_frame_skip(run_dir: Path) -> int:
+    """Return ``sim_node.frame_skip`` from ``run_dir/params.yaml``, else the default."""
+    return _frame_skip_of(run_sim_params(run_dir))
 
 
-def _run_randomization(ckpt_file: Path) -> Dict[str, str]:
-    """Return the run's ``randomize_<term>`` texts that are on, ``{term: text}``."""
+def _randomization_of(sim: Dict) -> Dict[str, str]:
+    """Return a run's ``randomize_<term>`` texts that are on, ``{term: text}``."""
     from pg_node.common.perturbations import from_params
-    return {t: text for t, text in from_params(_run_sim_params(ckpt_file)).items() if text}
+    return {t: text for t, text in from_params(sim).items() if text}
 
 
-def _run_position_delta(ckpt_file: Path) -> float:
-    """Return ``sim_node.position_delta`` from the run's ``params.yaml`` (none: 0)."""
-    value = _run_sim_params(ckpt_file).get('position_delta')
+def _position_delta_of(sim: Dict) -> float:
+    """Return a run's ``sim_node.position_delta`` (none: 0)."""
+    value = sim.get('position_delta')
     return float(value) if isinstance(value, (int, float)) else 0.0
 
 
@@ -188,12 +184,12 @@ def make_card(model_name: str, obs_dim: int, act_dim: int, frame_skip: int,
 
 def checkpoint_card(state: dict, file: Path) -> Dict:
     """Return the card of a policy checkpoint (``frame_skip`` from its run, else the default)."""
-    from pg_node.common.params import SIM_PARAMS
-    frame_skip = _run_frame_skip(file) or SIM_PARAMS['frame_skip'].default
+    sim = run_sim_params(Path(file).resolve().parent.parent)     # the run's, read once
     source = {'checkpoint': str(Path(file).resolve()), 'policy_version': int(state['version']),
               'env_steps': int(state.get('env_steps', 0))}
     return make_card(state['config']['model'], int(state['obs_dim']), int(state['act_dim']),
-                     frame_skip, source, _run_randomization(file), _run_position_delta(file))
+                     _frame_skip_of(sim), source, _randomization_of(sim),
+                     _position_delta_of(sim))
 
 
 class TrainedPolicy:

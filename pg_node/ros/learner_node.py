@@ -161,9 +161,8 @@ class LearnerNode(Node):
         frame_skip per step); an arm imported at 0.002 s trains at 20. Without a run file
         (a launch by hand): sim_node's default.
         """
-        from pg_node.common.params import SIM_PARAMS
         from pg_node.rl.trained_policy import run_frame_skip
-        return run_frame_skip(self.run_dir) or SIM_PARAMS['frame_skip'].default
+        return run_frame_skip(self.run_dir)
 
     def refuse_other_updates_settings(self, params) -> SetParametersResult:
         """Refuse (``ros2 param set``) a setting the update lacks, naming the ones it has."""
