@@ -45,7 +45,7 @@ from ament_index_python.packages import get_package_prefix, get_package_share_di
 from launch import LaunchDescription
 from launch.actions import (DeclareLaunchArgument, EmitEvent, ExecuteProcess, OpaqueFunction,
                             RegisterEventHandler)
-from launch.event_handlers import OnProcessExit
+from launch.event_handlers import OnProcessExit, OnShutdown
 from launch.events import Shutdown
 from launch_ros.actions import Node
 import yaml
@@ -71,6 +71,22 @@ def _end_with(action, reason):
             raise RuntimeError(f'{reason} with exit code {event.returncode}')
         return [EmitEvent(event=Shutdown(reason=reason))]
     return RegisterEventHandler(OnProcessExit(target_action=action, on_exit=on_exit))
+
+
+def _removed_at_shutdown(paths):
+    """
+    Return the handler that removes the launch's own parameter ``paths`` when it shuts down.
+
+    The processes read them once, at start (rcl's arguments); launch_ros leaves the files it
+    writes for a dict of parameters in the temporary folder for good, one per node and launch.
+    """
+    def remove(event, context):
+        for path in paths:
+            try:
+                os.remove(path)
+            except FileNotFoundError:
+                pass
+    return RegisterEventHandler(OnShutdown(on_shutdown=remove))
 
 
 def _config_dir():
@@ -165,6 +181,7 @@ def _bring_up(context):
                                         and _value(context, 'use_learner').lower() == 'true')
     actions = []
     if _value(context, 'compose').lower() == 'true':
+        files = []
         # no name=: it would rename every node of the process; each node's own values go
         # in a section of its name, as a parameters dict would reach both nodes
         for namespace, own in pairs:
@@ -172,14 +189,16 @@ def _bring_up(context):
                         'actor_node': {**shared, **own}}
             sections = {n: {k: v for k, v in vals.items() if v is not None}
                         for n, vals in sections.items()}
+            files.append(_sections_file(sections))
             actions.append(Node(package='pg_node', executable='sim_and_actor',
-                                namespace=namespace, parameters=[params, _sections_file(sections)],
+                                namespace=namespace, parameters=[params, files[-1]],
                                 output='screen'))
         if use_learner:
+            files.append(_sections_file(training))
             both = Node(package='pg_node', executable='critic_and_learner', namespace=run_ns,
-                        parameters=[params, _sections_file(training)], output='screen')
+                        parameters=[params, files[-1]], output='screen')
             actions += [both, _end_with(both, 'the learner ended')]
-        return actions
+        return actions + [_removed_at_shutdown(files)] if files else actions
     for namespace, own in pairs:
         values = {'sim_node': {k: v for k, v in {**shared, 'seed': own.get(
                       'seed', shared.get('seed'))}.items() if v is not None},

@@ -147,7 +147,7 @@ def _fake_launch_modules():
                           ('launch.actions', ['DeclareLaunchArgument', 'EmitEvent',
                                               'ExecuteProcess', 'OpaqueFunction',
                                               'RegisterEventHandler']),
-                          ('launch.event_handlers', ['OnProcessExit']),
+                          ('launch.event_handlers', ['OnProcessExit', 'OnShutdown']),
                           ('launch.events', ['Shutdown']),
                           ('launch_ros.actions', ['Node'])):
         for name in names:
@@ -155,8 +155,29 @@ def _fake_launch_modules():
     return mods
 
 
+#: the launch's handlers at shutdown (they remove its parameter files), of the test running
+_SHUTDOWN = []
+
+
+@pytest.fixture(autouse=True)
+def _launch_shuts_down():
+    """Shut each test's launches down as ``ros2 launch`` does: no file of theirs is left."""
+    yield
+    while _SHUTDOWN:
+        _SHUTDOWN.pop().args[0].kwargs['on_shutdown'](None, None)
+
+
+def _is_shutdown_handler(action):
+    return (type(action).__name__ == 'RegisterEventHandler'
+            and type(action.args[0]).__name__ == 'OnShutdown')
+
+
 def _bring_up(monkeypatch, **given):
-    """Run the launch file's bring-up as ``ros2 launch`` would with ``given`` arguments."""
+    """
+    Run the launch file's bring-up as ``ros2 launch`` would with ``given`` arguments.
+
+    Returns its actions but the handlers at shutdown, which the test's end runs.
+    """
     import ament_index_python.packages
     import runpy
     import types
@@ -174,7 +195,9 @@ def _bring_up(monkeypatch, **given):
     assert not set(given) - set(declared), 'an argument the launch file does not declare'
     context = types.SimpleNamespace(launch_configurations={**declared, **given})
     bring_up = next(e for e in entities if type(e).__name__ == 'OpaqueFunction')
-    return bring_up.kwargs['function'](context)
+    actions = bring_up.kwargs['function'](context)
+    _SHUTDOWN.extend(a for a in actions if _is_shutdown_handler(a))
+    return [a for a in actions if not _is_shutdown_handler(a)]
 
 
 def _ends_launch_with(handler, action):
@@ -252,6 +275,19 @@ def test_launch_composes_as_train_does_with_each_nodes_own_values(monkeypatch):
     (pair,) = actions
     assert pair.kwargs['executable'] == 'sim_and_actor' and pair.kwargs['namespace'] == '/arm1'
     assert _sections(pair)['/**/actor_node'] == {'actor_id': 1, **run}
+
+
+def test_launch_removes_its_parameter_files_at_shutdown(monkeypatch):
+    """The composed processes' files exist while the launch runs and are gone after it."""
+    nodes = [a for a in _bring_up(monkeypatch) if type(a).__name__ == 'Node']
+    files = [n.kwargs['parameters'][1] for n in nodes]
+    assert len(files) == 2 and all(Path(f).is_file() for f in files)
+    (handler,) = _SHUTDOWN
+    _SHUTDOWN.clear()
+    handler.args[0].kwargs['on_shutdown'](None, None)
+    assert not any(Path(f).exists() for f in files)
+    _bring_up(monkeypatch, compose='false')          # dicts: no file of its own, no handler
+    assert not _SHUTDOWN
 
 
 @pytest.mark.e2e
