@@ -113,6 +113,17 @@ def card_position_delta(card: Dict) -> Optional[List[float]]:
     return (card.get('command_interfaces') or {}).get('position', {}).get('max_position_delta')
 
 
+def card_control(card: Dict) -> Dict:
+    """
+    Return the evaluation keywords of the control a card's policy was trained with.
+
+    ``frame_skip`` (its control step) and ``position_delta`` (its bounded changes, None for
+    absolute targets or other interfaces), as :func:`pg_node.rl.evaluate.evaluate_policy`
+    and the PyBullet evaluation take them.
+    """
+    return {'frame_skip': int(card['frame_skip']), 'position_delta': card_position_delta(card)}
+
+
 def make_card(model_name: str, obs_dim: int, act_dim: int, frame_skip: int,
               source: Dict, randomization: Optional[Dict[str, str]] = None,
               position_delta=None) -> Dict:

@@ -89,19 +89,18 @@ def main(argv=None) -> int:
               f'policy was trained on {cfg["model"]} with {state["obs_dim"]} and '
               f'{state["act_dim"]}', file=sys.stderr)
         return 2
-    from pg_node.rl.trained_policy import card_position_delta, checkpoint_card
-    card = checkpoint_card(state, ckpt_file)
+    from pg_node.rl.trained_policy import card_control, checkpoint_card
     # the run's control step and, for a position policy, its bounded changes
-    frame_skip, delta = int(card['frame_skip']), card_position_delta(card)
+    control = card_control(checkpoint_card(state, ckpt_file))
     if args.engine == 'pybullet':
         payload = perturbation['payload'].a if 'payload' in perturbation else 0.0
-        res = _in_pybullet(args, state, model, task.model, frame_skip, delta, payload)
+        res = _in_pybullet(args, state, model, task.model, control['frame_skip'],
+                           control['position_delta'], payload)
         if res is None:
             return 2
     else:
         res = evaluate_policy(policy_from_checkpoint(state), model, args.episodes, args.seed,
-                              perturbation=perturbation, frame_skip=frame_skip,
-                              position_delta=delta)
+                              perturbation=perturbation, **control)
     res['policy_version'] = int(state['version'])
     res['perturbation'] = {t: s.text() for t, s in perturbation.items()}
     del res['eval_returns'], res['eval_final_distances']

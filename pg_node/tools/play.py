@@ -319,10 +319,9 @@ def play(args, card, source: Path, perturbation, log_dir: Path, temporary: bool)
                 while not ready and procs['policy_node'].poll() is None \
                         and time.monotonic() < deadline:
                     rclpy.spin_once(node, timeout_sec=0.1)
-                name = 'pybullet_node' if args.robot == 'pybullet' else 'sim_node'
-                procs[name] = processes.start_logged(
+                procs[stand_in] = processes.start_logged(
                     robot_argv(args, card, model, namespace, interface, perturb_params),
-                    log_dir / f'{name}.log', env)
+                    log_dir / f'{stand_in}.log', env)
                 deadline = time.monotonic() + 120 + 5 * args.episodes
 
                 def arm0_done():
@@ -403,15 +402,15 @@ def robot_argv(args, card, model: str, namespace: str, interface: str,
     from pg_node.common.run import COMMANDS, CONTROLLER_COMMANDS
     common = ['-r', f'__ns:={namespace}', '-p', f'model:={model}', '-p', f'seed:={args.seed}',
               '-p', f'frame_skip:={card["frame_skip"]}',
-              '-p', f'real_time_factor:={args.real_time_factor}']
+              '-p', f'real_time_factor:={args.real_time_factor}',
+              '-p', f'command_interface:={interface}']
     if args.robot == 'pybullet':
         urdf = ['-p', f'urdf:={Path(args.urdf).resolve()}'] if args.urdf else []
         return [sys.executable, '-m', 'pg_node.ros.pybullet_node', '--ros-args', *common,
-                '-p', f'command_interface:={interface}', *urdf]
+                *urdf]
     return [sys.executable, '-m', 'pg_node.ros.sim_node', '--ros-args', *common,
             '-r', f'{COMMANDS}:={CONTROLLER_COMMANDS}', '-p', 'mode:=real_time',
-            '-p', f'command_interface:={interface}', '-p', f'num_envs:={args.arms}',
-            *perturb_params]
+            '-p', f'num_envs:={args.arms}', *perturb_params]
 
 
 def _model_param(card, log_dir: Path) -> str:

@@ -491,7 +491,7 @@ def evaluate_run(run_dir: Path, episodes: int) -> dict:
     from pg_node.rl.checkpoint import list_checkpoints, load_latest
     from pg_node.rl.evaluate import evaluate_policy
     from pg_node.rl.learner import policy_from_checkpoint
-    from pg_node.rl.trained_policy import card_position_delta, checkpoint_card
+    from pg_node.rl.trained_policy import card_control, checkpoint_card
     state, problems = load_latest(run_dir / 'checkpoints')
     for p in problems:
         print(p, file=sys.stderr)
@@ -501,8 +501,7 @@ def evaluate_run(run_dir: Path, episodes: int) -> dict:
                 if version == state['version'])
     card = checkpoint_card(state, ckpt)
     res = evaluate_policy(policy_from_checkpoint(state), state['config']['model'], episodes,
-                          state['config']['seed'], frame_skip=int(card['frame_skip']),
-                          position_delta=card_position_delta(card))
+                          state['config']['seed'], **card_control(card))
     res['policy_version'] = int(state['version'])
     res['checkpoint'] = str(ckpt)
     return res
