@@ -372,13 +372,17 @@ def graph_learning(run_dir: Path, steps: int, seed: int, eval_points: Sequence[i
 #: every ``python -m pg_node...`` process profiles itself with cProfile and writes its stats
 #: at exit (after Ctrl-C too), so the nodes are profiled without changing their code.
 _PROFILE_HOOK = """
-import atexit, cProfile, os, sys
+import atexit, cProfile, os, signal, sys
 _out = os.environ.get('PG_NODE_PROFILE_DIR')
 _argv = getattr(sys, 'orig_argv', [])
 _mod = next((a for a in _argv if a.startswith('pg_node')), None)
 if _out and _mod:
     _prof = cProfile.Profile()
-    _prof.enable()
+    if os.environ.get('PG_NODE_PROFILE_ON_SIGNAL'):
+        # from SIGUSR1 on (Python runs handlers on the main thread, the one profiled)
+        signal.signal(signal.SIGUSR1, lambda *_: _prof.enable())
+    else:
+        _prof.enable()
 
     def _dump():
         _prof.disable()
@@ -402,14 +406,114 @@ PROFILE_GROUPS = (
 )
 
 
+def grouped(stats, top: int = 8) -> Dict:
+    """
+    Return where a profile's time went: total, :data:`PROFILE_GROUPS` and the top functions.
+
+    ``stats``: a ``pstats.Stats``. Each function's own time (tottime) goes to the first group
+    whose keys its file and name hold, the rest to 'other Python'; ``inside``: every pg_node
+    function's cumulative seconds by ``file:function``; ``top``: the pg_node functions with
+    the most cumulative time.
+    """
+    total = stats.total_tt
+    groups = {g: 0.0 for g, _ in PROFILE_GROUPS}
+    for (file, line, func), (_, _, tt, _, _) in stats.stats.items():
+        where = f'{file}:{func}'
+        for g, keys in PROFILE_GROUPS:
+            if any(k in where for k in keys):
+                groups[g] += tt
+                break
+    groups['other Python'] = total - sum(groups.values())
+    funcs = sorted(
+        ((ct, nc, f'{Path(file).name}:{func}')
+         for (file, line, func), (_, nc, _, ct, _) in stats.stats.items()
+         if '/pg_node/' in file and func not in ('<module>', 'main', 'run')),
+        reverse=True)[:top]
+    inside = {}
+    for (file, line, func), (_, _, _, ct, _) in stats.stats.items():
+        if '/pg_node/' in file:
+            key = f'{Path(file).name}:{func}'
+            inside[key] = inside.get(key, 0.0) + ct
+    return {'total_seconds': total, 'groups': groups, 'inside': inside,
+            'top': [{'function': f, 'calls': n, 'cumulative_seconds': c}
+                    for c, n, f in funcs]}
+
+
+def profile_inprocess(steps: int, seed: int = 0, overrides: Sequence[str] = (),
+                      top: int = 8, warmup: int = 0) -> Dict:
+    """
+    Train in one process (``train_inprocess``, no evaluation) under cProfile; return as above.
+
+    The same computation as the graph's (its lock-step reference); ``nodes`` has one entry,
+    'in-process'. cProfile sees the calling thread only, as in the graph's processes.
+    ``warmup``: profiled from the first update past that many steps on.
+    """
+    import cProfile
+    import pstats
+    from pg_node.common.params import load_config
+    from pg_node.rl.train_inprocess import train_inprocess
+    cfg = load_config(None, [f'seed={seed}', *overrides])
+    prof = cProfile.Profile()
+    found = {'profiled_from_steps': 0}
+
+    def start(progress):
+        if not found.get('on') and progress['env_steps'] >= warmup:
+            found.update(on=True, profiled_from_steps=int(progress['env_steps']))
+            prof.enable()
+    if not warmup:
+        start({'env_steps': 0})
+    try:
+        summary = train_inprocess(cfg, steps, start, eval_episodes=1)
+    finally:
+        prof.disable()
+    found.pop('on', None)
+    return {'steps': steps, 'overrides': list(overrides), **found,
+            'steps_per_second': summary['steps_per_second'],
+            'nodes': {'in-process': grouped(pstats.Stats(prof), top)}}
+
+
+def _children(pid: int) -> List[int]:
+    """Return the processes whose parent is ``pid`` (from /proc)."""
+    found = []
+    for stat in Path('/proc').glob('[0-9]*/stat'):
+        try:
+            fields = stat.read_text().rsplit(')', 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid:
+            found.append(int(stat.parent.name))
+    return found
+
+
+def _signal_after(run_dir: Path, warmup: int, found: Dict, done) -> None:
+    """Send SIGUSR1 to train's node processes once progress.csv passes ``warmup`` steps."""
+    import csv
+    import signal
+    progress = Path(run_dir) / 'progress.csv'
+    while not done.wait(0.2):
+        try:
+            rows = list(csv.DictReader(progress.open()))
+        except OSError:
+            continue
+        if rows and float(rows[-1]['env_steps'] or 0) >= warmup:
+            for train in _children(os.getpid()):
+                for pid in _children(train):
+                    os.kill(pid, signal.SIGUSR1)
+            found['profiled_from_steps'] = int(float(rows[-1]['env_steps']))
+            return
+
+
 def profile_graph(steps: int, seed: int = 0, overrides: Sequence[str] = (),
-                  top: int = 8) -> Dict:
+                  top: int = 8, warmup: int = 0) -> Dict:
     """
     Run the training graph with every node under cProfile; return where each node's time went.
 
     Per node: total profiled seconds split into :data:`PROFILE_GROUPS` (the rest is
-    'other Python'), and the ``top`` pg_node functions by cumulative time.
+    'other Python'), and the ``top`` pg_node functions by cumulative time. ``warmup``: the
+    node processes are profiled from the first update past that many steps on (SIGUSR1 once
+    ``progress.csv`` shows it; ``profiled_from_steps`` says where), not from their start.
     """
+    import threading
     import pstats
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
@@ -417,13 +521,20 @@ def profile_graph(steps: int, seed: int = 0, overrides: Sequence[str] = (),
         hook.mkdir()
         prof_dir.mkdir()
         (hook / 'sitecustomize.py').write_text(_PROFILE_HOOK)
-        saved = {k: os.environ.get(k) for k in ('PYTHONPATH', 'PG_NODE_PROFILE_DIR')}
+        saved = {k: os.environ.get(k) for k in ('PYTHONPATH', 'PG_NODE_PROFILE_DIR',
+                                                'PG_NODE_PROFILE_ON_SIGNAL')}
         os.environ['PYTHONPATH'] = os.pathsep.join(
             [str(hook)] + ([saved['PYTHONPATH']] if saved['PYTHONPATH'] else []))
         os.environ['PG_NODE_PROFILE_DIR'] = str(prof_dir)
+        found, done = {'profiled_from_steps': 0}, threading.Event()
+        if warmup:
+            os.environ['PG_NODE_PROFILE_ON_SIGNAL'] = '1'
+            threading.Thread(target=_signal_after, args=(tmp / 'run', warmup, found, done),
+                             daemon=True).start()
         try:
             summary = run_graph(tmp / 'run', steps, seed, overrides)
         finally:
+            done.set()
             for k, v in saved.items():
                 if v is None:
                     os.environ.pop(k, None)
@@ -433,23 +544,8 @@ def profile_graph(steps: int, seed: int = 0, overrides: Sequence[str] = (),
         for path in sorted(prof_dir.glob('*.prof')):
             module = path.name.rsplit('.', 2)[0]  # pg_node.<node> or pg_node (train)
             name = module.partition('.')[2] or 'train (bring-up, progress)'
-            stats = pstats.Stats(str(path))
-            total = stats.total_tt
-            groups = {g: 0.0 for g, _ in PROFILE_GROUPS}
-            for (file, line, func), (_, _, tt, _, _) in stats.stats.items():
-                where = f'{file}:{func}'
-                for g, keys in PROFILE_GROUPS:
-                    if any(k in where for k in keys):
-                        groups[g] += tt
-                        break
-            groups['other Python'] = total - sum(groups.values())
-            funcs = sorted(
-                ((ct, nc, f'{Path(file).name}:{func}')
-                 for (file, line, func), (_, nc, _, ct, _) in stats.stats.items()
-                 if '/pg_node/' in file and func not in ('<module>', 'main', 'run')),
-                reverse=True)[:top]
-            nodes[name] = {'total_seconds': total, 'groups': groups,
-                           'top': [{'function': f, 'calls': n, 'cumulative_seconds': c}
-                                   for c, n, f in funcs]}
-    return {'steps': steps, 'overrides': list(overrides),
+            if name.startswith('train') and warmup:
+                continue                       # train itself was not signalled
+            nodes[name] = grouped(pstats.Stats(str(path)), top)
+    return {'steps': steps, 'overrides': list(overrides), **found,
             'steps_per_second': summary['steps_per_second'], 'nodes': nodes}
