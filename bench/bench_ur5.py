@@ -26,7 +26,14 @@ The ``--actuator`` is the command interface the arm is imported and trained on:
   servos (:data:`POSITION_SERVO`: ``--kp 500 --kv 20`` at ``--timestep 0.005`` with
   ``frame_skip:=8``, the 0.04 s control step) whose action is a change of at most
   ``--position-delta`` rad per control step around the measured angle, the servo terms
-  randomized as for ``velocity``. The default 0.04 rad is what a UR e-Series driver accepts
+  randomized as for ``velocity`` but with a dead time up to one control step (0-0.04 s,
+  what ``policy_node``'s timer adds: the Panda's lesson, docs/own_arm.md; a target
+  anchored at an angle measured that long ago lags the moving joint), and
+  ``reward_control_weight:=0.05`` (``--control-weight``): a change of 0.04 rad per step is
+  1 rad/s at full action where a velocity action of 1 is 3.15 rad/s, so the default weight
+  1 charges a move about 20 times what it charges on velocity (0.68 rad/s reached, squared
+  ratio to 3.15), and at 400k steps the policy barely moved (its largest change 0.008 rad
+  per step, 27 cm final distance; BENCHMARKS.md); The default 0.04 rad is what a UR e-Series driver accepts
   between two of its 2 ms cycles: the driver's URScript ignores a servo target that would
   need more than 20 rad/s (Universal_Robots_Client_Library c5d1e26,
   ``resources/external_control.urscript``:96 ``JOINT_IGNORE_SPEED``, :143-147
@@ -87,6 +94,7 @@ def import_and_train_args(args):
             physics, extra = list(POSITION_SERVO[0]), list(POSITION_SERVO[1])
         if args.actuator == 'position-delta':
             physics += ['--position-delta', str(args.position_delta)]
+            extra.append(f'reward_control_weight:={args.control_weight}')
         terms = {'servo_bandwidth': args.servo_bandwidth,
                  'servo_latency': args.servo_latency}
     elif args.actuator == 'motor':
@@ -126,18 +134,19 @@ def main() -> int:
                         'damping, torque terms randomized')
     parser.add_argument('--position-delta', type=float, default=0.04,
                         help='position-delta: rad per control step (default: %(default)s)')
+    parser.add_argument('--control-weight', type=float, default=0.05,
+                        help='position-delta: reward_control_weight (default: %(default)s)')
     parser.add_argument('--servo-bandwidth', default='uniform 5 20',
                         help="velocity, position: randomize_servo_bandwidth (Hz), or 'none'")
     parser.add_argument('--servo-latency', default=None,
                         help="randomize_servo_latency (s), or 'none' (default: 'uniform 0 "
-                        "0.02' for velocity and position, 'uniform 0 0.04' for motor)")
+                        "0.02' for velocity, 'uniform 0 0.04' for position and motor)")
     parser.add_argument('--payload', default=TORQUE_TERMS['payload'],
                         help='motor: randomize_payload (kg at the fingertip that the gravity '
                         "compensation does not know), or 'none'")
     args = parser.parse_args()
     if args.servo_latency is None:
-        args.servo_latency = ('uniform 0 0.02' if args.actuator in ('velocity', 'position',
-                                                                    'position-delta')
+        args.servo_latency = ('uniform 0 0.02' if args.actuator == 'velocity'
                               else TORQUE_TERMS['servo_latency'])
     share = Path(distribution('example-robot-data').locate_file('cmeel.prefix/share'))
     rel, tip, home, region = ARMS[args.arm]
