@@ -28,14 +28,14 @@ The ``--actuator`` is the command interface the arm is imported and trained on:
   ``--position-delta`` rad per control step around the measured angle, the servo terms
   randomized as for ``velocity`` but with a dead time up to one control step (0-0.04 s,
   what ``policy_node``'s timer adds: the Panda's lesson, docs/own_arm.md; a target
-  anchored at an angle measured that long ago lags the moving joint), and
+  anchored at an angle measured that long ago lags the moving joint) and
   ``reward_control_weight:=0.05`` (``--control-weight``): a change of 0.04 rad per step is
   1 rad/s at full action where a velocity action of 1 is 3.15 rad/s, so the default weight
   1 charges a move about 20 times what it charges on velocity (0.68 rad/s reached, squared
   ratio to 3.15), and at 400k steps the policy barely moved (its largest change 0.008 rad
-  per step, 27 cm final distance; BENCHMARKS.md); The default 0.04 rad is what a UR e-Series driver accepts
-  between two of its 2 ms cycles: the driver's URScript ignores a servo target that would
-  need more than 20 rad/s (Universal_Robots_Client_Library c5d1e26,
+  per step, 27 cm final distance; BENCHMARKS.md). The default 0.04 rad is what a UR
+  e-Series driver accepts between two of its 2 ms cycles: the driver's URScript ignores a
+  servo target that would need more than 20 rad/s (Universal_Robots_Client_Library c5d1e26,
   ``resources/external_control.urscript``:96 ``JOINT_IGNORE_SPEED``, :143-147
   ``targetWithinLimits``, called by ``set_servo_setpoint`` at :197); a CB3 at 125 Hz
   accepts 0.16 rad;
