@@ -10,8 +10,9 @@ second::
 
     AMENT_PREFIX_PATH=$PWD/.venv .venv/bin/python bench/bench_ur5.py --out /tmp/ur5 \
         [--arm ur5|panda] [--steps 5000000] [--seed 0] [--full-workspace] \
-        [--actuator damped-motor|velocity|motor] [--servo-bandwidth 'uniform 5 20'] \
-        [--servo-latency 'uniform 0 0.02']
+        [--actuator damped-motor|velocity|position-delta|position|motor] \
+        [--servo-bandwidth 'uniform 5 20'] [--servo-latency 'uniform 0 0.02'] \
+        [--position-delta 0.04]
 
 The ``--actuator`` is the command interface the arm is imported and trained on:
 
@@ -21,6 +22,25 @@ The ``--actuator`` is the command interface the arm is imported and trained on:
   velocity limit), no velocity damping, gravity compensation, each servo's tracking bandwidth
   (Hz) and dead time (s) randomized per episode (``--servo-bandwidth``,
   ``--servo-latency``; ``none`` for neither);
+- ``position-delta`` (a UR driver's ``forward_position_controller``, issue 46): position
+  servos (:data:`POSITION_SERVO`: ``--kp 500 --kv 20`` at ``--timestep 0.005`` with
+  ``frame_skip:=8``, the 0.04 s control step) whose action is a change of at most
+  ``--position-delta`` rad per control step around the measured angle, the servo terms
+  randomized as for ``velocity`` but with a dead time up to one control step (0-0.04 s,
+  what ``policy_node``'s timer adds: the Panda's lesson, docs/own_arm.md; a target
+  anchored at an angle measured that long ago lags the moving joint) and
+  ``reward_control_weight:=0.05`` (``--control-weight``): a change of 0.04 rad per step is
+  1 rad/s at full action where a velocity action of 1 is 3.15 rad/s, so the default weight
+  1 charges a move about 20 times what it charges on velocity (0.68 rad/s reached, squared
+  ratio to 3.15), and at 400k steps the policy barely moved (its largest change 0.008 rad
+  per step, 27 cm final distance; BENCHMARKS.md). The default 0.04 rad is what a UR
+  e-Series driver accepts between two of its 2 ms cycles: the driver's URScript ignores a
+  servo target that would need more than 20 rad/s (Universal_Robots_Client_Library c5d1e26,
+  ``resources/external_control.urscript``:96 ``JOINT_IGNORE_SPEED``, :143-147
+  ``targetWithinLimits``, called by ``set_servo_setpoint`` at :197); a CB3 at 125 Hz
+  accepts 0.16 rad;
+- ``position`` (absolute targets, the same servos): the action is a target anywhere in the
+  joint range (0.1 of action is 0.314 rad on the UR5's +-pi joints);
 - ``motor`` (a Franka in torque mode, issue 46): the importer's defaults, effort with the
   URDF's damping and nothing more, gravity compensated by the robot, the 0.002 s step with
   ``frame_skip:=20`` (the 0.04 s control step); trained with the terms a torque robot has
@@ -58,15 +78,25 @@ ARMS = {
 #: compensation does not know of, a dead time (s) below the control step
 TORQUE_TERMS = {'damping': 'abs uniform 0 0.1', 'frictionloss': 'abs uniform 0 0.2',
                 'payload': 'uniform 0 0.3', 'servo_latency': 'uniform 0 0.04'}
+#: the position servos' import flags and frame_skip: stiff enough to follow a 0.04 rad change
+#: within a control step (about 70% of it on the UR5 from rest), force within the wrists'
+#: 28 N m at that error, and at 0.005 s no joint chatters (at 0.01-0.02 s the UR5's light
+#: last wrist did, at 3-33 rad/s, under the same commands)
+POSITION_SERVO = (['--actuator', 'position', '--kp', '500', '--kv', '20', '--timestep',
+                   '0.005'], ['frame_skip:=8'])
 
 
 def import_and_train_args(args):
     """Return the ``arm import`` flags and the extra ``train`` arguments of ``args``."""
-    if args.actuator == 'velocity':
-        physics = ['--actuator', 'velocity', '--timestep', '0.02']
+    if args.actuator in ('velocity', 'position-delta', 'position'):
+        physics, extra = ['--actuator', 'velocity', '--timestep', '0.02'], []
+        if args.actuator != 'velocity':
+            physics, extra = list(POSITION_SERVO[0]), list(POSITION_SERVO[1])
+        if args.actuator == 'position-delta':
+            physics += ['--position-delta', str(args.position_delta)]
+            extra.append(f'reward_control_weight:={args.control_weight}')
         terms = {'servo_bandwidth': args.servo_bandwidth,
                  'servo_latency': args.servo_latency}
-        extra = []
     elif args.actuator == 'motor':
         physics = []
         terms = dict(TORQUE_TERMS, payload=args.payload)
@@ -94,16 +124,23 @@ def main() -> int:
     parser.add_argument('--nominal', action='store_true',
                         help='no randomized term at all: the nominal policy of the sim-to-sim '
                         'table (docs/sim_to_sim.md)')
-    parser.add_argument('--actuator', choices=('damped-motor', 'velocity', 'motor'),
+    parser.add_argument('--actuator', choices=('damped-motor', 'velocity', 'position-delta',
+                                               'position', 'motor'),
                         default='damped-motor',
                         help='damped-motor: effort with --velocity-damping (the first '
-                        'result); velocity: velocity servos, no damping; motor: effort, '
-                        'no damping, torque terms randomized')
+                        'result); velocity: velocity servos, no damping; position-delta: '
+                        'position servos, bounded changes around the measured angle; '
+                        'position: the same servos, absolute targets; motor: effort, no '
+                        'damping, torque terms randomized')
+    parser.add_argument('--position-delta', type=float, default=0.04,
+                        help='position-delta: rad per control step (default: %(default)s)')
+    parser.add_argument('--control-weight', type=float, default=0.05,
+                        help='position-delta: reward_control_weight (default: %(default)s)')
     parser.add_argument('--servo-bandwidth', default='uniform 5 20',
-                        help="velocity: randomize_servo_bandwidth (Hz), or 'none'")
+                        help="velocity, position: randomize_servo_bandwidth (Hz), or 'none'")
     parser.add_argument('--servo-latency', default=None,
                         help="randomize_servo_latency (s), or 'none' (default: 'uniform 0 "
-                        "0.02' for velocity, 'uniform 0 0.04' for motor)")
+                        "0.02' for velocity, 'uniform 0 0.04' for position and motor)")
     parser.add_argument('--payload', default=TORQUE_TERMS['payload'],
                         help='motor: randomize_payload (kg at the fingertip that the gravity '
                         "compensation does not know), or 'none'")

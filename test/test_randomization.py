@@ -256,6 +256,10 @@ PENDULUM = """
   <actuator>
     <position name="joint0" joint="joint0" kp="10000" kv="208" ctrlrange="-1 1"/>
   </actuator>
+  <custom>
+    <numeric name="pg_init_qpos_noise" data="0"/>
+    <numeric name="pg_init_qvel_noise" data="0"/>
+  </custom>
 </mujoco>
 """
 
@@ -306,6 +310,34 @@ def test_servo_lag_is_the_first_order_step_response_the_docs_give(pendulum):
     ctrl0, q0 = step_response(pendulum, {}, steps)
     assert np.all(ctrl0 == 0.5)
     assert dt * (1 + np.argmax(q0 >= 0.632 * final)) <= own + dt
+
+
+def test_a_position_servos_lag_starts_at_the_start_angle(pendulum):
+    """
+    The servo terms take the command before an episode as the one that holds the start pose.
+
+    A position servo's zero control is mid-range: a lag and dead time starting there pulled
+    the arm towards it at every episode start (this stiff servo from 0.8 to 0.34 rad in
+    20 ms, before the fix). Holding the start angle, the arm stays to 1e-6 rad; motors and
+    velocity servos keep zero, as before.
+    """
+    path = pendulum
+    path.write_text(PENDULUM.replace('data="0"/>\n    <numeric name="pg_init_qvel',
+                                     'data="0"/>\n    <numeric name="pg_init_qpos" '
+                                     'data="0.8"/>\n    <numeric name="pg_init_qvel'))
+    task = ArmTask(path, num_envs=1, seed=0, frame_skip=1, max_episode_steps=None,
+                   randomization={'servo_bandwidth': '1', 'servo_latency': '0.01'})
+    task.reset()
+    assert task.datas[0].qpos[0] == 0.8
+    np.testing.assert_allclose(task.hold_controls(np.array([0.8])), [0.8])
+    for _ in range(10):                                     # 20 ms, holding the angle
+        task.step(np.full((1, 1), 0.8))
+        assert task.datas[0].ctrl[0] == pytest.approx(0.8, abs=1e-12)
+    assert abs(task.datas[0].qpos[0] - 0.8) < 1e-6
+    task.close()
+    motors = ArmTask(REACHER, num_envs=1)
+    assert np.array_equal(motors.hold_controls(np.array([0.5, -1.0])), np.zeros(2))
+    motors.close()
 
 
 def test_servo_terms_off_by_value_are_the_nominal_arm_to_the_bit():

@@ -60,8 +60,10 @@ real arm reaches its setpoint late and gradually; between the command the arm re
 ``tau = 1 / (2 pi servo_bandwidth)``, advanced exactly at every physics step (ctrl of a unit
 step after ``k`` steps: ``1 - exp(-k timestep / tau)``). The law is the same for every
 interface (a position setpoint, a velocity, a torque whose current loop is slow), and its
-one parameter is the -3 dB bandwidth drive makers state. Both start at zero in each
-episode, as the ``latency`` history does.
+one parameter is the -3 dB bandwidth drive makers state. Both start each episode at the
+command that holds the arm where it starts, as the ``latency`` history does: zero for a
+motor or a velocity servo, the start angle for a position servo (whose zero command is the
+middle of the joint's range: a lag starting there would pull the arm towards it).
 
 Payload: the weight ``payload x gravity`` pulls at the fingertip site (``qfrc_applied``,
 set at every physics step from the site's position), on an arm whose gravity compensation

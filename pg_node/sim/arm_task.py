@@ -352,7 +352,8 @@ class ArmTask:
         self.datas = [mujoco.MjData(self.model) for _ in range(self.num_envs)]
         #: rad per control step per joint when actions are relative (else None)
         self.position_delta = self.spec.position_delta if relative_actions else None
-        self._servos = actuators(self.model) if self.position_delta is not None else None
+        self._actuators = actuators(self.model)
+        self._servos = self._actuators if self.position_delta is not None else None
         # Each ``d.qpos``-style attribute access builds a new numpy view; the views stay
         # valid for the life of their MjData, so take them once and gather with one
         # ``np.array`` per field.
@@ -444,13 +445,28 @@ class ArmTask:
         d.qpos[:] = qpos
         d.qvel[:] = qvel
         if self.randomizer is not None:
-            self.randomizer.on_reset(i)
+            self.randomizer.on_reset(i, self.hold_controls(qpos[s.qpos_adr]))
             m = self.randomizer.models[i]
         mujoco.mj_forward(m, d)
         self.episode_id[i] = self._next_episode_id
         self._next_episode_id += 1
         self.episode_step[i] = 0
         self.episode_return[i] = 0.0
+
+    def hold_controls(self, q: np.ndarray) -> np.ndarray:
+        """
+        Return the controls that apply no force to the arm at rest at angles ``q``.
+
+        ``-(b0 + b1 q) / gain`` of each actuator's affine law
+        (:mod:`pg_node.control.interfaces`): zero for the motors and velocity servos
+        ``arm import`` writes, the control of the angle ``q`` for a position servo; zero for
+        an actuator that does not follow the law. What the servo terms take as the command
+        before an episode (:meth:`pg_node.sim.randomization.Randomizer.on_reset`).
+        """
+        act = self._actuators
+        with np.errstate(divide='ignore', invalid='ignore'):
+            hold = -(act.b0 + act.b1 * np.asarray(q, dtype=float)) / act.gain
+        return np.where(act.affine, hold, 0.0)
 
     def set_state(self, i: int, qpos, qvel, target=None):
         """Put env ``i`` in a given state (and goal), as Gymnasium's ``set_state`` does."""

@@ -193,12 +193,20 @@ class Randomizer:
         # the constants MuJoCo derives from masses and armature (invweight0, ...)
         mujoco.mj_setConst(m, self._scratch[i])
 
-    def on_reset(self, i: int):
-        """Arm ``i`` starts an episode: redraw its reset terms, clear its commands."""
+    def on_reset(self, i: int, hold=0.0):
+        """
+        Arm ``i`` starts an episode: redraw its reset terms, clear its commands.
+
+        ``hold``: the controls the commands before the episode are taken to be (the
+        latency history, the servo's dead time and lag), the ones that hold the arm where it
+        starts (:meth:`pg_node.sim.arm_task.ArmTask.hold_controls`): zero for motors and
+        velocity servos, the start angle for position servos, whose zero control is the
+        middle of the joint's range.
+        """
         self._draw(i)
-        self.hist[i] = 0.0
-        self.sub_hist[i] = 0.0
-        self.servo_out[i] = 0.0
+        self.hist[i] = hold
+        self.sub_hist[i] = hold
+        self.servo_out[i] = hold
         self.draw_noise(i)
 
     def before_step(self, lo: int, hi: int):
