@@ -10,7 +10,9 @@ setup(
     version='0.1.0',
     # pg_node alone: the repository's bench/ (benchmarks, soak) and test/ are not installed
     packages=find_packages(include=[package_name, package_name + '.*']),
-    package_data={package_name + '.sim': ['models/*.xml', 'models/urdf/*.urdf']},
+    package_data={package_name + '.sim': ['models/*.xml', 'models/urdf/*.urdf',
+                                          'models/urdf/LICENSE.*',
+                                          'models/urdf/meshes/*/*.stl']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
@@ -21,7 +23,9 @@ setup(
         (os.path.join('share', package_name, 'launch'), glob('launch/*.launch.py')),
         (os.path.join('share', package_name, 'models'), glob('pg_node/sim/models/*.xml')),
         (os.path.join('share', package_name, 'models', 'urdf'),
-         glob('pg_node/sim/models/urdf/*.urdf')),
+         glob('pg_node/sim/models/urdf/*.urdf') + glob('pg_node/sim/models/urdf/LICENSE.*')),
+        (os.path.join('share', package_name, 'models', 'urdf', 'meshes', 'ur5e'),
+         glob('pg_node/sim/models/urdf/meshes/ur5e/*.stl')),
     ],
     install_requires=['setuptools'],
     zip_safe=True,

@@ -67,6 +67,11 @@ def test_share_holds_package_xml_config_launch_models(install):
     assert (share / 'config' / 'policy_node.yaml').is_file()
     models = {p.name for p in (share / 'models').glob('*.xml')}
     assert models >= {'reacher2.xml', 'arm5_3d.xml'}
+    # the vendor's UR5e with its meshes and licence, in share and beside the module
+    site = next((install / 'lib').glob('python3*/site-packages'))
+    for urdf in (share / 'models' / 'urdf', site / 'pg_node' / 'sim' / 'models' / 'urdf'):
+        assert (urdf / 'ur5e.urdf').is_file() and (urdf / 'LICENSE.ur_description').is_file()
+        assert len(list((urdf / 'meshes' / 'ur5e').glob('*.stl'))) == 7
     assert (install / 'share' / 'ament_index' / 'resource_index' / 'packages'
             / 'pg_node').is_file()
 

@@ -32,6 +32,8 @@ SHARE = Path(distribution('example-robot-data').locate_file('cmeel.prefix/share'
 ROBOTS = SHARE / 'example-robot-data' / 'robots'
 UR5 = ROBOTS / 'ur_description' / 'urdf' / 'ur5_joint_limited_robot.urdf'
 PANDA = ROBOTS / 'panda_description' / 'urdf' / 'panda.urdf'
+#: ur_description's UR5e as its driver loads it (scripts/ur_description_urdf.py)
+UR5E = REPO / 'pg_node' / 'sim' / 'models' / 'urdf' / 'ur5e.urdf'
 JOINTS = ['joint0', 'joint1']
 UR5_JOINTS = ['shoulder_pan_joint', 'shoulder_lift_joint', 'elbow_joint', 'wrist_1_joint',
               'wrist_2_joint', 'wrist_3_joint']
@@ -206,7 +208,7 @@ def test_a_payload_pulls_its_weight_at_the_tip_unknown_to_the_gravity_compensati
 
 
 @pytest.mark.parametrize('urdf, tip', [(UR5, 'tool0'), (PANDA, 'panda_link8'),
-                                       (TWO_LINK, 'fingertip')])
+                                       (UR5E, 'tool0'), (TWO_LINK, 'fingertip')])
 def test_pybullet_reads_the_vendor_arm_as_pg_node_imports_it(tmp_path, urdf, tip):
     model = mujoco.MjModel.from_xml_path(str(imported(tmp_path, urdf, tip)))
     from pg_node.sim.arm_task import ArmSpec
