@@ -39,8 +39,9 @@ The ``--actuator`` is the command interface the arm is imported and trained on:
   ``resources/external_control.urscript``:96 ``JOINT_IGNORE_SPEED``, :143-147
   ``targetWithinLimits``, called by ``set_servo_setpoint`` at :197); a CB3 at 125 Hz
   accepts 0.16 rad;
-- ``position`` (absolute targets, the same servos): the action is a target anywhere in the
-  joint range (0.1 of action is 0.314 rad on the UR5's +-pi joints);
+- ``position`` (absolute targets, the same servos, terms and control weight, which here
+  also keeps the cost of holding a pose away from mid-range small): the action is a target
+  anywhere in the joint range (0.1 of action is 0.314 rad on the UR5's +-pi joints);
 - ``motor`` (a Franka in torque mode, issue 46): the importer's defaults, effort with the
   URDF's damping and nothing more, gravity compensated by the robot, the 0.002 s step with
   ``frame_skip:=20`` (the 0.04 s control step); trained with the terms a torque robot has
@@ -92,9 +93,10 @@ def import_and_train_args(args):
         physics, extra = ['--actuator', 'velocity', '--timestep', '0.02'], []
         if args.actuator != 'velocity':
             physics, extra = list(POSITION_SERVO[0]), list(POSITION_SERVO[1])
+        if args.actuator != 'velocity':
+            extra.append(f'reward_control_weight:={args.control_weight}')
         if args.actuator == 'position-delta':
             physics += ['--position-delta', str(args.position_delta)]
-            extra.append(f'reward_control_weight:={args.control_weight}')
         terms = {'servo_bandwidth': args.servo_bandwidth,
                  'servo_latency': args.servo_latency}
     elif args.actuator == 'motor':
@@ -135,7 +137,8 @@ def main() -> int:
     parser.add_argument('--position-delta', type=float, default=0.04,
                         help='position-delta: rad per control step (default: %(default)s)')
     parser.add_argument('--control-weight', type=float, default=0.05,
-                        help='position-delta: reward_control_weight (default: %(default)s)')
+                        help='position, position-delta: reward_control_weight (default: '
+                        '%(default)s)')
     parser.add_argument('--servo-bandwidth', default='uniform 5 20',
                         help="velocity, position: randomize_servo_bandwidth (Hz), or 'none'")
     parser.add_argument('--servo-latency', default=None,

@@ -10,8 +10,10 @@ limit, is 0.126 rad per 0.04 s control step. This script runs a run's policy
 deterministically in MuJoCo (the episodes of ``eval``: 100, seed 0) and prints, per control
 step, how far each commanded target (rad) lies from the joint's measured angle and from the
 previous step's target: the largest, the 99th percentile and the share of commands beyond
-0.04 and 0.126 rad. A policy of bounded changes (``max_position_delta`` in its card) is
-within its delta by construction; an absolute one is not::
+0.04 and 0.126 rad (1e-9 rad of rounding allowed: a full change is exactly the delta). A
+policy of bounded changes (``max_position_delta`` in its card) keeps each target within its
+delta of the angle measured by construction, not of the previous target; an absolute one
+keeps neither::
 
     AMENT_PREFIX_PATH=$PWD/.venv .venv/bin/python bench/position_jumps.py RUN_DIR \
         [--episodes 100] [--seed 0]
@@ -45,7 +47,7 @@ def jumps(targets: np.ndarray, q: np.ndarray) -> dict:
     for name, x in (('from_q', np.abs(targets - q)),
                     ('step', np.abs(np.diff(targets, axis=0)))):
         out[name] = {'max': float(x.max()), 'p99': float(np.percentile(x, 99)),
-                     'beyond': [float(np.mean(x > limit)) for limit in LIMITS]}
+                     'beyond': [float(np.mean(x > limit + 1e-9)) for limit in LIMITS]}
     return out
 
 
@@ -98,8 +100,8 @@ def main() -> int:
     for name, what in (('from_q', 'target - measured angle'),
                        ('step', 'target - previous target')):
         s = r[name]
-        print(f"| {what} | {s['max']:.3f} | {s['p99']:.3f} | {100 * s['beyond'][0]:.1f}% | "
-              f"{100 * s['beyond'][1]:.1f}% |")
+        print(f"| {what} | {s['max']:.3f} | {s['p99']:.3f} | {100 * s['beyond'][0]:.2f}% | "
+              f"{100 * s['beyond'][1]:.2f}% |")
     return 0
 
 

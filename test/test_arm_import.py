@@ -916,12 +916,14 @@ def test_velocity_servos_take_the_urdf_velocity_limits(tmp_path, capsys):
     assert len(err.strip().splitlines()) == 1
 
 
-def test_the_import_prints_the_recipe_measured_for_its_interface(tmp_path, capsys):
+def test_the_import_prints_the_recipe_measured_for_its_interface(
+        tmp_path, capsys, monkeypatch):
     """
     Issue 46 item 6: the recipe that learned, per command interface, or that none was.
 
-    Velocity servos and velocity-damped motors have one (measured on the UR5, BENCHMARKS.md),
-    undamped motors one measured on the Panda; position servos say none was measured yet.
+    Velocity servos, velocity-damped motors and both kinds of position servos have one
+    (measured on the UR5, BENCHMARKS.md), undamped motors one measured on the Panda; the
+    position lines say what was measured, short of the goal or unsafe as it was.
     """
     out = tmp_path / 'arm.xml'
     cases = ((['--actuator', 'velocity', '--armature', 0.1],
@@ -930,9 +932,12 @@ def test_the_import_prints_the_recipe_measured_for_its_interface(tmp_path, capsy
               'recipe measured for motor, velocity damping actuators: import with '
               '--velocity-damping --timestep 0.02, '),
              ([], 'recipe measured for motor actuators: import with the defaults '),
-             (['--actuator', 'position'], 'recipe: none measured yet for position actuators; '),
+             (['--actuator', 'position'],
+              'recipe measured for position actuators: import with --actuator position '
+              '--kp 500 --kv 20 --timestep 0.005 (absolute targets'),
              (['--actuator', 'position', '--position-delta', 0.05],
-              'recipe: none measured yet for position, bounded changes actuators; '))
+              'recipe measured for position, bounded changes actuators: import with '
+              '--actuator position --kp 500 --kv 20 --timestep 0.005 --position-delta 0.04'))
     for flags, said in cases:
         code, stdout, err = run_import(capsys, TWO_LINK, '--tip', 'fingertip', *flags,
                                        '-o', out)
@@ -941,3 +946,10 @@ def test_the_import_prints_the_recipe_measured_for_its_interface(tmp_path, capsy
         assert last.startswith(said), last
     for flags, train, result in arm.RECIPES.values():
         assert train.startswith('--config arm7') and 'within 2 cm' in result
+    # an interface without a measured recipe says so
+    monkeypatch.delitem(arm.RECIPES, 'position')
+    code, stdout, err = run_import(capsys, TWO_LINK, '--tip', 'fingertip', '--actuator',
+                                   'position', '-o', out)
+    assert code == 0, err
+    assert stdout.strip().splitlines()[-1].startswith(
+        'recipe: none measured yet for position actuators; ')
