@@ -3,13 +3,15 @@ Benchmark: a vendor arm as it ships, learned in 3-D through the ROS graph (issue
 
 Imports an arm of PyPI's ``example-robot-data`` (``--arm ur5``: ``ur5_joint_limited_robot.urdf``,
 tip ``tool0``; ``--arm panda``: the Franka Panda's ``panda.urdf``, tip ``panda_hand_tcp``,
-fingers fixed) with a start pose and goals in a ball in front of it above the table, trains it
+fingers fixed) or the UR5e of ``ur_description`` that pg_node ships (``--arm ur5e``,
+``pg_node/sim/models/urdf/ur5e.urdf``, with ``--armature 0.05``) with a start pose and
+goals in a ball in front of it above the table, trains it
 through the graph with the ``arm7`` preset (PPO) and prints the evaluation: mean return, mean
 final fingertip distance and the share of episodes that end within 2 cm, with the steps per
 second::
 
     AMENT_PREFIX_PATH=$PWD/.venv .venv/bin/python bench/bench_ur5.py --out /tmp/ur5 \
-        [--arm ur5|panda] [--steps 5000000] [--seed 0] [--full-workspace] \
+        [--arm ur5|ur5e|panda] [--steps 5000000] [--seed 0] [--full-workspace] \
         [--actuator damped-motor|velocity|position-delta|position|motor] \
         [--servo-bandwidth 'uniform 5 20'] [--servo-latency 'uniform 0 0.02'] \
         [--position-delta 0.04]
@@ -64,15 +66,24 @@ import subprocess
 import sys
 
 REPO = Path(__file__).resolve().parent.parent
-#: per arm: URDF under example-robot-data's robots/, tip link, start pose, goals' ball
-#: (centre x y z, radius; m): the UR5 raised with the tool down, the Panda in Franka's
-#: "ready" pose, the goals in front of each above the table
+SHARE = Path(distribution('example-robot-data').locate_file('cmeel.prefix/share'))
+ROBOTS = SHARE / 'example-robot-data' / 'robots'
+#: per arm: URDF, tip link, start pose, goals' ball (centre x y z, radius; m), import flags
+#: of its own: the URs raised with the tool down, the Panda in Franka's "ready" pose, the
+#: goals in front of each above the table. The UR5e is ur_description's as its driver loads
+#: it (scripts/ur_description_urdf.py); its wrists are 40 times lighter than
+#: example-robot-data's UR5's (0.0026 against 0.11 kg m^2), and velocity servos at the
+#: 0.02 s step chatter on them without the motors' rotor inertia: 0.05 kg m^2 per joint, an
+#: assumption the card records
 ARMS = {
-    'ur5': ('ur_description/urdf/ur5_joint_limited_robot.urdf', 'tool0',
-            ['0', '-1.571', '1.571', '-1.571', '-1.571', '0'], ['0.4', '0', '0.3', '0.3']),
-    'panda': ('panda_description/urdf/panda.urdf', 'panda_hand_tcp',
+    'ur5': (ROBOTS / 'ur_description' / 'urdf' / 'ur5_joint_limited_robot.urdf', 'tool0',
+            ['0', '-1.571', '1.571', '-1.571', '-1.571', '0'], ['0.4', '0', '0.3', '0.3'], []),
+    'ur5e': (REPO / 'pg_node' / 'sim' / 'models' / 'urdf' / 'ur5e.urdf', 'tool0',
+             ['0', '-1.571', '1.571', '-1.571', '-1.571', '0'], ['0.4', '0', '0.3', '0.3'],
+             ['--armature', '0.05']),
+    'panda': (ROBOTS / 'panda_description' / 'urdf' / 'panda.urdf', 'panda_hand_tcp',
               ['0', '-0.785', '0', '-2.356', '0', '1.571', '0.785'],
-              ['0.45', '0', '0.35', '0.3']),
+              ['0.45', '0', '0.35', '0.3'], []),
 }
 #: what a torque robot's physics leaves uncertain (docs/robustness.md, "Torque physics"):
 #: joint damping (N m s/rad) and dry friction (N m) near zero, a payload (kg) its gravity
@@ -151,16 +162,14 @@ def main() -> int:
     if args.servo_latency is None:
         args.servo_latency = ('uniform 0 0.02' if args.actuator == 'velocity'
                               else TORQUE_TERMS['servo_latency'])
-    share = Path(distribution('example-robot-data').locate_file('cmeel.prefix/share'))
-    rel, tip, home, region = ARMS[args.arm]
-    urdf = share / 'example-robot-data' / 'robots' / rel
+    urdf, tip, home, region, own = ARMS[args.arm]
     args.out.mkdir(parents=True, exist_ok=True)
     model = (args.out / f'{args.arm}.xml').resolve()
     region = [] if args.full_workspace else ['--target-region', *region]
     run = [sys.executable, '-m', 'pg_node']
     physics, train_extra = import_and_train_args(args)
     subprocess.run([*run, 'arm', 'import', str(urdf), '--tip', tip, '--package-path',
-                    str(share), *physics, '--home', *home, *region, '-o', str(model)],
+                    str(SHARE), *physics, *own, '--home', *home, *region, '-o', str(model)],
                    check=True)
     run_dir = args.out / f'run_s{args.seed}'
     subprocess.run([*run, 'train', '--config', 'arm7', f'model:={model}',
