@@ -53,8 +53,8 @@ IIWA_IMPORT = ['--tip', 'lbr_iiwa_link_7', '--home', '0', '0.5', '0', '-1.2', '0
 #: the randomized iiwa's terms: what a torque robot has that its model lacks (joint damping
 #: and dry friction a little above the URDF's, a payload the gravity compensation does not
 #: know, a dead time up to one control step: bench_ur5.TORQUE_TERMS, the damping added to
-#: the URDF's 0.5 N m s/rad instead of replacing it). Not the ``dr`` preset's terms, on
-#: which the iiwa did not learn to reach (docs/sim_to_sim.md).
+#: the URDF's 0.5 N m s/rad instead of replacing it). Not the ``dr`` preset's terms, whose
+#: ``latency`` (0-2 whole control steps) kept the iiwa from learning (docs/sim_to_sim.md).
 IIWA_TERMS = {'damping': 'add uniform 0 0.1', 'frictionloss': 'abs uniform 0 0.2',
               'payload': 'uniform 0 0.3', 'servo_latency': 'uniform 0 0.04'}
 #: the iiwa's control step: 20 physics steps of 2 ms
