@@ -83,9 +83,6 @@ def train_iiwa(out: Path, steps: int, seed: int) -> list:
                             f'seed={seed}',
                             *[f'randomize_{k}={v}' for k, v in terms.items()],
                             '--save', str(run)], check=True, cwd=REPO, stdout=sys.stderr)
-        # eval reads a run's frame_skip from its params.yaml; --save writes none
-        (run / 'params.yaml').write_text(
-            f'/**/sim_node:\n  ros__parameters:\n    frame_skip: {IIWA_FRAME_SKIP}\n')
         policies.append(f'{label}={run}')
     return policies
 

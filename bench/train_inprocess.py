@@ -9,7 +9,8 @@ Train a preset in one process (the graph's computation, bit for bit) and evaluat
         model=/tmp/ur5/ur5.xml [seed=1 ...] [--save DIR]
 
 The in-process rows of BENCHMARKS.md's UR5 section came from this code (then a script in
-/tmp). ``--save DIR`` keeps the learner's checkpoint in ``DIR/checkpoints`` (for ``eval``,
+/tmp). ``--save DIR`` keeps the learner's checkpoint in ``DIR/checkpoints`` and the resolved
+parameters in ``DIR/params.yaml``, as ``train`` writes them (for ``eval``,
 ``play``, ``export``). Not a test: nothing is asserted.
 """
 import argparse
@@ -48,6 +49,10 @@ def main() -> int:
                               eval_episodes=args.eval_episodes)
     if args.save:
         summary['learner'].save(args.save / 'checkpoints')
+        # the run's parameters, as train writes them: eval and the card read its frame_skip,
+        # randomization and position_delta there
+        from pg_node.tools.train import write_params
+        write_params(cfg, args.save / 'params.yaml')
     print(f"{summary['total_steps']:,} steps in {time.perf_counter() - t0:.0f} s "
           f"({summary['steps_per_second']:,.0f} steps/s); deterministic evaluation over "
           f"{args.eval_episodes} episodes: return {summary['eval_return']:.3f}, final distance "
