@@ -346,3 +346,33 @@ def test_a_command_that_left_the_package_says_where_it_went_in_one_line(name, in
     done = run(name, '--quick')
     refused(done, 2, f'`{instead}`', 'docs/benchmarks.md')
     assert len(done.stderr.strip().splitlines()) == 1, done.stderr
+
+
+def outside_venv(argv, blocked=()) -> subprocess.CompletedProcess:
+    """
+    Run ``python -m pg_node ARGV`` as a Python that is not the venv would run it.
+
+    Without ``blocked``: the venv's site-packages off the path (numpy and the rest gone), the
+    checkout on it, as ``python3 -m pg_node`` from the checkout's folder; with it, only the
+    ``blocked`` modules are unimportable.
+    """
+    root = str(Path(__file__).resolve().parent.parent)
+    strip = '' if blocked else 'sys.path[:] = [p for p in sys.path if "-packages" not in p]; '
+    code = (f'import sys; {strip}sys.path.insert(0, {root!r}); '
+            f'sys.modules.update(dict.fromkeys({list(blocked)!r})); '
+            f'from pg_node.tools.cli import main; sys.exit(main({argv!r}))')
+    return subprocess.run([sys.executable, '-I', '-c', code], capture_output=True, text=True,
+                          timeout=120)
+
+
+@pytest.mark.parametrize('argv, blocked, missing', [
+    (['train', '--help'], (), 'numpy'),
+    (['eval', 'runs/nope'], (), 'numpy'),
+    (['train', '--help'], ('mcap',), 'mcap'),
+])
+def test_outside_the_venv_a_command_says_to_activate_it_in_one_line(argv, blocked, missing):
+    out = outside_venv(argv, blocked)
+    assert out.returncode == 2, out.stderr
+    lines = out.stderr.strip().splitlines()
+    assert len(lines) == 1 and 'Traceback' not in out.stderr, out.stderr
+    assert f'no {missing!r}' in lines[0] and 'source .venv/bin/activate' in lines[0]

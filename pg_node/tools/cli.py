@@ -41,6 +41,15 @@ MOVED = {
     'bench': 'python -m bench',
     'soak': 'python -m bench.soak',
 }
+#: third-party modules every command imports: looked for before a command's module is loaded
+NEEDED = ('numpy', 'yaml')
+
+
+def missing_dependency(name: str) -> str:
+    """Return the one line that says a dependency is not in this Python, and what to do."""
+    return (f'pg_node: this Python ({sys.executable}) has no {name!r}, which pg_node needs: '
+            'run `source .venv/bin/activate` in the checkout first (`make train` and '
+            '`make test` create it), or the Python pg_node was installed into')
 
 
 def usage() -> str:
@@ -88,4 +97,16 @@ def dispatch(argv=None) -> int:
         print(f'pg_node: command {name!r} is not available in this version '
               f'(module {module_name} is missing)', file=sys.stderr)
         return 2
-    return int(importlib.import_module(module_name).main(rest) or 0)
+    absent = [m for m in NEEDED if importlib.util.find_spec(m) is None]
+    if absent:
+        print(missing_dependency(absent[0]), file=sys.stderr)
+        return 2
+    try:
+        module = importlib.import_module(module_name)
+    except ModuleNotFoundError as exc:
+        # a dependency of this command alone (mcap, torch, rclpy...): before anything ran
+        if not exc.name or exc.name.split('.')[0] == 'pg_node':
+            raise
+        print(missing_dependency(exc.name.split('.')[0]), file=sys.stderr)
+        return 2
+    return int(module.main(rest) or 0)
