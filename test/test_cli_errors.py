@@ -70,7 +70,7 @@ def test_eval_answers_a_missing_path_before_importing_torch(tmp_path):
     env = dict(os.environ, PYTHONPATH=str(REPO))
     done = subprocess.run([sys.executable, '-c', code, 'torch', str(tmp_path / 'nope')],
                           env=env, cwd=REPO, capture_output=True, text=True, timeout=60)
-    refused(done, 2, f'eval: no such file or directory: {tmp_path / "nope"}')
+    refused(done, 1, f'eval: no such file or directory: {tmp_path / "nope"}')
     assert len(done.stderr.strip().splitlines()) == 1, done.stderr
 
 
@@ -376,3 +376,26 @@ def test_outside_the_venv_a_command_says_to_activate_it_in_one_line(argv, blocke
     lines = out.stderr.strip().splitlines()
     assert len(lines) == 1 and 'Traceback' not in out.stderr, out.stderr
     assert f'no {missing!r}' in lines[0] and 'source .venv/bin/activate' in lines[0]
+
+
+def exit_codes_of_the_doc() -> dict:
+    """Return troubleshooting.md's table of every command's exit codes: code -> when."""
+    text = (REPO / 'docs' / 'troubleshooting.md').read_text()
+    table = text.split('| exit code | when |')[1].split('\n\n')[0]
+    return {int(row.split('|')[1]): row.split('|')[2] for row in table.splitlines()[2:]}
+
+
+#: each command that takes a path, with what else it needs to get as far as reading it
+PATH_COMMANDS = [('eval', ()), ('view', ()), ('play', ()), ('plot', ()), ('render', ()),
+                 ('export', ('-o', 'x.onnx')), ('replay', ()), ('reindex', ()),
+                 ('robustness', ())]
+
+
+@pytest.mark.parametrize('command, extra', PATH_COMMANDS, ids=[c for c, _ in PATH_COMMANDS])
+def test_a_path_that_is_not_there_exits_as_the_doc_says(tmp_path, command, extra):
+    doc = exit_codes_of_the_doc()
+    assert sorted(doc) == [0, 1, 2, 3, 130]
+    assert f'`{command}`' in doc[1], doc[1]
+    done = run(command, tmp_path / 'nope', *extra)
+    refused(done, 1, 'nope')
+    assert len(done.stderr.strip().splitlines()) == 1, done.stderr

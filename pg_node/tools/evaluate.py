@@ -50,7 +50,7 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     if not os.path.exists(args.checkpoint):  # answered before torch is imported
         print(f'eval: no such file or directory: {args.checkpoint}', file=sys.stderr)
-        return 2
+        return 1
     from pg_node.common.perturbations import BadTerm, parse_perturbation
     from pg_node.rl.evaluate import evaluate_policy
     from pg_node.rl.learner import policy_from_checkpoint

@@ -331,7 +331,7 @@ def main(argv=None) -> int:
         bag = _bag_path(Path(args.run))
         if not bag.exists():
             print(f'view: no run, bag or .mcap at {args.run}', file=sys.stderr)
-            return 2
+            return 1
         from pg_node.tools.render import _model_path
         try:
             model_path = _model_path(bag, args.model)
