@@ -399,3 +399,15 @@ def test_a_path_that_is_not_there_exits_as_the_doc_says(tmp_path, command, extra
     done = run(command, tmp_path / 'nope', *extra)
     refused(done, 1, 'nope')
     assert len(done.stderr.strip().splitlines()) == 1, done.stderr
+
+
+def test_view_on_a_busy_port_says_how_to_take_a_free_one():
+    """A port another program listens on: one line that names ``--port 0``."""
+    import socket
+    with socket.socket() as taken:
+        taken.bind(('127.0.0.1', 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        done = run('view', 'bags/sample', '--port', port, '--stop-after', 5)
+    refused(done, 2, f'cannot serve on 127.0.0.1:{port}', '--port 0')
+    assert len(done.stderr.strip().splitlines()) == 1, done.stderr

@@ -349,7 +349,9 @@ def main(argv=None) -> int:
     try:
         served = Served(args.host, args.port, args.frame_id, args.spacing, topics)
     except (RuntimeError, OSError, ValueError) as exc:   # the SDK's FoxgloveError: port taken
-        print(f'view: cannot serve on {args.host}:{args.port}: {exc}', file=sys.stderr)
+        hint = ' (another view or server has it? --port 0 takes a free one)' \
+            if args.port else ''
+        print(f'view: cannot serve on {args.host}:{args.port}: {exc}{hint}', file=sys.stderr)
         return 2
     print(f'view: serving on ws://{args.host}:{served.port} (Foxglove app: Open connection '
           '-> Foxglove WebSocket; layout config/pg_node.foxglove.json); Ctrl-C stops',
