@@ -132,3 +132,16 @@ def test_the_stand_in_steps_at_the_policys_control_step(tmp_path):
     started = [ln for ln in (tmp_path / 'logs' / 'sim_node.log').read_text().splitlines()
                if 'real_time: 1 x' in ln]
     assert len(started) == 1 and ', dt 0.04 s,' in started[0], started
+
+
+def test_robot_pybullet_on_an_arm_not_made_by_arm_import_says_so_before_starting(onnx,
+                                                                               tmp_path):
+    """reacher2 has no URDF: the reason is play's one line; no node started, no logs kept."""
+    done = subprocess.run([sys.executable, '-m', 'pg_node', 'play', str(onnx), '--robot',
+                           'pybullet'], env=environment(tmp_path / 'tmp'), cwd=REPO,
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2, done.stdout + done.stderr
+    assert done.stderr.strip() == ('play: --robot pybullet: reacher2 was not made by arm '
+                                   'import; give the URDF'), done.stderr
+    assert 'starting' not in done.stdout, done.stdout
+    assert [p for p in (tmp_path / 'tmp').iterdir() if p.is_dir()] == [], 'a log folder'

@@ -71,7 +71,7 @@ from pg_node.ros.sim_node import sim_stamp
 from pg_node.sim.actuation import actuators
 from pg_node.sim.arm_task import ArmTask
 from pg_node.sim.observation import ObservationBuilder
-from pg_node.sim.pybullet_arm import model_urdf, PybulletArm, PybulletError
+from pg_node.sim.pybullet_arm import PybulletArm, PybulletError, robot_urdf
 from pg_node.sim.pybullet_check import compare
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -97,11 +97,10 @@ class PybulletNode(Node):
                             frame_skip=p['frame_skip'],
                             max_episode_steps=p['max_episode_steps'])
         m, s = self.task.model, self.task.spec
-        urdf = p['urdf'] or model_urdf(m)
-        if not urdf or not Path(urdf).is_file():
-            raise ConfigError("parameter 'pybullet_node.urdf': "
-                              + (f'no file {urdf}' if urdf else f'{p["model"]} was not made by '
-                                 'arm import; give the URDF'))
+        try:
+            urdf = robot_urdf(m, p['model'], p['urdf'])
+        except PybulletError as exc:
+            raise ConfigError(f"parameter 'pybullet_node.urdf': {exc}") from None
         self.interface = p['command_interface']
         self.actuators = actuators(m)
         refused = interfaces.check(self.actuators, self.interface)

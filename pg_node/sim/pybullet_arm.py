@@ -355,6 +355,22 @@ def urdf_of(model_text: Optional[str]) -> Optional[str]:
     return next((w for w in rest if not w.startswith('-')), None)
 
 
+def robot_urdf(model, name: str, given: Optional[str] = None) -> str:
+    """
+    Return the URDF PyBullet loads for ``model`` (named ``name`` in messages): ``given``, or
+    the one ``arm import`` made the model from.
+
+    Raises PybulletError, in one line, where there is none: the model was not made by
+    ``arm import`` and no URDF was given, or the file is not there.
+    """
+    urdf = given or model_urdf(model)
+    if not urdf:
+        raise PybulletError(f'{name} was not made by arm import; give the URDF')
+    if not Path(urdf).is_file():
+        raise PybulletError(f'no URDF {urdf}' + ('' if given else ' (give the URDF)'))
+    return str(urdf)
+
+
 def model_urdf(model) -> Optional[str]:
     """Return the URDF an ``arm import`` model (``mujoco.MjModel``) was made from, or None."""
     import mujoco

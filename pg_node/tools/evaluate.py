@@ -123,16 +123,9 @@ def _in_pybullet(args, state, model: str, mj_model, frame_skip: int, position_de
     """Return :func:`evaluate_in_pybullet`'s result, or None after saying why it cannot run."""
     from pg_node.rl.evaluate import evaluate_in_pybullet
     from pg_node.rl.learner import policy_from_checkpoint
-    from pg_node.sim.pybullet_arm import model_urdf, PybulletError
-    urdf = args.urdf or model_urdf(mj_model)
-    if urdf is None:
-        print(f'eval: --engine pybullet needs --urdf: {model} was not made by arm import',
-              file=sys.stderr)
-        return None
-    if not os.path.isfile(urdf):
-        print(f'eval: no URDF {urdf} (give --urdf)', file=sys.stderr)
-        return None
+    from pg_node.sim.pybullet_arm import PybulletError, robot_urdf
     try:
+        urdf = robot_urdf(mj_model, model, args.urdf)
         res = evaluate_in_pybullet(policy_from_checkpoint(state), model, urdf, args.episodes,
                                    args.seed, frame_skip=frame_skip,
                                    position_delta=position_delta, payload=payload)

@@ -241,11 +241,21 @@ def first_episode(response) -> int:
 def play(args, card, source: Path, perturbation, log_dir: Path, temporary: bool):
     """Start the nodes, report the episodes, draw the GIF; return (exit code, keep the logs)."""
     model = _model_param(card, log_dir)
+    from pg_node.common.paths import resolve_model
+    if args.robot == 'pybullet':
+        # which URDF pybullet_node would load, asked here: its refusal belongs on the console
+        import mujoco
+        from pg_node.sim.pybullet_arm import PybulletError, robot_urdf
+        try:
+            robot_urdf(mujoco.MjModel.from_xml_path(str(resolve_model(model))),
+                       card['model'], args.urdf)
+        except PybulletError as exc:
+            print(f'play: --robot pybullet: {exc}', file=sys.stderr)
+            return 2, False
     from pg_node.common.perturbations import BadTerm, PARAM_PREFIX
     if perturbation:
         # a perturbation this arm cannot take (an add below zero) is refused here, not in
         # the simulator's log
-        from pg_node.common.paths import resolve_model
         from pg_node.sim.arm_task import ArmTask
         try:
             ArmTask(resolve_model(model), randomization=perturbation).close()
