@@ -134,8 +134,7 @@ def test_the_stand_in_steps_at_the_policys_control_step(tmp_path):
     assert len(started) == 1 and ', dt 0.04 s,' in started[0], started
 
 
-def test_robot_pybullet_on_an_arm_not_made_by_arm_import_says_so_before_starting(onnx,
-                                                                               tmp_path):
+def test_robot_pybullet_on_an_arm_without_urdf_says_so_before_starting(onnx, tmp_path):
     """reacher2 has no URDF: the reason is play's one line; no node started, no logs kept."""
     done = subprocess.run([sys.executable, '-m', 'pg_node', 'play', str(onnx), '--robot',
                            'pybullet'], env=environment(tmp_path / 'tmp'), cwd=REPO,

@@ -357,10 +357,10 @@ def urdf_of(model_text: Optional[str]) -> Optional[str]:
 
 def robot_urdf(model, name: str, given: Optional[str] = None) -> str:
     """
-    Return the URDF PyBullet loads for ``model`` (named ``name`` in messages): ``given``, or
-    the one ``arm import`` made the model from.
+    Return the URDF PyBullet loads for ``model``: ``given``, or the one it was imported from.
 
-    Raises PybulletError, in one line, where there is none: the model was not made by
+    ``name`` names the model in messages. ``given`` wins over the URDF ``arm import`` made
+    the model from. Raises PybulletError, in one line, where there is none: the model was not made by
     ``arm import`` and no URDF was given, or the file is not there.
     """
     urdf = given or model_urdf(model)
