@@ -359,9 +359,9 @@ def robot_urdf(model, name: str, given: Optional[str] = None) -> str:
     """
     Return the URDF PyBullet loads for ``model``: ``given``, or the one it was imported from.
 
-    ``name`` names the model in messages. ``given`` wins over the URDF ``arm import`` made
-    the model from. Raises PybulletError, in one line, where there is none: the model was not made by
-    ``arm import`` and no URDF was given, or the file is not there.
+    ``name`` names the model in messages. Raises PybulletError, in one line, where there is
+    none: the model was not made by ``arm import`` and no URDF was given, or the file is not
+    there.
     """
     urdf = given or model_urdf(model)
     if not urdf:
