@@ -97,9 +97,10 @@ def test_lifecycle_command_drives_policy_node(tmp_path, policy):
         bad = start('bad', '-r', '__ns:=/bad', '-r', 'joint_states:=/joint_states',
                     '-p', 'record:=/proc/no_bags_here/bag')
         try:
+            # the reason the node logged, on the console
             one_line(lifecycle('/bad/policy_node', 'configure', '--timeout', '30'), 1,
                      'Transitioning failed: /bad/policy_node refused configure and is '
-                     'unconfigured [1] (its log says why)')
+                     "unconfigured [1]: configure failed: parameter 'policy_node.record'")
             # a bare name: /policy_node
             first = lifecycle('policy_node', 'get', '--timeout', '30')
             assert (first.returncode, first.stdout) == (0, 'unconfigured [1]\n'), first.stderr
@@ -150,16 +151,19 @@ class FakeClient:
 
     name = '/left/policy_node'
 
-    def __init__(self, label, state_id, offered):
-        """Be in state ``label`` [``state_id``], offering transitions ``offered``."""
+    def __init__(self, label, state_id, offered, reason=None):
+        """Be in state ``label`` [``state_id``], offering ``offered``; ``reason``: logged."""
         self._state = types.SimpleNamespace(label=label, id=state_id)
-        self._offered = offered
+        self._offered, self._reason = offered, reason
 
     def state(self):
         return self._state
 
     def transitions_from_here(self):
         return self._offered
+
+    def reason(self):
+        return self._reason
 
 
 def test_refusal_names_the_state_and_what_starts_there():
@@ -168,6 +172,11 @@ def test_refusal_names_the_state_and_what_starts_there():
     assert refusal(FakeClient('unconfigured', 1, ['configure', 'shutdown']), 'configure') == (
         'Transitioning failed: /left/policy_node refused configure and is unconfigured [1] '
         '(its log says why)')
+    # the error the node logged meanwhile is the reason
+    assert refusal(FakeClient('unconfigured', 1, ['configure'], 'configure failed: no policy'),
+                   'configure') == ('Transitioning failed: /left/policy_node refused '
+                                    'configure and is unconfigured [1]: configure failed: '
+                                    'no policy')
     assert refusal(FakeClient('active', 3, ['deactivate', 'shutdown']), 'cleanup') == (
         'Transitioning failed: /left/policy_node is active [3], from which there is no '
         'cleanup (from there: deactivate, shutdown)')

@@ -2,6 +2,7 @@
 import math
 import os
 from pathlib import Path
+import re
 import signal
 import sys
 import time
@@ -565,6 +566,27 @@ def test_real_time_mode_runs_on_its_own_and_drops_to_zero_torque(tmp_path, clien
     finally:
         rc, log = stop_node(proc)
     assert rc == 0, log
+
+
+@pytest.mark.e2e
+def test_real_time_logs_each_finished_episode_with_its_final_distance(tmp_path, client):
+    """The stand-in says how well whatever drives it reaches: a line per episode, a mean."""
+    proc = start_node(tmp_path, 'mode:=real_time', 'max_episode_steps:=5',
+                      'real_time_factor:=5.0', 'num_envs:=2')
+    lines = re.compile(r'episode (\d+) \(arm (\d)\): final fingertip distance ([\d.]+) m')
+    try:
+        client.spin_until(lambda: len(lines.findall(proc_log(tmp_path))) >= 4, timeout=60)
+    finally:
+        rc, log = stop_node(proc)
+    assert rc == 0, log
+    seen = lines.findall(log)
+    assert {(int(ep), int(arm)) for ep, arm, _ in seen[:4]} == {(0, 0), (1, 1), (2, 0), (3, 1)}
+    assert all(0 < float(d) < 1 for _, _, d in seen)
+
+
+def proc_log(tmp_path) -> str:
+    """Return what the node started in ``tmp_path`` has logged so far."""
+    return ''.join(p.read_text() for p in tmp_path.glob('sim_node_*.log'))
 
 
 @pytest.mark.e2e

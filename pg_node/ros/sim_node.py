@@ -228,7 +228,8 @@ class SimNode(Node):
                          'commands_clipped': 0, 'commands_ignored': 0,
                          'lock_step_timeouts': 0, 'transitions_resent': 0,
                          'trajectories_received': 0, 'trajectories_rejected': 0,
-                         'trajectory_timeouts': 0}
+                         'trajectory_timeouts': 0, 'episodes_finished': 0}
+        self.distance_sum = 0.0           # the final distances of the finished episodes
         self.paused = bool(p['start_paused'])
         self.held = np.zeros((n, self.task.act_dim))
         self.held_time = -math.inf
@@ -512,6 +513,8 @@ class SimNode(Node):
         """Step group ``g``'s arms once with their held command and publish the results."""
         arms = self.groups[g]
         obs, reward, terminated, truncated, info = self.task.step(self.held[arms], arms)
+        if self.mode == 'real_time':
+            self.log_episodes(arms, terminated | truncated, info)
         last = g == len(self.groups) - 1
         if last:
             self.counters['steps'] += 1      # a control step: every group has stepped
@@ -520,6 +523,21 @@ class SimNode(Node):
         self.publish_state(g, self.group_transition(g, obs, reward, terminated, truncated,
                                                     info['final_obs']), last)
         self.publish_draws()
+
+    def log_episodes(self, arms: slice, ended: np.ndarray, info: dict):
+        """
+        Log each episode that ended, with its final fingertip distance; count them.
+
+        In real time sim_node stands in for a robot and nobody trains: this is how well the
+        policy driving it reaches (in m, as node logs are; diagnostics keep the mean).
+        """
+        for i in np.flatnonzero(ended):
+            distance = float(info['distance'][i])
+            self.counters['episodes_finished'] += 1
+            self.distance_sum += distance
+            self.get_logger().info(
+                f'episode {int(info["final_episode_id"][i])} (arm {arms.start + i}): final '
+                f'fingertip distance {distance:.4f} m')
 
     def publish_draws(self):
         """Publish the terms the arms drew since the last call, one row per arm."""
@@ -720,6 +738,9 @@ class SimNode(Node):
                       mode=self.mode, paused=self.paused,
                       sim_time=round(self.sim_time, 6), steps_per_second=round(rate, 1),
                       num_envs=self.task.num_envs)
+        if self.mode == 'real_time':
+            done = self.counters['episodes_finished']
+            values['final_distance_mean_m'] = round(self.distance_sum / done, 5) if done else '-'
         if self.mode == 'lock_step':
             # the round trips since the last diagnostics (none while paused or waiting)
             ms = np.asarray(self.trips, dtype=np.float64) / 1e6

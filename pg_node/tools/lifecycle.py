@@ -13,8 +13,10 @@ It prints what ros2cli prints (ros2cli jazzy de6cd272 ros2lifecycle/ros2lifecycl
 * ``get``: the state as ``<label> [<id>]``, e.g. ``active [3]`` (get.py:76); exit 0;
 * a transition: ``Transitioning successful`` (set.py:86-87); exit 0. One the node refuses:
   one line on stderr starting ``Transitioning failed`` (set.py:88-89) that names the state
-  the node is in and, when the transition does not start from there, the ones that do;
-  exit 1 (ros2cli prints the line and exits 0; a script here learns of the failure).
+  the node is in and, when the transition does not start from there, the ones that do, or
+  else the reason: the error the node logged on ``/rosout`` meanwhile (ros2cli prints no
+  reason; the log holds it); exit 1 (ros2cli prints the line and exits 0; a script here
+  learns of the failure).
 
 A node that offers no ``get_state`` within ``--timeout`` s: one line starting ``Node not
 found`` (get.py:50) that names the lifecycle nodes seen; exit 1. Bad arguments: argparse's
@@ -89,6 +91,39 @@ class LifecycleClient:
         self.change = node.create_client(ChangeState, f'{name}/change_state')
         self.available = node.create_client(GetAvailableTransitions,
                                             f'{name}/get_available_transitions')
+        # what the node logs at ERROR and above on /rosout (a refused transition's reason);
+        # transient local as rcl's rosout publisher, so a line logged before this command's
+        # subscription was matched still comes (rcl jazzy include/rcl/logging_rosout.h
+        # rcl_qos_profile_rosout_default: reliable, transient local, depth 1000)
+        from rcl_interfaces.msg import Log
+        from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+        self.logger_name = name.strip('/').replace('/', '.')
+        self.errors = []
+        node.create_subscription(
+            Log, '/rosout', self._on_log,
+            QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
+                       durability=DurabilityPolicy.TRANSIENT_LOCAL))
+        self.asked_at = None
+
+    def _on_log(self, msg):
+        """Keep the node's ERROR and FATAL lines (its logger's name is its full name)."""
+        if msg.name == self.logger_name and msg.level >= msg.ERROR:
+            self.errors.append((msg.stamp.sec + msg.stamp.nanosec * 1e-9, msg.msg))
+
+    def reason(self, wait: float = 2.0):
+        """
+        Return the node's newest error line since the transition was asked for, or None.
+
+        Waits up to ``wait`` s for it: /rosout and the service answer are separate topics.
+        """
+        deadline = time.monotonic() + wait
+        while True:
+            # the node's clock is the wall clock here (a stamp in simulated time never
+            # passes this and leaves the line to the node's log)
+            since = [text for stamp, text in self.errors if stamp >= self.asked_at - 1.0]
+            if since or time.monotonic() > deadline:
+                return since[-1] if since else None
+            self.executor.spin_once(timeout_sec=0.05)
 
     def call(self, client, request):
         """Call ``client`` and wait for the answer (as ros2cli does, without a limit)."""
@@ -106,6 +141,7 @@ class LifecycleClient:
         """Ask for transition ``label``; return whether the node made it."""
         request = self.change.srv_type.Request()
         request.transition.id, request.transition.label = TRANSITIONS[label], label
+        self.asked_at = time.time()
         return self.call(self.change, request).success
 
     def transitions_from_here(self) -> list:
@@ -157,8 +193,9 @@ def refusal(client: LifecycleClient, label: str) -> str:
     if label not in offered:
         return (f'Transitioning failed: {client.name} is {state_text(state)}, from which '
                 f'there is no {label} (from there: {", ".join(offered) or "none"})')
+    why = client.reason()
     return (f'Transitioning failed: {client.name} refused {label} and is '
-            f'{state_text(state)} (its log says why)')
+            f'{state_text(state)}' + (f': {why}' if why else ' (its log says why)'))
 
 
 def run(args) -> int:
