@@ -54,6 +54,16 @@ def run_dir(tmp_path_factory):
 
 
 # -- eval -------------------------------------------------------------------------------------
+def test_eval_says_when_it_runs_the_episodes_train_evaluated(run_dir):
+    """The run's own seed repeats train's closing evaluation: eval says so; another not."""
+    same = run('eval', run_dir, '--episodes', 2)
+    other = run('eval', run_dir, '--episodes', 2, '--seed', 1)
+    assert same.returncode == other.returncode == 0, same.stderr + other.stderr
+    assert '(seed 0: the episodes train evaluated at its end; --seed N for others)' \
+        in same.stdout
+    assert 'train evaluated' not in other.stdout
+
+
 def test_eval_accepts_a_run_dir(run_dir):
     done = run('eval', run_dir, '--episodes', 2)
     assert done.returncode == 0, done.stderr

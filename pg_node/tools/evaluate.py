@@ -115,6 +115,11 @@ def main(argv=None) -> int:
               f"+/- {res['eval_return_std']:.2f} over {args.episodes} episodes; final "
               f"distance {100 * res['eval_final_distance']:.2f} cm, "
               f"{100 * res['eval_reached']:.0f}% within 2 cm")
+        if args.seed == state['config']['seed'] and args.engine == 'mujoco' \
+                and not perturbation:
+            # train's closing evaluation ran these very episodes (train.evaluate_run)
+            print(f'(seed {args.seed}: the episodes train evaluated at its end; --seed N for '
+                  'others)')
     return 0
 
 
