@@ -79,6 +79,20 @@ def pair_namespace(run_id: str, actor_id: int, num_actors: int) -> str:
     return f'{run_namespace(run_id).rstrip("/")}/arm{actor_id}'
 
 
+def placed_namespace(run_id: str, namespace: str) -> str:
+    """
+    Return the namespace of a pair placed by hand: ``namespace`` under the run's, or absolute.
+
+    >>> placed_namespace('exp1', 'arm1'), placed_namespace('exp1', '/arm1')
+    ('/exp1/arm1', '/arm1')
+    >>> placed_namespace('exp1', ''), placed_namespace('', ''), placed_namespace('', 'arm1')
+    ('/exp1', '/', '/arm1')
+    """
+    if namespace.startswith('/'):
+        return namespace
+    return f'{run_namespace(run_id).rstrip("/")}/{namespace.strip("/")}'.rstrip('/') or '/'
+
+
 def run_topic(run_id: str, name: str) -> str:
     """
     Return the absolute name of a topic the run's nodes share.
