@@ -39,7 +39,6 @@ A learner (or supervised training) that exits with an error fails the launch: ev
 process is stopped and ``ros2 launch`` exits 1.
 """
 import os
-import re
 
 from ament_index_python.packages import get_package_prefix, get_package_share_directory
 from launch import LaunchDescription
@@ -48,6 +47,10 @@ from launch.actions import (DeclareLaunchArgument, EmitEvent, ExecuteProcess, Op
 from launch.event_handlers import OnProcessExit, OnShutdown
 from launch.events import Shutdown
 from launch_ros.actions import Node
+# stdlib-only modules of pg_node: ros2 launch may run another Python than the one pg_node's
+# dependencies were installed into
+from pg_node.common.graph_plan import graph_plan, LEARNER, PARTS, part_plan, placed_pair
+from pg_node.common.run import check_run_id, run_id_for_dir
 import yaml
 
 #: launch arguments that override one parameter of every node that reads it
@@ -121,23 +124,32 @@ def _preset_file(name):
 def _run_id(context):
     """Return the ``run_id`` argument, or one made from the run dir's name as train does."""
     given = _value(context, 'run_id')
-    if given:
-        if not re.fullmatch(r'[A-Za-z][A-Za-z0-9_]{0,63}', given):
-            raise RuntimeError(f'run_id {given!r}: letters, digits and underscores, starting '
-                               'with a letter, at most 64')
-        return given
-    # pg_node.common.run.run_id_for_dir, kept free of pg_node imports: ros2 launch may run
-    # another Python than the one pg_node's dependencies were installed into
-    name = re.sub(r'[^A-Za-z0-9_]', '_', os.path.basename(os.path.normpath(
-        _value(context, 'run_dir'))))
-    return (name if name and name[0].isalpha() else 'run_' + name)[:64]
+    if not given:
+        return run_id_for_dir(_value(context, 'run_dir'))
+    try:
+        return check_run_id(given)
+    except ValueError as exc:
+        raise RuntimeError(f'run_id {given!r}: {exc}') from None
 
 
-def _pair_namespace(run_ns, namespace):
-    """Return the pair's namespace: ``namespace`` under the run's, unless it is absolute."""
-    if namespace.startswith('/'):
-        return namespace
-    return '/'.join(part for part in (run_ns.rstrip('/'), namespace.strip('/')) if part) or '/'
+def _plan(context, params, given, run_id, part, actors, compose):
+    """Return the graph plan (:mod:`pg_node.common.graph_plan`) of the arguments."""
+    run_dir = _value(context, 'run_dir')
+    if part == 'all':
+        pair = placed_pair(run_id, _value(context, 'namespace'),
+                           int(_value(context, 'actor_id')), given.get('seed'))
+        return graph_plan(run_id, run_dir, [pair], compose,
+                          learner=_value(context, 'use_learner').lower() == 'true')
+    seed = arms = None
+    if part == 'workers':
+        # pair i in /<run>/arm<i>, seeded as train seeds it; the file's values when not given
+        seed, arms = (given.get(k, _file_value(params, k)) for k in ('seed', 'num_envs'))
+    try:
+        # num_actors None: the pairs are some of several (the file's count is not checked)
+        return part_plan(run_id, run_dir, seed, arms, None, compose, part,
+                         [int(a) for a in actors.split(',')] if actors else None)
+    except ValueError as exc:
+        raise RuntimeError(f'actors:={actors}: {exc}') from None
 
 
 def _bring_up(context):
@@ -148,8 +160,8 @@ def _bring_up(context):
     given = {k: yaml.safe_load(_value(context, k)) for k in OVERRIDES if _value(context, k)}
     run_id = _run_id(context)
     part, actors = _value(context, 'part') or 'all', _value(context, 'actors')
-    if part not in ('all', 'learner', 'workers'):
-        raise RuntimeError(f'part {part!r}: one of all, learner, workers')
+    if part not in PARTS:
+        raise RuntimeError(f'part {part!r}: one of {", ".join(PARTS)}')
     if part == 'workers' and not actors:
         raise RuntimeError('part:=workers needs actors:=IDS (e.g. actors:=2,3)')
     if _value(context, 'supervised').lower() == 'true':
@@ -162,56 +174,26 @@ def _bring_up(context):
                  *[f'{k}={v}' for k, v in given.items()]],
             output='screen', sigterm_timeout='30')
         return [train, _end_with(train, 'supervised training ended')]
-    run_ns = f'/{run_id}'
+    compose = _value(context, 'compose').lower() == 'true'
+    # the overrides: the learner reads them all, every other node the shared ones
     shared = {k: v for k, v in given.items() if k in ('seed', 'num_envs')}
-    shared['run_id'] = run_id
-    if part == 'workers':
-        # pair i in /<run>/arm<i>, seeded as train seeds it: seed + i * num_envs
-        seed, arms = (given.get(k, _file_value(params, k)) for k in ('seed', 'num_envs'))
-        pairs = [(f'{run_ns}/arm{i}', {'seed': seed + i * arms, 'actor_id': i})
-                 for i in (int(a) for a in actors.split(','))]
-    elif part == 'all':
-        pairs = [(_pair_namespace(run_ns, _value(context, 'namespace')),
-                  {'actor_id': int(_value(context, 'actor_id'))})]
-    else:
-        pairs = []
-    training = {'critic_node': {**shared, 'run_dir': run_dir},
-                'learner_node': {**given, 'run_id': run_id, 'run_dir': run_dir}}
-    use_learner = part == 'learner' or (part == 'all'
-                                        and _value(context, 'use_learner').lower() == 'true')
-    actions = []
-    if _value(context, 'compose').lower() == 'true':
-        files = []
-        # no name=: it would rename every node of the process; each node's own values go
-        # in a section of its name, as a parameters dict would reach both nodes
-        for namespace, own in pairs:
-            sections = {'sim_node': {**shared, 'seed': own.get('seed', shared.get('seed'))},
-                        'actor_node': {**shared, **own}}
-            sections = {n: {k: v for k, v in vals.items() if v is not None}
-                        for n, vals in sections.items()}
-            files.append(_sections_file(sections))
-            actions.append(Node(package='pg_node', executable='sim_and_actor',
-                                namespace=namespace, parameters=[params, files[-1]],
-                                output='screen'))
-        if use_learner:
-            files.append(_sections_file(training))
-            both = Node(package='pg_node', executable='critic_and_learner', namespace=run_ns,
-                        parameters=[params, files[-1]], output='screen')
-            actions += [both, _end_with(both, 'the learner ended')]
-        return actions + [_removed_at_shutdown(files)] if files else actions
-    for namespace, own in pairs:
-        values = {'sim_node': {k: v for k, v in {**shared, 'seed': own.get(
-                      'seed', shared.get('seed'))}.items() if v is not None},
-                  'actor_node': {**shared, **own}}
-        actions += [Node(package='pg_node', executable=name, name=name, namespace=namespace,
-                         parameters=[params, vals], output='screen')
-                    for name, vals in values.items()]
-    if use_learner:
-        critic, learner = [Node(package='pg_node', executable=name, name=name,
-                                namespace=run_ns, parameters=[params, values], output='screen')
-                           for name, values in training.items()]
-        actions += [critic, learner, _end_with(learner, 'the learner ended')]
-    return actions
+    actions, files = [], []
+    for proc in _plan(context, params, given, run_id, part, actors, compose):
+        values = {node: {**(given if node == LEARNER else shared), **own}
+                  for node, own in proc.values.items()}
+        if compose:
+            # no name=: it would rename every node of the process; each node's own values go
+            # in a section of its name, as a parameters dict would reach both nodes
+            files.append(_sections_file(values))
+            named = {'parameters': [params, files[-1]]}
+        else:
+            (name, own), = values.items()
+            named = {'name': name, 'parameters': [params, own]}
+        actions.append(Node(package='pg_node', executable=proc.executable,
+                            namespace=proc.namespace, output='screen', **named))
+        if LEARNER in proc.values:
+            actions.append(_end_with(actions[-1], 'the learner ended'))
+    return actions + [_removed_at_shutdown(files)] if files else actions
 
 
 def _file_value(params, key):

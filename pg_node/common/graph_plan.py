@@ -91,25 +91,27 @@ class Process(NamedTuple):
         return module_of(self.executable)
 
 
-def run_pairs(run_id: str, seed: int, num_envs: int, num_actors: int,
+def run_pairs(run_id: str, seed: int, num_envs: int, num_actors: Optional[int],
               actors: Optional[Sequence[int]] = None) -> List[Pair]:
     """
     Return the pairs of a run of ``num_actors`` (only those of ``actors``, when given).
 
-    Raises ValueError for an actor id the run does not have.
+    ``num_actors`` None: ``actors`` are some of several pairs, whose count is not known here
+    (the launch file's ``part:=workers``). Raises ValueError for an actor id the run does
+    not have.
 
     >>> run_pairs('exp1', 5, 16, 1)
     [Pair(actor_id=0, namespace='/exp1', seed=5, tag='')]
     >>> [(p.namespace, p.seed, p.tag) for p in run_pairs('exp1', 5, 16, 3, [2])]
     [('/exp1/arm2', 37, '_2')]
     """
-    ids = list(range(num_actors) if actors is None else actors)
-    wrong = [i for i in ids if not 0 <= i < num_actors]
-    if wrong:
-        raise ValueError(f'actor ids {",".join(map(str, wrong))} are not of a run of '
-                         f'num_actors {num_actors} (0 to {num_actors - 1})')
     if num_actors == 1:
         return [Pair(0, run_namespace(run_id), seed)]
+    ids = list(range(num_actors) if actors is None else actors)
+    wrong = [i for i in ids if i < 0 or (num_actors is not None and i >= num_actors)]
+    if wrong:
+        raise ValueError(f'actor ids {",".join(map(str, wrong))} are not of a run of '
+                         f'num_actors {num_actors}')
     return [Pair(i, pair_namespace(run_id, i, num_actors), sim_seed(seed, num_envs, i), f'_{i}')
             for i in ids]
 
@@ -146,14 +148,15 @@ def graph_plan(run_id: str, run_dir: str, pairs: Sequence[Pair], compose: bool =
     return plan
 
 
-def part_plan(run_id: str, run_dir: str, seed: int, num_envs: int, num_actors: int,
+def part_plan(run_id: str, run_dir: str, seed: Optional[int], num_envs: Optional[int],
+              num_actors: Optional[int],
               compose: bool = True, part: str = 'all',
               actors: Optional[Sequence[int]] = None) -> List[Process]:
     """
     Return what one host starts of a run: all of it, or its ``part`` (:data:`PARTS`).
 
     ``learner``: the critic and the learner; ``workers``: the pairs of ``actors`` (default:
-    every pair).
+    every pair). The seed and counts are those of :func:`run_pairs` (unused by ``learner``).
     """
     if part not in PARTS:
         raise ValueError(f'part {part!r}: one of {", ".join(PARTS)}')

@@ -184,7 +184,7 @@ def learner_process(compose: bool = False) -> str:
     return graph_plan.learner_process(compose)
 
 
-def plan(cfg: dict, compose: bool = False, part: str = 'all',
+def run_plan(cfg: dict, compose: bool = False, part: str = 'all',
          actors: Optional[List[int]] = None) -> list:
     """Return the graph plan (:mod:`pg_node.common.graph_plan`) of a run's configuration."""
     shared = cfg[SHARED]
@@ -207,7 +207,7 @@ def node_commands(params: Path, cfg: dict, compose: bool = False, part: str = 'a
     only (default: all).
     """
     cmds = {}
-    for proc in plan(cfg, compose, part, actors):
+    for proc in run_plan(cfg, compose, part, actors):
         own = []
         if proc.pair is not None and proc.pair.tag:
             ns_file = params.with_name(f'params_arm{proc.pair.actor_id}.yaml')
@@ -241,7 +241,7 @@ def make_bags_whole(bags) -> list:
 
 def sim_seeds(cfg: dict, compose: bool = False) -> dict:
     """Return each simulator's seed by the name of its process in :func:`node_commands`."""
-    return {proc.name: proc.pair.seed for proc in plan(cfg, compose)
+    return {proc.name: proc.pair.seed for proc in run_plan(cfg, compose)
             if graph_plan.SIMULATOR in proc.values}
 
 
