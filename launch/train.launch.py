@@ -49,7 +49,7 @@ from launch.events import Shutdown
 from launch_ros.actions import Node
 # stdlib-only modules of pg_node: ros2 launch may run another Python than the one pg_node's
 # dependencies were installed into
-from pg_node.common.graph_plan import graph_plan, LEARNER, PARTS, part_plan, placed_pair
+from pg_node.common.graph_plan import graph_plan, LEARNER, part_plan, PARTS, placed_pair
 from pg_node.common.run import check_run_id, run_id_for_dir
 import yaml
 

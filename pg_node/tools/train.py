@@ -35,9 +35,9 @@ import time
 from typing import List, Optional
 
 from pg_node.bag.reader import bag_dirs
-from pg_node.common.params import ConfigError, load_config, SHARED
 from pg_node.common import graph_plan
 from pg_node.common.graph_plan import module_of
+from pg_node.common.params import ConfigError, load_config, SHARED
 from pg_node.common.paths import preset_names
 from pg_node.common.run import run_id_for_dir, run_namespace
 from pg_node.tools.args import non_negative_float, run_id_arg
@@ -185,7 +185,7 @@ def learner_process(compose: bool = False) -> str:
 
 
 def run_plan(cfg: dict, compose: bool = False, part: str = 'all',
-         actors: Optional[List[int]] = None) -> list:
+             actors: Optional[List[int]] = None) -> list:
     """Return the graph plan (:mod:`pg_node.common.graph_plan`) of a run's configuration."""
     shared = cfg[SHARED]
     return graph_plan.part_plan(shared['run_id'], shared['run_dir'], shared['seed'],
