@@ -40,7 +40,7 @@ process is stopped and ``ros2 launch`` exits 1.
 """
 import os
 
-from ament_index_python.packages import get_package_prefix, get_package_share_directory
+from ament_index_python.packages import get_package_prefix
 from launch import LaunchDescription
 from launch.actions import (DeclareLaunchArgument, EmitEvent, ExecuteProcess, OpaqueFunction,
                             RegisterEventHandler)
@@ -50,6 +50,7 @@ from launch_ros.actions import Node
 # stdlib-only modules of pg_node: ros2 launch may run another Python than the one pg_node's
 # dependencies were installed into
 from pg_node.common.graph_plan import graph_plan, LEARNER, part_plan, PARTS, placed_pair
+from pg_node.common.paths import default_config, preset_names, presets, share_dir
 from pg_node.common.run import check_run_id, run_id_for_dir
 import yaml
 
@@ -92,10 +93,6 @@ def _removed_at_shutdown(paths):
     return RegisterEventHandler(OnShutdown(on_shutdown=remove))
 
 
-def _config_dir():
-    return os.path.join(get_package_share_directory('pg_node'), 'config')
-
-
 def _executable(name):
     """Return the path of the package's executable ``name`` (``lib/pg_node/<name>``)."""
     path = os.path.join(get_package_prefix('pg_node'), 'lib', 'pg_node', name)
@@ -105,20 +102,13 @@ def _executable(name):
     return path
 
 
-def _presets():
-    """Return the training parameter files in the package's ``config/``, sorted."""
-    # policy_node.yaml is the deployment's (pg_node.common.paths.DEPLOY_CONFIG)
-    return sorted(f[:-5] for f in os.listdir(_config_dir())
-                  if f.endswith('.yaml') and f != 'policy_node.yaml')
-
-
 def _preset_file(name):
     """Return the path of preset ``name`` (``config/<name>.yaml``), or say which exist."""
-    path = os.path.join(_config_dir(), f'{name}.yaml')
-    if os.path.basename(name) != name or not os.path.isfile(path):
-        raise RuntimeError(f'preset {name!r} is not in {_config_dir()} '
-                           f'(presets: {", ".join(_presets())})')
-    return path
+    config = share_dir() / 'config'
+    if name not in presets():
+        raise RuntimeError(f'preset {name!r} is not in {config} '
+                           f'(presets: {", ".join(presets())})')
+    return str(config / f'{name}.yaml')
 
 
 def _run_id(context):
@@ -198,7 +188,7 @@ def _bring_up(context):
 
 def _file_value(params, key):
     """Return a shared value of a parameter file, or of the shipped pg_node.yaml."""
-    for path in (params, os.path.join(_config_dir(), 'pg_node.yaml')):
+    for path in (params, default_config()):
         with open(path) as f:
             value = ((yaml.safe_load(f) or {}).get('/**', {}).get('ros__parameters', {})
                      .get(key))
@@ -219,12 +209,11 @@ def _sections_file(values_by_node):
 
 def generate_launch_description():
     """Describe the arguments and the bring-up."""
-    default_params = os.path.join(get_package_share_directory('pg_node'), 'config',
-                                  'pg_node.yaml')
+    default_params = str(default_config())
     args = [
         ('params_file', default_params, 'ROS 2 parameter file of all pg_node nodes'),
         ('preset', '', "a parameter file of the package's config/ by name: "
-                       f'{", ".join(p for p in _presets() if p != "pg_node")} '
+                       f'{", ".join(preset_names())} '
                        '(replaces params_file)'),
         ('run_dir', 'runs/latest', 'where checkpoints, the bag and progress go'),
         ('total_steps', '', 'environment steps to learn (empty: from params_file)'),
