@@ -195,16 +195,16 @@ def run_plan(cfg: dict, compose: bool = False, part: str = 'all',
 def node_commands(params: Path, cfg: dict, compose: bool = False, part: str = 'all',
                   actors: Optional[List[int]] = None) -> dict:
     """
-    Return ``{process name: command}`` for the graph of :func:`plan`.
+    Return ``{process name: command}`` for the graph of :func:`run_plan`.
 
     Every process gets ``params`` (the resolved configuration, which holds the run's id,
-    directory and seed) and its namespace. A pair of several has a parameter file of its own,
-    ``params_arm<i>.yaml``, with its values under its nodes' full names (a later parameter
-    file wins, and only a node's full name reaches one namespace). With ``compose`` each pair
-    is one process, ``sim_and_actor`` (``sim_and_actor_<i>``), holding both nodes, and the
-    critic and the learner are one, ``critic_and_learner``. ``part``: ``learner`` leaves the
-    pairs out, ``workers`` the critic and the learner, and starts the pairs of ``actors``
-    only (default: all).
+    directory and seed: all the run's only pair needs) and its namespace. A pair of several
+    has a parameter file of its own, ``params_arm<i>.yaml``, with its values under its nodes'
+    full names (a later parameter file wins, and only a node's full name reaches one
+    namespace). With ``compose`` each pair is one process, ``sim_and_actor``
+    (``sim_and_actor_<i>``), holding both nodes, and the critic and the learner are one,
+    ``critic_and_learner``. ``part``: ``learner`` leaves the pairs out, ``workers`` the critic
+    and the learner, and starts the pairs of ``actors`` only (default: all).
     """
     cmds = {}
     for proc in run_plan(cfg, compose, part, actors):
