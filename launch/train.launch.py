@@ -35,6 +35,9 @@ then stopped, as Ctrl-C does. Arguments:
   overrides: it restarts a node that dies, evaluates the final policy and writes
   ``summary.json`` and the learning-curve plot; the launch ends with it.
 
+The processes, their namespaces, seeds and actor ids are those of the graph plan
+(``pg_node.common.graph_plan``), which ``python -m pg_node train`` starts too.
+
 A learner (or supervised training) that exits with an error fails the launch: every
 process is stopped and ``ros2 launch`` exits 1.
 """
