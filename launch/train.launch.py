@@ -35,19 +35,26 @@ then stopped, as Ctrl-C does. Arguments:
   overrides: it restarts a node that dies, evaluates the final policy and writes
   ``summary.json`` and the learning-curve plot; the launch ends with it.
 
+The processes, their namespaces, seeds and actor ids are those of the graph plan
+(``pg_node.common.graph_plan``), which ``python -m pg_node train`` starts too.
+
 A learner (or supervised training) that exits with an error fails the launch: every
 process is stopped and ``ros2 launch`` exits 1.
 """
 import os
-import re
 
-from ament_index_python.packages import get_package_prefix, get_package_share_directory
+from ament_index_python.packages import get_package_prefix
 from launch import LaunchDescription
 from launch.actions import (DeclareLaunchArgument, EmitEvent, ExecuteProcess, OpaqueFunction,
                             RegisterEventHandler)
 from launch.event_handlers import OnProcessExit, OnShutdown
 from launch.events import Shutdown
 from launch_ros.actions import Node
+# stdlib-only modules of pg_node: ros2 launch may run another Python than the one pg_node's
+# dependencies were installed into
+from pg_node.common.graph_plan import graph_plan, LEARNER, part_plan, PARTS, placed_pair
+from pg_node.common.paths import default_config, preset_names, presets, share_dir
+from pg_node.common.run import check_run_id, run_id_for_dir
 import yaml
 
 #: launch arguments that override one parameter of every node that reads it
@@ -89,10 +96,6 @@ def _removed_at_shutdown(paths):
     return RegisterEventHandler(OnShutdown(on_shutdown=remove))
 
 
-def _config_dir():
-    return os.path.join(get_package_share_directory('pg_node'), 'config')
-
-
 def _executable(name):
     """Return the path of the package's executable ``name`` (``lib/pg_node/<name>``)."""
     path = os.path.join(get_package_prefix('pg_node'), 'lib', 'pg_node', name)
@@ -102,42 +105,44 @@ def _executable(name):
     return path
 
 
-def _presets():
-    """Return the training parameter files in the package's ``config/``, sorted."""
-    # policy_node.yaml is the deployment's (pg_node.common.paths.DEPLOY_CONFIG)
-    return sorted(f[:-5] for f in os.listdir(_config_dir())
-                  if f.endswith('.yaml') and f != 'policy_node.yaml')
-
-
 def _preset_file(name):
     """Return the path of preset ``name`` (``config/<name>.yaml``), or say which exist."""
-    path = os.path.join(_config_dir(), f'{name}.yaml')
-    if os.path.basename(name) != name or not os.path.isfile(path):
-        raise RuntimeError(f'preset {name!r} is not in {_config_dir()} '
-                           f'(presets: {", ".join(_presets())})')
-    return path
+    config = share_dir() / 'config'
+    if name not in presets():
+        raise RuntimeError(f'preset {name!r} is not in {config} '
+                           f'(presets: {", ".join(presets())})')
+    return str(config / f'{name}.yaml')
 
 
 def _run_id(context):
     """Return the ``run_id`` argument, or one made from the run dir's name as train does."""
     given = _value(context, 'run_id')
-    if given:
-        if not re.fullmatch(r'[A-Za-z][A-Za-z0-9_]{0,63}', given):
-            raise RuntimeError(f'run_id {given!r}: letters, digits and underscores, starting '
-                               'with a letter, at most 64')
-        return given
-    # pg_node.common.run.run_id_for_dir, kept free of pg_node imports: ros2 launch may run
-    # another Python than the one pg_node's dependencies were installed into
-    name = re.sub(r'[^A-Za-z0-9_]', '_', os.path.basename(os.path.normpath(
-        _value(context, 'run_dir'))))
-    return (name if name and name[0].isalpha() else 'run_' + name)[:64]
+    if not given:
+        return run_id_for_dir(_value(context, 'run_dir'))
+    try:
+        return check_run_id(given)
+    except ValueError as exc:
+        raise RuntimeError(f'run_id {given!r}: {exc}') from None
 
 
-def _pair_namespace(run_ns, namespace):
-    """Return the pair's namespace: ``namespace`` under the run's, unless it is absolute."""
-    if namespace.startswith('/'):
-        return namespace
-    return '/'.join(part for part in (run_ns.rstrip('/'), namespace.strip('/')) if part) or '/'
+def _plan(context, params, given, run_id, part, actors, compose):
+    """Return the graph plan (:mod:`pg_node.common.graph_plan`) of the arguments."""
+    run_dir = _value(context, 'run_dir')
+    if part == 'all':
+        pair = placed_pair(run_id, _value(context, 'namespace'),
+                           int(_value(context, 'actor_id')), given.get('seed'))
+        return graph_plan(run_id, run_dir, [pair], compose,
+                          learner=_value(context, 'use_learner').lower() == 'true')
+    seed = arms = None
+    if part == 'workers':
+        # pair i in /<run>/arm<i>, seeded as train seeds it; the file's values when not given
+        seed, arms = (given.get(k, _file_value(params, k)) for k in ('seed', 'num_envs'))
+    try:
+        # num_actors None: the pairs are some of several (the file's count is not checked)
+        return part_plan(run_id, run_dir, seed, arms, None, compose, part,
+                         [int(a) for a in actors.split(',')] if actors else None)
+    except ValueError as exc:
+        raise RuntimeError(f'actors:={actors}: {exc}') from None
 
 
 def _bring_up(context):
@@ -148,8 +153,8 @@ def _bring_up(context):
     given = {k: yaml.safe_load(_value(context, k)) for k in OVERRIDES if _value(context, k)}
     run_id = _run_id(context)
     part, actors = _value(context, 'part') or 'all', _value(context, 'actors')
-    if part not in ('all', 'learner', 'workers'):
-        raise RuntimeError(f'part {part!r}: one of all, learner, workers')
+    if part not in PARTS:
+        raise RuntimeError(f'part {part!r}: one of {", ".join(PARTS)}')
     if part == 'workers' and not actors:
         raise RuntimeError('part:=workers needs actors:=IDS (e.g. actors:=2,3)')
     if _value(context, 'supervised').lower() == 'true':
@@ -162,61 +167,31 @@ def _bring_up(context):
                  *[f'{k}={v}' for k, v in given.items()]],
             output='screen', sigterm_timeout='30')
         return [train, _end_with(train, 'supervised training ended')]
-    run_ns = f'/{run_id}'
+    compose = _value(context, 'compose').lower() == 'true'
+    # the overrides: the learner reads them all, every other node the shared ones
     shared = {k: v for k, v in given.items() if k in ('seed', 'num_envs')}
-    shared['run_id'] = run_id
-    if part == 'workers':
-        # pair i in /<run>/arm<i>, seeded as train seeds it: seed + i * num_envs
-        seed, arms = (given.get(k, _file_value(params, k)) for k in ('seed', 'num_envs'))
-        pairs = [(f'{run_ns}/arm{i}', {'seed': seed + i * arms, 'actor_id': i})
-                 for i in (int(a) for a in actors.split(','))]
-    elif part == 'all':
-        pairs = [(_pair_namespace(run_ns, _value(context, 'namespace')),
-                  {'actor_id': int(_value(context, 'actor_id'))})]
-    else:
-        pairs = []
-    training = {'critic_node': {**shared, 'run_dir': run_dir},
-                'learner_node': {**given, 'run_id': run_id, 'run_dir': run_dir}}
-    use_learner = part == 'learner' or (part == 'all'
-                                        and _value(context, 'use_learner').lower() == 'true')
-    actions = []
-    if _value(context, 'compose').lower() == 'true':
-        files = []
-        # no name=: it would rename every node of the process; each node's own values go
-        # in a section of its name, as a parameters dict would reach both nodes
-        for namespace, own in pairs:
-            sections = {'sim_node': {**shared, 'seed': own.get('seed', shared.get('seed'))},
-                        'actor_node': {**shared, **own}}
-            sections = {n: {k: v for k, v in vals.items() if v is not None}
-                        for n, vals in sections.items()}
-            files.append(_sections_file(sections))
-            actions.append(Node(package='pg_node', executable='sim_and_actor',
-                                namespace=namespace, parameters=[params, files[-1]],
-                                output='screen'))
-        if use_learner:
-            files.append(_sections_file(training))
-            both = Node(package='pg_node', executable='critic_and_learner', namespace=run_ns,
-                        parameters=[params, files[-1]], output='screen')
-            actions += [both, _end_with(both, 'the learner ended')]
-        return actions + [_removed_at_shutdown(files)] if files else actions
-    for namespace, own in pairs:
-        values = {'sim_node': {k: v for k, v in {**shared, 'seed': own.get(
-                      'seed', shared.get('seed'))}.items() if v is not None},
-                  'actor_node': {**shared, **own}}
-        actions += [Node(package='pg_node', executable=name, name=name, namespace=namespace,
-                         parameters=[params, vals], output='screen')
-                    for name, vals in values.items()]
-    if use_learner:
-        critic, learner = [Node(package='pg_node', executable=name, name=name,
-                                namespace=run_ns, parameters=[params, values], output='screen')
-                           for name, values in training.items()]
-        actions += [critic, learner, _end_with(learner, 'the learner ended')]
-    return actions
+    actions, files = [], []
+    for proc in _plan(context, params, given, run_id, part, actors, compose):
+        values = {node: {**(given if node == LEARNER else shared), **own}
+                  for node, own in proc.values.items()}
+        if compose:
+            # no name=: it would rename every node of the process; each node's own values go
+            # in a section of its name, as a parameters dict would reach both nodes
+            files.append(_sections_file(values))
+            named = {'parameters': [params, files[-1]]}
+        else:
+            (name, own), = values.items()
+            named = {'name': name, 'parameters': [params, own]}
+        actions.append(Node(package='pg_node', executable=proc.executable,
+                            namespace=proc.namespace, output='screen', **named))
+        if LEARNER in proc.values:
+            actions.append(_end_with(actions[-1], 'the learner ended'))
+    return actions + [_removed_at_shutdown(files)] if files else actions
 
 
 def _file_value(params, key):
     """Return a shared value of a parameter file, or of the shipped pg_node.yaml."""
-    for path in (params, os.path.join(_config_dir(), 'pg_node.yaml')):
+    for path in (params, default_config()):
         with open(path) as f:
             value = ((yaml.safe_load(f) or {}).get('/**', {}).get('ros__parameters', {})
                      .get(key))
@@ -237,12 +212,11 @@ def _sections_file(values_by_node):
 
 def generate_launch_description():
     """Describe the arguments and the bring-up."""
-    default_params = os.path.join(get_package_share_directory('pg_node'), 'config',
-                                  'pg_node.yaml')
+    default_params = str(default_config())
     args = [
         ('params_file', default_params, 'ROS 2 parameter file of all pg_node nodes'),
         ('preset', '', "a parameter file of the package's config/ by name: "
-                       f'{", ".join(p for p in _presets() if p != "pg_node")} '
+                       f'{", ".join(preset_names())} '
                        '(replaces params_file)'),
         ('run_dir', 'runs/latest', 'where checkpoints, the bag and progress go'),
         ('total_steps', '', 'environment steps to learn (empty: from params_file)'),

@@ -25,6 +25,7 @@ topic of a real ros2_control controller, which only ``policy_node`` speaks (depl
 """
 import os
 import re
+from typing import Optional
 import zlib
 
 #: a run id: a ROS name token (letters, digits, underscores, a letter first), or empty
@@ -67,9 +68,11 @@ def run_namespace(run_id: str) -> str:
     return f'/{run_id}' if run_id else '/'
 
 
-def pair_namespace(run_id: str, actor_id: int, num_actors: int) -> str:
+def pair_namespace(run_id: str, actor_id: int, num_actors: Optional[int]) -> str:
     """
     Return the namespace of a run's simulator/actor pair: the run's, or ``arm<i>`` under it.
+
+    ``num_actors`` None: one pair of several, whose count is not known where it starts.
 
     >>> pair_namespace('exp1', 0, 1), pair_namespace('exp1', 1, 2), pair_namespace('', 0, 2)
     ('/exp1', '/exp1/arm1', '/arm0')
@@ -77,6 +80,20 @@ def pair_namespace(run_id: str, actor_id: int, num_actors: int) -> str:
     if num_actors == 1:
         return run_namespace(run_id)
     return f'{run_namespace(run_id).rstrip("/")}/arm{actor_id}'
+
+
+def placed_namespace(run_id: str, namespace: str) -> str:
+    """
+    Return the namespace of a pair placed by hand: ``namespace`` under the run's, or absolute.
+
+    >>> placed_namespace('exp1', 'arm1'), placed_namespace('exp1', '/arm1')
+    ('/exp1/arm1', '/arm1')
+    >>> placed_namespace('exp1', ''), placed_namespace('', ''), placed_namespace('', 'arm1')
+    ('/exp1', '/', '/arm1')
+    """
+    if namespace.startswith('/'):
+        return namespace
+    return f'{run_namespace(run_id).rstrip("/")}/{namespace.strip("/")}'.rstrip('/') or '/'
 
 
 def run_topic(run_id: str, name: str) -> str:

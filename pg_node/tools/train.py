@@ -35,9 +35,11 @@ import time
 from typing import List, Optional
 
 from pg_node.bag.reader import bag_dirs
+from pg_node.common import graph_plan
+from pg_node.common.graph_plan import module_of
 from pg_node.common.params import ConfigError, load_config, SHARED
 from pg_node.common.paths import preset_names
-from pg_node.common.run import pair_namespace, run_id_for_dir, run_namespace
+from pg_node.common.run import run_id_for_dir, run_namespace
 from pg_node.tools.args import non_negative_float, run_id_arg
 from pg_node.tools.processes import (child_env, Interrupts, process_usage, shutting_down,
                                      signal_process, STOP_WAITS, terminate_as_interrupt)
@@ -45,7 +47,7 @@ import yaml
 
 
 #: what one host runs of a run (``--part``)
-PARTS = ('all', 'learner', 'workers')
+PARTS = graph_plan.PARTS
 
 
 def parse_args(argv):
@@ -170,62 +172,52 @@ def write_params(cfg: dict, path: Path):
 
 
 #: a simulator/actor pair's processes, (name, module), the simulator's first: composed or not
-PAIR_PROCESSES = {True: [('sim_and_actor', 'pg_node.ros.sim_and_actor')],
-                  False: [('sim_node', 'pg_node.ros.sim_node'),
-                          ('actor_node', 'pg_node.ros.actor_node')]}
+PAIR_PROCESSES = {compose: [(exe, module_of(exe)) for exe, _ in table]
+                  for compose, table in graph_plan.PAIR_PROCESSES.items()}
 #: the critic's and the learner's processes, the learner's last: composed or not
-TRAINING_PROCESSES = {True: [('critic_and_learner', 'pg_node.ros.critic_and_learner')],
-                      False: [('critic_node', 'pg_node.ros.critic_node'),
-                              ('learner_node', 'pg_node.ros.learner_node')]}
+TRAINING_PROCESSES = {compose: [(exe, module_of(exe)) for exe, _ in table]
+                      for compose, table in graph_plan.TRAINING_PROCESSES.items()}
 
 
 def learner_process(compose: bool = False) -> str:
     """Return the name of the process the learner runs in."""
-    return TRAINING_PROCESSES[compose][-1][0]
+    return graph_plan.learner_process(compose)
+
+
+def run_plan(cfg: dict, compose: bool = False, part: str = 'all',
+             actors: Optional[List[int]] = None) -> list:
+    """Return the graph plan (:mod:`pg_node.common.graph_plan`) of a run's configuration."""
+    shared = cfg[SHARED]
+    return graph_plan.part_plan(shared['run_id'], shared['run_dir'], shared['seed'],
+                                shared['num_envs'], shared['num_actors'], compose, part, actors)
 
 
 def node_commands(params: Path, cfg: dict, compose: bool = False, part: str = 'all',
                   actors: Optional[List[int]] = None) -> dict:
     """
-    Return ``{process name: command}`` for the whole graph.
+    Return ``{process name: command}`` for the graph of :func:`run_plan`.
 
-    Every node runs in the run's namespace ``/<run_id>`` (:mod:`pg_node.common.run`). With
-    ``num_actors`` > 1 each simulator/actor pair runs in its own namespace
-    ``/<run_id>/arm<i>`` (its topics become ``/<run_id>/arm<i>/pg_node/transition``...),
-    actor ``i`` gets ``actor_id`` i,
-    and simulator ``i`` seeds its arms from ``seed + i * num_envs`` so that no two arms of
-    the run draw the same episodes. With ``compose`` each pair is one process,
-    ``sim_and_actor`` (``sim_and_actor_<i>``), holding both nodes, and the critic and the
-    learner are one, ``critic_and_learner``. ``part``: ``learner`` leaves the pairs out,
-    ``workers`` the critic and the learner, and starts the pairs of ``actors`` only (default:
-    all).
+    Every process gets ``params`` (the resolved configuration, which holds the run's id,
+    directory and seed: all the run's only pair needs) and its namespace. A pair of several
+    has a parameter file of its own, ``params_arm<i>.yaml``, with its values under its nodes'
+    full names (a later parameter file wins, and only a node's full name reaches one
+    namespace). With ``compose`` each pair is one process, ``sim_and_actor``
+    (``sim_and_actor_<i>``), holding both nodes, and the critic and the learner are one,
+    ``critic_and_learner``. ``part``: ``learner`` leaves the pairs out, ``workers`` the critic
+    and the learner, and starts the pairs of ``actors`` only (default: all).
     """
-    base = [sys.executable, '-m']
-    ros = ['--ros-args', '--params-file', str(params)]
-    # one __ns remap per process: rcl takes the first that matches
-    in_run = ['-r', f'__ns:={run_namespace(cfg[SHARED]["run_id"])}']
-    n = cfg[SHARED]['num_actors']
-    cmds = ({} if part == 'workers' else
-            {name: base + [module] + ros + in_run
-             for name, module in TRAINING_PROCESSES[compose]})
-    pair = PAIR_PROCESSES[compose]
-    if part == 'learner':
-        return cmds
-    if n == 1:
-        for name, module in pair:
-            cmds[name] = base + [module] + ros + in_run
-        return cmds
-    for i in (range(n) if actors is None else actors):
-        # a later parameter file wins, and only a node's full name reaches one namespace
-        ns = pair_namespace(cfg[SHARED]['run_id'], i, n)
-        ns_file = params.with_name(f'params_arm{i}.yaml')
-        ns_file.write_text(yaml.safe_dump({
-            f'{ns}/sim_node': {'ros__parameters': {
-                'seed': sim_seeds(cfg)[f'sim_node_{i}']}},
-            f'{ns}/actor_node': {'ros__parameters': {'actor_id': i}}}))
-        extra = ['--params-file', str(ns_file), '-r', f'__ns:={ns}']
-        for name, module in pair:
-            cmds[f'{name}_{i}'] = base + [module] + ros + extra
+    cmds = {}
+    for proc in run_plan(cfg, compose, part, actors):
+        own = []
+        if proc.pair is not None and proc.pair.tag:
+            ns_file = params.with_name(f'params_arm{proc.pair.actor_id}.yaml')
+            ns_file.write_text(yaml.safe_dump({
+                f'{proc.namespace}/{node}': {'ros__parameters': values}
+                for node, values in proc.pair.values().items()}))
+            own = ['--params-file', str(ns_file)]
+        # one __ns remap per process: rcl takes the first that matches
+        cmds[proc.name] = [sys.executable, '-m', proc.module, '--ros-args', '--params-file',
+                           str(params), *own, '-r', f'__ns:={proc.namespace}']
     return cmds
 
 
@@ -249,11 +241,8 @@ def make_bags_whole(bags) -> list:
 
 def sim_seeds(cfg: dict, compose: bool = False) -> dict:
     """Return each simulator's seed by the name of its process in :func:`node_commands`."""
-    n, seed, arms = cfg[SHARED]['num_actors'], cfg[SHARED]['seed'], cfg[SHARED]['num_envs']
-    name = PAIR_PROCESSES[compose][0][0]           # the process the simulator runs in
-    if n == 1:
-        return {name: seed}
-    return {f'{name}_{i}': seed + i * arms for i in range(n)}
+    return {proc.name: proc.pair.seed for proc in run_plan(cfg, compose)
+            if graph_plan.SIMULATOR in proc.values}
 
 
 class Supervisor:
