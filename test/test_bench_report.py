@@ -6,11 +6,15 @@ used to write the whole file and drop them. Now it replaces only the block betwe
 markers, and the block it replaces goes, dated, to the log page: a run deletes nothing.
 """
 import json
+from pathlib import Path
 import re
 
 from bench import report, suite
+import pytest
 from test_bench import fake_results
 
+REPO = Path(__file__).resolve().parent.parent
+RESULTS = REPO / 'docs' / 'results'
 REPORT = '# pg_node benchmarks\n\nProduced by one invocation\n\n## Machine\n\n```\n## code\n```\n'
 PAGE = (f'# pg_node benchmarks\n\n## Summary\n\n| what | figure |\n\n## The bench\n\n'
         f'{report.BEGIN}\n### Machine\n\nold numbers\n{report.END}\n\n### Findings\n\nby hand\n')
@@ -63,3 +67,24 @@ def test_from_json_renders_into_the_page_and_logs_the_block_replaced(tmp_path):
     assert text.endswith('### Findings\n\nby hand\n')
     assert 'old numbers' in (tmp_path / report.LOG).read_text()
 
+
+def test_the_committed_page_opens_with_the_summary_and_holds_one_block():
+    text = (RESULTS / 'BENCHMARKS.md').read_text()
+    assert text.count(report.BEGIN) == 1 and text.count(report.END) == 1
+    summary = text.split('\n## ', 2)[1]
+    assert summary.startswith('Summary\n')
+    assert '| what | figure | anchor | command | commit |' in summary
+    assert text.index('## Summary') < text.index(report.BEGIN)
+    # the block is what a run writes: its headings under the page's topic heading
+    block = text.split(report.BEGIN)[1].split(report.END)[0]
+    assert not re.search(r'^#{1,2} ', block, re.M)
+
+
+@pytest.mark.parametrize('row', [
+    r for r in (RESULTS / 'BENCHMARKS.md').read_text().split('\n## ', 2)[1].splitlines()
+    if r.startswith('| ') and not r.startswith('| what ')])
+def test_each_summary_row_links_its_section_and_names_a_commit(row):
+    cells = [c.strip() for c in row.strip('|').split('|')]
+    assert len(cells) == 5, row
+    assert re.search(r'\]\(#[\w-]+\)', cells[2]), row
+    assert re.search(r'\b[0-9a-f]{7}\b', cells[4]), row
