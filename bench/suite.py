@@ -5,7 +5,9 @@ Runs every selected section in this one invocation (so that ratios between rows 
 noisy machine) and writes, under ``--out`` (default: ``docs/results/`` of this checkout):
 
 * ``BENCHMARKS.md``: the tables, the exact command, the machine, the load average, and
-  whether each performance target of issue 6 is met;
+  whether each performance target of issue 6 is met; into the page's block between
+  :mod:`bench.report`'s markers when it has them (the summary and the sections that sessions
+  wrote stay; the block replaced goes to ``LOG.md``), else the whole file;
 * ``bench_plots/*.png``: throughput ladder, latency histogram, learning curves, variance;
 * ``bench_results.json``: every number, saved after each section.
 
@@ -46,7 +48,7 @@ import time
 import traceback
 from typing import Dict, List, Sequence
 
-from bench import curves, tax
+from bench import curves, report, tax
 from bench.curves import eval_time_at, reached
 from bench.pool import JOBS_NOTE, run_all
 import numpy as np
@@ -803,7 +805,8 @@ def main(argv=None) -> int:
         results = json.loads(Path(args.from_json).read_text())
         results['rendered_by'] = command
         plots = make_plots(results, out_dir / 'bench_plots')
-        (out_dir / args.report).write_text(render_markdown(results, results['command'], plots))
+        report.write(out_dir / args.report, render_markdown(results, results['command'], plots),
+                     results['date'], archived=False)
         print(f'wrote {out_dir / args.report} from {args.from_json}', file=sys.stderr)
         return 0
 
@@ -820,12 +823,16 @@ def main(argv=None) -> int:
     def save():
         json_path.write_text(json.dumps(results, indent=1, default=str))
 
+    archived = [False]      # the block this run replaces goes to the log once
+
     def write_report():
         results['load_end'] = load_average()
         results['elapsed_seconds'] = time.perf_counter() - start
         save()      # first: the numbers outlive a bug in the plots or the report
         plots = make_plots(results, out_dir / 'bench_plots')
-        (out_dir / args.report).write_text(render_markdown(results, command, plots))
+        archived[0] = report.write(out_dir / args.report,
+                                   render_markdown(results, command, plots), results['date'],
+                                   archived[0])
         return plots
 
     def learning_progress(partial):
@@ -868,6 +875,6 @@ def main(argv=None) -> int:
         return 130
     results['complete'] = True
     plots = write_report()
-    report = out_dir / args.report
-    log(f'wrote {report}, {json_path} and {len(plots)} plot(s) in {out_dir / "bench_plots"}')
+    log(f'wrote {out_dir / args.report}, {json_path} and {len(plots)} plot(s) in '
+        f'{out_dir / "bench_plots"}')
     return 1 if results['errors'] else 0
