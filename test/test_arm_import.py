@@ -22,6 +22,7 @@ import numpy as np
 from pg_node.common.params import load_config
 from pg_node.common.paths import resolve_model
 from pg_node.control.interfaces import card
+from pg_node.sim import urdf_import
 from pg_node.sim.actuation import actuators
 from pg_node.sim.arm_task import ArmTask
 from pg_node.sim.urdf_import import (import_urdf, ImportOptions, read_urdf, resolve_mesh,
@@ -768,6 +769,59 @@ def test_import_refuses_home_outside_limits():
         import_urdf(TWO_LINK, ImportOptions(tip='fingertip', home=[0.0, 3.5]))
 
 
+def test_the_checks_run_on_the_complete_model_compiled_once(monkeypatch):
+    """
+    The build compiles the robot once to read it, once for the goals, once for the checks.
+
+    The checks' model is the written one (the goals, the mocap target, the custom data in
+    it); the first compile is MuJoCo's own (``spec.compile`` in ``_load_spec``).
+    """
+    compiled, checked = [], []
+    compile_, checks = urdf_import._compile, urdf_import._checks
+
+    def counting(spec):
+        compiled.append(spec)
+        return compile_(spec)
+
+    def recording(model, *args, **kwargs):
+        checked.append(model)
+        return checks(model, *args, **kwargs)
+
+    monkeypatch.setattr(urdf_import, '_compile', counting)
+    monkeypatch.setattr(urdf_import, '_checks', recording)
+    result = import_urdf(TWO_LINK, ImportOptions(tip='fingertip', targets=20))
+    assert len(compiled) == 2 and len(checked) == 1
+    written = mujoco.MjModel.from_xml_string(result.xml)
+    model = checked[0]
+    assert (model.nbody, model.nnumeric, model.ntext) == (
+        written.nbody, written.nnumeric, written.ntext)
+    np.testing.assert_array_equal(model.numeric_data, written.numeric_data)
+    assert model.body('target').mocapid[0] == 0
+
+
+def test_the_task_step_chooses_the_start_pose_within_the_limits():
+    """``_task``: zero moved inside the limits by the start's noise, or ``home`` checked."""
+    robot = urdf_import._Robot(urdf=None, path=TWO_LINK, base='base_link', arm=['a', 'b', 'c'],
+                               coupled={}, joints={}, warnings=[],
+                               ranges=np.array([[0.05, 1.0], [-np.pi, np.pi], [-1.0, -0.5]]))
+    task = urdf_import._task(robot, ImportOptions(tip='x', target_region=(0, 0, 1, 0.5)))
+    np.testing.assert_allclose(task.home, [0.15, 0.0, -0.6])
+    assert task.region == (0, 0, 1, 0.5) and task.min_height == 0.0 and task.points is None
+    task = urdf_import._task(robot, ImportOptions(tip='x', home=[0.5, 3.0, -0.7]))
+    np.testing.assert_array_equal(task.home, [0.5, 3.0, -0.7])
+    with pytest.raises(UrdfImportError, match='outside the joint limits'):
+        urdf_import._task(robot, ImportOptions(tip='x', home=[0.0, 0.0, -0.7]))
+
+
+def test_velocity_damping_is_off_unless_asked_for():
+    """A plain bool, off in the options and on the command line alike."""
+    assert ImportOptions(tip='x').velocity_damping is False
+    args = arm.parser().parse_args(['import', 'r.urdf', '--tip', 'x'])
+    assert arm.options(args).velocity_damping is False
+    args = arm.parser().parse_args(['import', 'r.urdf', '--tip', 'x', '--velocity-damping'])
+    assert arm.options(args).velocity_damping is True
+
+
 def test_short_training_improves_the_imported_7_joint_arm():
     """
     40k steps with config/arm7.yaml (16 arms) raise the mean training return of 100 episodes.
@@ -798,6 +852,7 @@ RENDER = """
 import sys
 import numpy as np
 from pg_node.tools.render import Episode, render_episode
+from pg_node.sim import urdf_import
 from pg_node.sim.arm_task import ArmTask
 import gymnasium as gym
 import pg_node  # noqa

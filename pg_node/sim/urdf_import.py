@@ -1,92 +1,14 @@
 """
 Turn a robot's URDF (or xacro) into an arm model that pg_node trains with (no ROS here).
 
-MuJoCo's own URDF compiler reads the robot (links become bodies, URDF joints hinges or
-slides with their limits, ``<dynamics>`` damping and friction, the effort limit as the
-joint's actuator force range, ``<mimic>`` a joint equality); this module prepares the URDF
-for it and then edits the compiled :class:`mujoco.MjSpec` into pg_node's conventions
-(:mod:`pg_node.sim.arm_task`):
-
-* **xacro**: a file whose name ends in ``.xacro`` is expanded first (the ``xacro``
-  package), with ``xacro_args`` as its ``name:=value`` arguments; ``$(find NAME)`` is
-  looked up as ``package://NAME`` meshes are (below).
-* **arm joints**: the revolute and continuous joints on the chain from ``base`` (default:
-  the root link) to ``tip``. A chain joint with a ``<mimic>`` of an arm joint stays as a
-  **coupled** joint: no actuator, moved by the equality MuJoCo makes of the mimic
-  (:attr:`ImportResult.coupled_joints`). Every other moving joint (joints above the base,
-  other branches, a gripper below the tip, a floating root, a mimic of a fixed joint) is
-  fixed at its zero position (deleted from the model, with its equalities) and listed in
-  :attr:`ImportResult.fixed_joints`.
-* **actuators**, one per arm joint, with normalised commands in ``[-1, 1]`` as the shipped
-  models have: ``motor`` applies ``u * effort * effort_scale`` N m (``effort`` is the URDF
-  ``<limit effort>``), ``position`` drives the joint to the angle ``u`` maps to linearly
-  over the joint's range (``-pi..pi`` for a continuous joint) with stiffness ``kp`` and
-  damping ``kv``, its force clamped to ``effort * effort_scale``; ``velocity`` drives the
-  joint at the speed ``u`` maps to linearly over ``+-`` the URDF's ``<limit velocity>``
-  (MuJoCo's velocity servo, ``force = velocity_gain (target - qdot)``, by default
-  ``effort / velocity limit`` per joint), clamped the same. A light link whose clamped
-  force turns its speed around by more than its limit in one step chatters (seen: the
-  test fixture's 1 g links at 200 N m, 200 rad/s for a 10 rad/s limit): the import warns
-  when 2 s of full commands drive a joint past 3 times its velocity limit.
-* **physics the robot has** (the defaults): ``timestep`` 0.02 s, so that pg_node's default
-  ``frame_skip`` (2) and ``max_episode_steps`` (50) make a 0.04 s control step and 2 s
-  episodes, time for a real arm to reach (:func:`training_settings` gives the overrides
-  for another timestep); each arm joint's damping is the URDF's ``<dynamics damping>``
-  (or ``damping``, if given). ``velocity_damping`` makes it ``effort / velocity limit``
-  (the URDF's ``<limit velocity>``), so that the full torque drives the joint at no more
-  than its velocity limit: off by default (issue 46; servo imports had it on before),
-  because a robot in torque mode enforces no such damping (a Franka faults on over-speed
-  instead), so the policy would learn to lean on a brake the robot lacks, and a servo's
-  own loop is its actuator (``kv``), not a joint damping. An undamped torque arm at 0.02 s
-  blows up under full torque (seen: UR5 and Panda of example-robot-data past 10^5 rad/s,
-  MuJoCo resetting them), so ``motor`` without damping gets ``timestep`` 0.002 s by default
-  (:func:`with_defaults`; stable for both, frame_skip 20), and every import is tried with
-  2 s of full-torque bang-bang commands: a model MuJoCo finds unstable is warned of
-  (:func:`unstable_steps`). What the import assumes that a URDF does not say is kept as
-  the custom text ``pg_physics_assumptions`` (one per line, :func:`assumptions`), which a
-  policy's card carries. ``gravity_compensation``: every body of the arm gets
-  ``gravcomp="1"`` (MuJoCo applies the bodies' weight back as a passive force), as
-  torque-controlled arms do in their firmware (libfranka's torques are "without gravity").
-  ``hard_limits``: every arm joint's limit as hard as MuJoCo keeps stable (``solreflimit``
-  time constant 2 x ``timestep``, critically damped), as a robot's end stop and PyBullet's
-  limit are; off by default, MuJoCo's soft limit is a 0.02 s spring a policy can learn to
-  lean on (docs/sim_to_sim.md: all of the two-link fixture's gap to PyBullet).
-* **inertias**: one that MuJoCo rejects (principal moments breaking ``A + B >= C``) is
-  balanced by MuJoCo's ``balanceinertia`` (all three moments set to their mean), with a
-  warning naming the link and both sets of moments; one that is not positive definite is
-  refused. Moving links with geometry but no ``<inertial>`` (MuJoCo gives them the mass of
-  their collision geometry at 1000 kg/m^3) or with a zero mass (MuJoCo's minimum,
-  0.001 kg), and an arm joint that moves no mass at all, are warned of; a massless link
-  without geometry (a frame such as ``tool0``) is normal and passes silently.
-* a ``fingertip`` site at the tip link's origin plus ``tip_offset`` (in the tip's frame),
-  a mocap ``target`` sphere, a floor (visual only) and a light.
-* **reachable targets**: ``targets`` fingertip positions of forward kinematics at joint
-  angles drawn uniformly within the limits (seeded; coupled joints follow their mimic),
-  kept where they are at least ``target_min_height`` high (and within ``target_region``,
-  a ball, when given), stored as the custom numeric ``pg_target_points`` (x y z per point,
-  0.1 mm resolution); the task draws each goal among them. ``pg_init_qpos`` holds the
-  arm's start pose (``home``, else zero clipped into the limits less the start's noise,
-  ``init_qpos_noise``).
-* **meshes**: ``package://NAME/REL`` is looked up as ROS does, in ``share/NAME`` of every
-  prefix of ``AMENT_PREFIX_PATH``, then in each ``package_paths`` folder (``DIR/NAME/REL``,
-  or ``DIR/REL`` when ``DIR`` is the package itself), then in the URDF's folder and each of
-  its parents (same two forms); ``file://`` and plain paths (relative to the URDF's folder)
-  too. MuJoCo reads STL, OBJ and MSH; COLLADA (``.dae``), PLY, OFF and glTF meshes are
-  converted to STL (``trimesh``; a COLLADA ``<unit>`` is applied). Every mesh is copied
-  into ``<model>_meshes/`` beside the written model (:func:`write_model`) and named there
-  by its **absolute path**, so that the model, and the copy of its text that a trained
-  policy's card keeps, load from any working directory (move the model and its folder
-  together by importing again). A mesh that cannot be read or converted gives way to the
-  link's collision geometry (visual) or a small sphere, with a warning.
-  ``visual_meshes=False`` keeps only the collision geometry (what simulation needs).
-* contacts are off (pg_node's reaching task has none) unless ``contacts``.
-* the **vendor's URDF** (not a xacro: it has no URDF file to name) as the custom text
-  ``pg_source_urdf``, its path **relative to the model's folder** (``urdf/panda.urdf`` for
-  the shipped ``arm7``), so that the model names no folder of one machine:
-  :func:`pg_node.sim.urdf_export.robot_description` publishes that file, as it is (its
-  ``package://`` meshes included), as ``sim_node``'s ``robot_description``.
-
-Errors are :class:`UrdfImportError` with a one-line message.
+MuJoCo's own URDF compiler reads the robot; :func:`import_urdf` prepares the URDF for it
+(xacro expanded, meshes found and converted) and edits the compiled :class:`mujoco.MjSpec`
+into pg_node's conventions (:mod:`pg_node.sim.arm_task`) in named steps (:func:`_build`:
+joints, physics, actuators, scene, task, targets, custom data, checks): one actuator per
+arm joint with commands in ``[-1, 1]``, a ``fingertip`` site, a mocap ``target``, reachable
+goals, and a check of the model under hard commands. What each step chooses, and why:
+docs/own_arm.md ("How the import chooses what it chooses"). Errors are
+:class:`UrdfImportError` with a one-line message.
 """
 import contextlib
 from dataclasses import dataclass, field, replace
@@ -123,7 +45,7 @@ class UrdfImportError(ValueError):
 
 @dataclass
 class ImportOptions:
-    """What :func:`import_urdf` makes of the robot (see the module docstring)."""
+    """What :func:`import_urdf` makes of the robot (docs/own_arm.md: the flags, the steps)."""
 
     tip: str
     base: Optional[str] = None
@@ -144,8 +66,8 @@ class ImportOptions:
     integrator: str = 'implicitfast'
     armature: Optional[float] = None
     damping: Optional[float] = None
-    #: None: :func:`with_defaults` (off)
-    velocity_damping: Optional[bool] = None
+    #: each arm joint's damping = effort / velocity limit: an assumption, kept in the model
+    velocity_damping: bool = False
     #: joint limits as hard as MuJoCo keeps stable (``solreflimit`` time constant 2 x
     #: ``timestep``, critically damped), a robot's end stop, not MuJoCo's 0.02 s spring
     hard_limits: bool = False
@@ -193,27 +115,22 @@ TIMESTEP, UNDAMPED_TIMESTEP = 0.02, 0.002
 
 def with_defaults(opts: ImportOptions) -> ImportOptions:
     """
-    Return ``opts`` with ``velocity_damping`` and ``timestep`` decided where they are None.
+    Return ``opts`` with ``timestep`` decided where it is None.
 
-    ``velocity_damping``: off (a torque-mode robot has no such damping, and a servo's own
-    loop is its actuator's ``kv``, not a joint damping). ``timestep``:
-    :data:`UNDAMPED_TIMESTEP` for motors with neither, else :data:`TIMESTEP`.
+    :data:`UNDAMPED_TIMESTEP` for motors with no damping (neither ``damping`` nor
+    ``velocity_damping``), else :data:`TIMESTEP`.
 
-    >>> o = with_defaults(ImportOptions(tip='tool0'))
-    >>> o.velocity_damping, o.timestep
-    (False, 0.002)
-    >>> o = with_defaults(ImportOptions(tip='tool0', actuator='position'))
-    >>> o.velocity_damping, o.timestep
-    (False, 0.02)
+    >>> with_defaults(ImportOptions(tip='tool0')).timestep
+    0.002
+    >>> with_defaults(ImportOptions(tip='tool0', actuator='position')).timestep
+    0.02
     """
-    velocity = opts.velocity_damping
-    if velocity is None:
-        velocity = False
     timestep = opts.timestep
     if timestep is None:
-        undamped = opts.actuator == 'motor' and not velocity and opts.damping is None
+        undamped = (opts.actuator == 'motor' and not opts.velocity_damping
+                    and opts.damping is None)
         timestep = UNDAMPED_TIMESTEP if undamped else TIMESTEP
-    return replace(opts, velocity_damping=velocity, timestep=timestep)
+    return replace(opts, timestep=timestep)
 
 
 def assumptions(opts: ImportOptions) -> List[str]:
@@ -256,15 +173,6 @@ def training_settings(timestep: float) -> Tuple[int, int]:
 
 def _one_line(exc: Exception) -> str:
     return '; '.join(line.strip() for line in str(exc).splitlines() if line.strip())
-
-
-def _floats(text: Optional[str], n: int, default: float = 0.0) -> List[float]:
-    if text is None:
-        return [default] * n
-    values = [float(v) for v in text.split()]
-    if len(values) != n:
-        raise ValueError(f'expected {n} numbers, got {text!r}')
-    return values
 
 
 def _check_robot(root: ET.Element, path: Path) -> ET.Element:
@@ -746,7 +654,7 @@ def default_output(urdf_path, robot: ET.Element) -> str:
 def import_urdf(urdf_path, opts: ImportOptions, out_path=None, command: str = '',
                 robot: Optional[ET.Element] = None) -> ImportResult:
     """
-    Return the MJCF of the arm in ``urdf_path`` (see the module docstring).
+    Return the MJCF of the arm in ``urdf_path`` (docs/own_arm.md says what it holds).
 
     ``out_path`` (default: ``<robot name>.xml`` beside the URDF) is where the model will be
     written: its meshes go to ``<model>_meshes/`` beside it (:func:`write_model` writes
@@ -761,13 +669,77 @@ def import_urdf(urdf_path, opts: ImportOptions, out_path=None, command: str = ''
         robot = load_robot(urdf_path, opts.xacro_args, opts.package_paths, warnings)
     urdf_dir = urdf_path.parent
     out = Path(out_path).resolve() if out_path else urdf_dir / default_output(urdf_path, robot)
-    base, root, chain, joints = _chain(robot, opts.base, opts.tip)
+    base, _, chain, joints = _chain(robot, opts.base, opts.tip)
     arm, coupled = _couplings(chain, joints)
+    parts = _Robot(urdf=robot, path=urdf_path, base=base, arm=arm, coupled=coupled,
+                   joints=joints, warnings=warnings)
+    _check_options(parts, opts)
+    with tempfile.TemporaryDirectory(prefix='pg_node_meshes_') as scratch:
+        meshes = _Meshes(Path(scratch))
+        _prepare_meshes(robot, urdf_dir, opts, warnings, meshes)
+        source = (None if is_xacro(urdf_path) or not urdf_path.is_file()
+                  else Path(os.path.relpath(urdf_path, out.parent)).as_posix())
+        xml, task, lag = _build(parts, opts, command=command, source=source)
+    mesh_dir = out.parent / f'{out.stem}_meshes'
+    xml = _finish_xml(xml, meshes, mesh_dir, urdf_name=urdf_path.name, command=command)
+    return ImportResult(xml=xml, arm_joints=arm, fixed_joints=parts.fixed, warnings=warnings,
+                        n_targets=len(task.points), coupled_joints=coupled,
+                        mesh_dir=mesh_dir if meshes.files else None,
+                        mesh_files=meshes.files, converted_meshes=meshes.converted,
+                        timestep=opts.timestep, coupling_error=lag, options=opts,
+                        assumptions=assumptions(opts))
+
+
+@dataclass
+class _Robot:
+    """
+    The robot as the build's steps pass it on: the URDF, its arm, what the steps decide.
+
+    :func:`import_urdf` fills the fields up to ``warnings``; :func:`_mujoco_spec` and
+    :func:`_joints` add the joints they fix, and :func:`_joints` the efforts and ranges
+    that :func:`_actuators` maps commands over.
+    """
+
+    #: the URDF's ``<robot>``, its meshes prepared for MuJoCo's URDF compiler
+    urdf: ET.Element
+    #: the file it came from (for messages)
+    path: Path
+    #: the link the arm starts at
+    base: str
+    #: the actuated joints, in chain order
+    arm: List[str]
+    #: coupled joint -> (its leader, multiplier, offset): URDF ``<mimic>`` on the chain
+    coupled: Dict[str, Tuple[str, float, float]]
+    #: every URDF joint by name
+    joints: Dict[str, ET.Element]
+    warnings: List[str]
+    fixed: List[str] = field(default_factory=list)
+    #: N m per arm and coupled joint: the URDF's effort limit x ``effort_scale``
+    efforts: Dict[str, float] = field(default_factory=dict)
+    #: per arm joint (low, high), rad; -pi..pi for a joint without limits
+    ranges: Optional[np.ndarray] = None
+
+
+@dataclass
+class _Task:
+    """The reaching task the model holds: the start pose and where the goals are."""
+
+    home: np.ndarray
+    #: goals within this ball (x, y, z, radius; m), or anywhere the fingertip reaches
+    region: Optional[Tuple[float, float, float, float]]
+    #: goals at least this high (m), or at any height
+    min_height: Optional[float]
+    #: the goals, one fingertip position (x y z) a row
+    points: Optional[np.ndarray] = None
+
+
+def _check_options(robot: _Robot, opts: ImportOptions) -> None:
+    """Refuse options that do not fit each other or the robot, in one line."""
     if opts.actuator not in ('motor', 'position', 'velocity'):
         raise UrdfImportError(f'unknown actuator {opts.actuator!r}; use motor, position or '
                               'velocity')
     if opts.actuator == 'velocity':
-        slow = [name for name in arm if _velocity_limit(joints[name]) <= 0]
+        slow = [name for name in robot.arm if _velocity_limit(robot.joints[name]) <= 0]
         if slow:
             raise UrdfImportError('--actuator velocity needs a <limit velocity> on every arm '
                                   f'joint; {", ".join(slow)} has none')
@@ -776,138 +748,147 @@ def import_urdf(urdf_path, opts: ImportOptions, out_path=None, command: str = ''
         raise UrdfImportError('--position-delta needs --actuator position and a positive '
                               f'angle in rad, got {opts.position_delta:g} with --actuator '
                               f'{opts.actuator}')
-    if opts.home is not None and len(opts.home) != len(arm):
-        raise UrdfImportError(f'--home needs {len(arm)} angles (the arm joints '
-                              f'{", ".join(arm)}), got {len(opts.home)}')
-    with tempfile.TemporaryDirectory(prefix='pg_node_meshes_') as scratch:
-        meshes = _Meshes(Path(scratch))
-        _prepare_meshes(robot, urdf_dir, opts, warnings, meshes)
-        source = (None if is_xacro(urdf_path) or not urdf_path.is_file()
-                  else Path(os.path.relpath(urdf_path, out.parent)).as_posix())
-        xml, n_targets, fixed, lag = _build(robot, urdf_path, opts, base, arm, coupled,
-                                            joints, warnings, command, source)
-    for name, error in lag.items():
-        if error > 0.05:
-            warnings.append(f'coupled joint {name!r} is up to {error:.2g} rad off its <mimic> '
-                            "under random commands: MuJoCo's joint equality is soft; a smaller "
-                            '--timestep or an --armature tightens it')
-    mesh_dir = out.parent / f'{out.stem}_meshes'
-    for compiled, name in meshes.names.items():   # absolute paths: load from anywhere
-        xml = xml.replace(f'file="{escape(compiled, {chr(34): "&quot;"})}"',
-                          f'file="{escape(str(mesh_dir / name), {chr(34): "&quot;"})}"')
-    if command:
-        note = (f'  Its meshes are in {mesh_dir.name}/ beside it, named by absolute path:\n'
-                '  import again to move them.\n' if meshes.files else '')
-        xml = ('<!--\n  Written by python -m pg_node arm import from ' + urdf_path.name
-               + '; the exact command is the\n  custom text pg_import_command below. Do not '
-               'edit: change the URDF or the options\n  and import again.\n' + note + '-->\n'
-               + xml)
-    return ImportResult(xml=xml, arm_joints=arm, fixed_joints=fixed, warnings=warnings,
-                        n_targets=n_targets, coupled_joints=coupled,
-                        mesh_dir=mesh_dir if meshes.files else None,
-                        mesh_files=meshes.files, converted_meshes=meshes.converted,
-                        timestep=opts.timestep, coupling_error=lag, options=opts,
-                        assumptions=assumptions(opts))
+    if opts.home is not None and len(opts.home) != len(robot.arm):
+        raise UrdfImportError(f'--home needs {len(robot.arm)} angles (the arm joints '
+                              f'{", ".join(robot.arm)}), got {len(opts.home)}')
 
 
-def _build(robot, urdf_path, opts, base, arm, coupled, joints, warnings, command,
-           source=None):
+def _build(robot: _Robot, opts: ImportOptions, *, command: str = '',
+           source: Optional[str] = None) -> Tuple[str, _Task, Dict[str, float]]:
     """
-    Compile the prepared URDF, edit it into the arm; return ``(xml, targets, fixed, lag)``.
+    Return the model's MJCF, its task and each coupled joint's lag (rad), step by step.
 
-    ``source``: the vendor's URDF relative to the model's folder (``pg_source_urdf``).
+    MuJoCo compiles three times: to read the robot (:func:`_mujoco_spec`), to place the
+    goals (:func:`_targets`: the fingertip's forward kinematics), and once the model is
+    complete, for the checks. ``command`` and ``source`` (the vendor's URDF relative to the
+    model's folder) become custom texts.
+    """
+    spec, model = _mujoco_spec(robot)
+    _joints(spec, model, robot, opts)
+    _physics(spec, robot, opts)
+    _actuators(spec, robot, opts)
+    _scene(spec, opts)
+    task = _task(robot, opts)
+    _targets(spec, robot, task, opts)
+    _custom(spec, task, opts, command=command, source=source)
+    lag = _checks(_compile(spec), robot, task, opts)
+    return spec.to_xml(), task, lag
+
+
+def _mujoco_spec(robot: _Robot) -> Tuple[mujoco.MjSpec, mujoco.MjModel]:
+    """
+    Return the spec MuJoCo's URDF compiler makes of the robot, and its model.
+
+    The model is MuJoCo's reading of the URDF: the inertias it balances, the masses it
+    gives links without one (warned of here), the joint limits (:func:`_joints`).
     """
     # a floating or planar joint (a mobile base) is fixed like every other non-arm joint;
     # MuJoCo would refuse a free joint below the URDF's root body anyway
-    fixed = []
-    for j in robot.findall('joint'):
+    for j in robot.urdf.findall('joint'):
         if j.get('type') in ('floating', 'planar'):
             j.set('type', 'fixed')
-            fixed.append(j.get('name'))
-    for old in robot.findall('mujoco'):
-        robot.remove(old)
+            robot.fixed.append(j.get('name'))
+    for old in robot.urdf.findall('mujoco'):
+        robot.urdf.remove(old)
     ext = ET.Element('mujoco')
-    # visuals were dropped above when unwanted: MuJoCo's discardvisual would also drop the
-    # collision geoms once their contacts are off
+    # visuals were dropped when unwanted (_prepare_meshes): MuJoCo's discardvisual would also
+    # drop the collision geoms once their contacts are off
     ET.SubElement(ext, 'compiler', fusestatic='false', strippath='false',
                   discardvisual='false', boundmass=str(BOUND_MASS), boundinertia='1e-06')
-    robot.insert(0, ext)
-    spec, model = _load_spec(robot, urdf_path, warnings)
-    warnings.extend(_mass_warnings(robot, model, joints, arm + list(coupled)))
+    robot.urdf.insert(0, ext)
+    spec, model = _load_spec(robot.urdf, robot.path, robot.warnings)
+    robot.warnings.extend(_mass_warnings(robot.urdf, model, robot.joints,
+                                         robot.arm + list(robot.coupled)))
+    return spec, model
 
-    # joints: the chain's revolute joints stay, every other moving joint is fixed
-    keep = set(arm) | set(coupled)
+
+def _joints(spec: mujoco.MjSpec, model: mujoco.MjModel, robot: _Robot,
+            opts: ImportOptions) -> None:
+    """
+    Keep the chain's joints, fix every other; set each kept joint's effort and damping.
+
+    A fixed joint is deleted (its link welded at the joint's zero) with the joint equalities
+    (URDF ``<mimic>``) that name it. The arm joints' ranges are read from ``model``, the
+    robot as first compiled: nothing here changes a limit.
+    """
+    keep = set(robot.arm) | set(robot.coupled)
     others = [j.name for j in spec.joints if j.name not in keep]
-    for eq in list(spec.equalities):   # URDF <mimic> becomes a joint equality
+    for eq in list(spec.equalities):
         if eq.type == mujoco.mjtEq.mjEQ_JOINT and {eq.name1, eq.name2} & set(others):
             spec.delete(eq)
     for name in others:
         spec.delete(spec.joint(name))
-    fixed += others
-    spec.option.timestep = opts.timestep
-    spec.option.integrator = {'euler': mujoco.mjtIntegrator.mjINT_EULER,
-                              'rk4': mujoco.mjtIntegrator.mjINT_RK4,
-                              'implicit': mujoco.mjtIntegrator.mjINT_IMPLICIT,
-                              'implicitfast': mujoco.mjtIntegrator.mjINT_IMPLICITFAST
-                              }[opts.integrator]
-    efforts = {}
-    for name in [*arm, *coupled]:
+    robot.fixed += others
+    for name in [*robot.arm, *robot.coupled]:
         joint = spec.joint(name)
-        effort = _effort(joints[name], warnings) * opts.effort_scale
-        efforts[name] = effort
-        if name in arm:
+        effort = _effort(robot.joints[name], robot.warnings) * opts.effort_scale
+        robot.efforts[name] = effort
+        if name in robot.arm:
             joint.actfrclimited = mujoco.mjtLimited.mjLIMITED_TRUE
             joint.actfrcrange = [-effort, effort]
         # a coupled joint is damped too: undamped, MuJoCo's soft equality lets it oscillate
-        # and, at 0.02 s, blow up (seen: 5.8 rad off its mimic, then NaN)
+        # and, at 0.02 s, blow up
         if opts.armature is not None:
             joint.armature = opts.armature
         if opts.damping is not None:
             joint.damping = [opts.damping, 0.0, 0.0]
-        if opts.hard_limits:
+        if opts.hard_limits:   # critically damped, as stiff as MuJoCo keeps stable
             joint.solref_limit = [2 * opts.timestep, 1.0]
-        if opts.velocity_damping:
-            limit = joints[name].find('limit')
-            velocity = float(limit.get('velocity', 0)) if limit is not None else 0.0
+        if opts.velocity_damping:   # full torque holds the joint at its velocity limit
+            velocity = _velocity_limit(robot.joints[name])
             if velocity > 0:
                 joint.damping = [effort / velocity, 0.0, 0.0]
             else:
-                warnings.append(f'joint {name!r} has no velocity limit; its damping stays')
-    moving = _subtree(spec, base)
+                robot.warnings.append(f'joint {name!r} has no velocity limit; its damping '
+                                      'stays')
+    ranges = []
+    for name in robot.arm:
+        j = model.joint(name)
+        limited = bool(model.jnt_limited[j.id])
+        ranges.append(model.jnt_range[j.id].copy() if limited
+                      else np.array([-math.pi, math.pi]))
+    robot.ranges = np.array(ranges)
+
+
+#: ``ImportOptions.integrator`` -> MuJoCo's
+INTEGRATORS = {'euler': mujoco.mjtIntegrator.mjINT_EULER,
+               'rk4': mujoco.mjtIntegrator.mjINT_RK4,
+               'implicit': mujoco.mjtIntegrator.mjINT_IMPLICIT,
+               'implicitfast': mujoco.mjtIntegrator.mjINT_IMPLICITFAST}
+
+
+def _physics(spec: mujoco.MjSpec, robot: _Robot, opts: ImportOptions) -> None:
+    """Set the step and integrator, the arm's gravity compensation, contacts off."""
+    spec.option.timestep = opts.timestep
+    spec.option.integrator = INTEGRATORS[opts.integrator]
     if opts.gravity_compensation:
-        for body in moving:
+        for body in _subtree(spec, robot.base):
             body.gravcomp = 1.0
-    if not opts.contacts:
+    if not opts.contacts:   # pg_node's reaching task touches nothing
         for geom in spec.geoms:
             geom.contype = 0
             geom.conaffinity = 0
 
-    model = _compile(spec)
-    limited, ranges = [], []
-    for name in arm:
-        j = model.joint(name)
-        lim = bool(model.jnt_limited[j.id])
-        limited.append(lim)
-        ranges.append(model.jnt_range[j.id].copy() if lim else np.array([-math.pi, math.pi]))
-    ranges = np.array(ranges)
 
-    # actuators, normalised commands in [-1, 1]
-    for name, (lo, hi) in zip(arm, ranges):
+def _actuators(spec: mujoco.MjSpec, robot: _Robot, opts: ImportOptions) -> None:
+    """Add one actuator per arm joint, its command normalised to ``[-1, 1]``."""
+    for name, (lo, hi) in zip(robot.arm, robot.ranges):
+        effort = robot.efforts[name]
         act = spec.add_actuator(name=name, target=name, trntype=mujoco.mjtTrn.mjTRN_JOINT)
         act.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE
         act.ctrlrange = [-1.0, 1.0]
         if opts.actuator == 'motor':
-            act.gear[0] = efforts[name]
+            act.gear[0] = effort
         elif opts.actuator == 'velocity':
             # MuJoCo's <velocity>: force = kv (vmax u - qdot), clamped to the effort limit
-            vmax = _velocity_limit(joints[name])
-            kv = opts.velocity_gain or efforts[name] / vmax
+            vmax = _velocity_limit(robot.joints[name])
+            kv = opts.velocity_gain or effort / vmax
             act.gaintype = mujoco.mjtGain.mjGAIN_FIXED
             act.biastype = mujoco.mjtBias.mjBIAS_AFFINE
             act.gainprm[0] = kv * vmax
             act.biasprm[:3] = [0.0, 0.0, -kv]
             act.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
-            act.forcerange = [-efforts[name], efforts[name]]
+            act.forcerange = [-effort, effort]
         else:
             # force = kp * (mid + half * u - q) - kv * qdot, clamped to the effort limit
             mid, half = (lo + hi) / 2, (hi - lo) / 2
@@ -916,18 +897,23 @@ def _build(robot, urdf_path, opts, base, arm, coupled, joints, warnings, command
             act.gainprm[0] = opts.kp * half
             act.biasprm[:3] = [opts.kp * mid, -opts.kp, -opts.kv]
             act.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
-            act.forcerange = [-efforts[name], efforts[name]]
+            act.forcerange = [-effort, effort]
 
-    tip_body = spec.body(opts.tip)
-    tip_body.add_site(name='fingertip', pos=list(opts.tip_offset), size=[0.01, 0, 0],
-                      rgba=[0.0, 0.8, 0.6, 1.0])
+
+def _scene(spec: mujoco.MjSpec, opts: ImportOptions) -> None:
+    """Add the ``fingertip`` site, a light and a floor (visual unless ``contacts``)."""
+    spec.body(opts.tip).add_site(name='fingertip', pos=list(opts.tip_offset),
+                                 size=[0.01, 0, 0], rgba=[0.0, 0.8, 0.6, 1.0])
     world = spec.worldbody
     world.add_light(name='top', pos=[0, 0, 3], dir=[0, 0, -1], diffuse=[0.7, 0.7, 0.7])
     world.add_geom(name='ground', type=mujoco.mjtGeom.mjGEOM_PLANE, size=[2, 2, 0.1],
                    rgba=[0.9, 0.9, 0.9, 1], contype=1 if opts.contacts else 0,
                    conaffinity=1 if opts.contacts else 0)
 
-    # start pose, then the reachable targets from forward kinematics
+
+def _task(robot: _Robot, opts: ImportOptions) -> _Task:
+    """Return the task: the start pose (``home``, else zero within the limits), the goals' area."""
+    ranges = robot.ranges
     if opts.home is not None:
         home = np.array(opts.home, dtype=float)
         if np.any(home < ranges[:, 0]) or np.any(home > ranges[:, 1]):
@@ -936,17 +922,29 @@ def _build(robot, urdf_path, opts, base, arm, coupled, joints, warnings, command
         # zero is below three of its limits: on them, the noise started it beyond)
         margin = np.minimum(opts.init_qpos_noise, (ranges[:, 1] - ranges[:, 0]) / 2)
         home = np.clip(0.0, ranges[:, 0] + margin, ranges[:, 1] - margin)
-    model = _compile(spec)
-    points = _reachable_points(model, arm, ranges, opts, coupled)
+    return _Task(home=home, region=opts.target_region, min_height=opts.target_min_height)
+
+
+def _targets(spec: mujoco.MjSpec, robot: _Robot, task: _Task, opts: ImportOptions) -> None:
+    """Draw the goals (``task.points``) and add the mocap ``target`` at the first."""
+    # compiled here for the fingertip's forward kinematics; the target's place, and so
+    # the complete model, waits for the goals
+    points = _reachable_points(_compile(spec), robot, task, count=opts.targets, seed=opts.seed)
     if len(points) == 0:
         raise UrdfImportError('no reachable target is left after the height/region filter')
-    target = world.add_body(name='target', mocap=True, pos=list(points[0]))
+    task.points = points
+    target = spec.worldbody.add_body(name='target', mocap=True, pos=list(points[0]))
     target.add_geom(name='target', type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[0.02, 0, 0],
                     rgba=[0.9, 0.2, 0.2, 1], contype=0, conaffinity=0)
-    for name, data in (('pg_init_qpos', home),
+
+
+def _custom(spec: mujoco.MjSpec, task: _Task, opts: ImportOptions, *, command: str,
+            source: Optional[str]) -> None:
+    """Add the task's numbers (``pg_init_qpos``, ...) and the texts that say where it came from."""
+    for name, data in (('pg_init_qpos', task.home),
                        ('pg_init_qpos_noise', [opts.init_qpos_noise]),
                        ('pg_init_qvel_noise', [opts.init_qvel_noise]),
-                       ('pg_target_points', points.ravel()),
+                       ('pg_target_points', task.points.ravel()),
                        *((('pg_position_delta', [opts.position_delta]),)
                          if opts.position_delta is not None else ())):
         spec.add_numeric(name=name, data=list(np.asarray(data, dtype=float)))
@@ -957,23 +955,57 @@ def _build(robot, urdf_path, opts, base, arm, coupled, joints, warnings, command
     said = assumptions(opts)
     if said:
         spec.add_text(name='pg_physics_assumptions', data='\n'.join(said))
-    _compile(spec)
+
+
+def _checks(model: mujoco.MjModel, robot: _Robot, task: _Task,
+            opts: ImportOptions) -> Dict[str, float]:
+    """
+    Warn of what 2 s of hard commands show on the complete model; return the coupled lags.
+
+    Unstable steps (:func:`unstable_steps`), velocity servos that chatter past their
+    limits, and coupled joints that stray from their ``<mimic>`` (MuJoCo's joint equality
+    is soft) are each said in one warning.
+    """
+    arm, home = robot.arm, task.home
     unstable = unstable_steps(model, arm, home, opts)
     if unstable:
         times = 'once' if unstable == 1 else f'{unstable} times'
-        warnings.append(f'MuJoCo found the simulation unstable {times} in 2 s of '
-                        f'full-torque commands at timestep {opts.timestep:g} s: give the '
-                        "motors' rotor inertia (--armature), a smaller --timestep, or "
-                        '--velocity-damping (a damping a robot in torque mode lacks)')
+        robot.warnings.append(f'MuJoCo found the simulation unstable {times} in 2 s of '
+                              f'full-torque commands at timestep {opts.timestep:g} s: give the '
+                              "motors' rotor inertia (--armature), a smaller --timestep, or "
+                              '--velocity-damping (a damping a robot in torque mode lacks)')
     if opts.actuator == 'velocity':
-        fast = _overspeed(model, arm, home, opts,
-                          np.array([_velocity_limit(joints[name]) for name in arm]))
+        limits = np.array([_velocity_limit(robot.joints[name]) for name in arm])
+        fast = _overspeed(model, arm, home, opts, limits)
         if fast:
-            warnings.append(f'velocity servos: under 2 s of full commands {fast} faster than 3 '
-                            'times its velocity limit: the clamped servo force chatters on '
-                            "light links; give the motors' rotor inertia (--armature), a "
-                            'smaller --timestep or a smaller --velocity-gain')
-    return spec.to_xml(), len(points), fixed, _coupling_error(model, arm, coupled, home, opts)
+            robot.warnings.append(f'velocity servos: under 2 s of full commands {fast} faster '
+                                  'than 3 times its velocity limit: the clamped servo force '
+                                  "chatters on light links; give the motors' rotor inertia "
+                                  '(--armature), a smaller --timestep or a smaller '
+                                  '--velocity-gain')
+    lag = _coupling_error(model, arm, robot.coupled, home, opts)
+    for name, error in lag.items():
+        if error > 0.05:
+            robot.warnings.append(f'coupled joint {name!r} is up to {error:.2g} rad off its '
+                                  "<mimic> under random commands: MuJoCo's joint equality is "
+                                  'soft; a smaller --timestep or an --armature tightens it')
+    return lag
+
+
+def _finish_xml(xml: str, meshes: _Meshes, mesh_dir: Path, *, urdf_name: str,
+                command: str) -> str:
+    """Return ``xml`` naming its meshes by absolute path in ``mesh_dir``, with its header."""
+    for compiled, name in meshes.names.items():   # absolute paths: load from anywhere
+        xml = xml.replace(f'file="{escape(compiled, {chr(34): "&quot;"})}"',
+                          f'file="{escape(str(mesh_dir / name), {chr(34): "&quot;"})}"')
+    if command:
+        note = (f'  Its meshes are in {mesh_dir.name}/ beside it, named by absolute path:\n'
+                '  import again to move them.\n' if meshes.files else '')
+        xml = ('<!--\n  Written by python -m pg_node arm import from ' + urdf_name
+               + '; the exact command is the\n  custom text pg_import_command below. Do not '
+               'edit: change the URDF or the options\n  and import again.\n' + note + '-->\n'
+               + xml)
+    return xml
 
 
 def _overspeed(model: mujoco.MjModel, arm: List[str], home: np.ndarray, opts: ImportOptions,
@@ -1066,18 +1098,23 @@ def write_model(result: ImportResult, out_path) -> None:
     Path(out_path).write_text(result.xml)
 
 
-def _reachable_points(model: mujoco.MjModel, arm: List[str], ranges: np.ndarray,
-                      opts: ImportOptions, coupled: Mapping[str, Tuple[str, float, float]]
-                      ) -> np.ndarray:
-    """Return fingertip positions at uniform joint angles within the limits, filtered."""
-    rng = np.random.default_rng(opts.seed)
+def _reachable_points(model: mujoco.MjModel, robot: _Robot, task: _Task, *, count: int,
+                      seed: int) -> np.ndarray:
+    """
+    Return up to ``count`` goals: fingertip positions at uniform angles within the limits.
+
+    Coupled joints follow their mimic; a point below ``task.min_height`` or outside
+    ``task.region`` is drawn again (at most 50 draws a goal). Rounded to 0.1 mm.
+    """
+    arm, coupled, ranges = robot.arm, robot.coupled, robot.ranges
+    rng = np.random.default_rng(seed)
     data = mujoco.MjData(model)
     site = model.site('fingertip').id
     adr = [model.joint(name).qposadr[0] for name in arm]
     qpos = {name: model.joint(name).qposadr[0] for name in [*arm, *coupled]}
     keep = []
     tries = 0
-    while len(keep) < opts.targets and tries < 50 * opts.targets:
+    while len(keep) < count and tries < 50 * count:
         tries += 1
         data.qpos[adr] = rng.uniform(ranges[:, 0], ranges[:, 1])
         for _ in coupled:   # in chain order; a mimic of a mimic settles in as many passes
@@ -1085,10 +1122,10 @@ def _reachable_points(model: mujoco.MjModel, arm: List[str], ranges: np.ndarray,
                 data.qpos[qpos[name]] = offset + multiplier * data.qpos[qpos[leader]]
         mujoco.mj_kinematics(model, data)
         p = data.site_xpos[site].copy()
-        if opts.target_min_height is not None and p[2] < opts.target_min_height:
+        if task.min_height is not None and p[2] < task.min_height:
             continue
-        if opts.target_region is not None:
-            center, radius = np.array(opts.target_region[:3]), opts.target_region[3]
+        if task.region is not None:
+            center, radius = np.array(task.region[:3]), task.region[3]
             if np.linalg.norm(p - center) > radius:
                 continue
         keep.append(p)

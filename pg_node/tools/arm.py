@@ -90,11 +90,11 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument('--damping', type=float,
                    help='damping of every arm joint (default: the URDF <dynamics>)')
     p.add_argument('--velocity-damping', action=argparse.BooleanOptionalAction,
+                   default=False,
                    help='damping of each arm joint = effort / URDF velocity limit, so that '
                         'full torque moves it at most at its velocity limit; an assumption '
                         'the model and the card keep: a robot in torque mode has no such '
-                        'damping (default: off for motor actuators and with --damping, on '
-                        'for position)')
+                        'damping (default: off)')
     p.add_argument('--hard-limits', action='store_true',
                    help='joint limits as hard as MuJoCo keeps stable (solreflimit 2 x the '
                         "timestep), as a robot's end stops and PyBullet's limits are; default: "
