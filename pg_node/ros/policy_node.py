@@ -108,6 +108,11 @@ sha256; per arm the state's age, observation, mean, action, guarded command and 
 in SI units; a hold tick has NaN for the observation, mean and action, and for the state
 age unless stale states made it a hold); the bag's metadata holds the policy's full sha256.
 
+Each tick's decision (the guarded command, the hold, or nothing, and the state saying why) is
+made by :class:`pg_node.control.deployment.Deployment`, built on configure; this node
+subscribes, times, publishes, records, logs and reports, and its one state (the lifecycle's
+too) is the status that the deployment and the lifecycle callbacks set.
+
 Parameters: :data:`pg_node.common.params.POLICY_PARAMS`.
 """
 from collections import deque
@@ -126,12 +131,13 @@ from pg_node.common.params import ConfigError, POLICY_PARAMS
 from pg_node.common.run import CONTROLLER_COMMANDS, CONTROLLER_TRAJECTORY
 from pg_node.control import interfaces, physics_check
 from pg_node.control.composers import command_trajectory
+from pg_node.control.deployment import Deployment, Event, JointSample, Status
 from pg_node.control.estop import EStop
 from pg_node.control.guards import CommandGuard, GuardSettings
 from pg_node.control.joint_map import arm_joint_names, controller_mismatch, joint_columns
 from pg_node.control.status import diagnostic_level, Fault, GuardEvent, NodeState, Severity
 from pg_node.control.targets import BASE, clamp_to_reach, frame_key, target_array, Twins
-from pg_node.control.watchdog import hold_decay, state_age, Watchdog
+from pg_node.control.watchdog import Watchdog
 from pg_node.rl.trained_policy import load_trained_policy, PolicySourceError
 from pg_node.ros import command
 from pg_node.ros import table_msg
@@ -194,17 +200,22 @@ class PolicyNode(LifecycleNode):
                               'ckpt_*.pt file or an exported .onnx file (-p policy:=PATH)')
         self.exit_code = None               # set on a fatal input: run() ends the process
         self.told = set()                   # the warnings given (once each)
-        self.lifecycle = 'unconfigured'
-        self.policy = self.guard = self.recorder = self.tf_buffer = None
-        self.builder = None
+        self.refusal: Optional[ConfigError] = None     # why the last configure failed
+        # what configure builds (cleanup drops it): the decisions of each tick, the policy
+        # and what the node publishes, records and reports of it
+        self.core: Optional[Deployment] = None
+        self.policy = self.builder = self.actuators = None
+        self.joints: List[str] = []
+        self.digest, self.policy_id = 'n/a', 0
+        self.load_seconds = self.warm_up_ms = 0.0
+        self.base, self.reach = np.zeros(3), 0.0
+        self.recorder = self.tf_buffer = self._tf = None
         self.settings = GuardSettings(**{k: p[k] for k in GUARD_PARAMS})
         self.num_arms = p['num_arms']
         self.plain = False
         self._names: List[str] = []
         self._index = None
-        self.q = self.qdot = None
-        self.state_time = None              # monotonic arrival of the newest joint state
-        self.state_stamp = None             # its header.stamp in s (None: zero stamp)
+        self.joint_state: Optional[JointSample] = None     # the newest, the model's joints
         self.raw_targets: Dict[str, np.ndarray] = {}    # frame_id -> point, as received
         self.targets: Dict[object, np.ndarray] = {}     # 'base' or arm index -> goal
         self.description = None             # robot_description, when published
@@ -214,9 +225,10 @@ class PolicyNode(LifecycleNode):
         self.joints_unchecked = False       # the controller's joints could not be read
         self.twins = Twins()                # a latched target comes through both subscriptions
         self.records_opened = 0
-        self.watchdog = Watchdog()
+        self.watchdog = Watchdog()          # a stale spell outlives a cleanup in /diagnostics
         self.estop = EStop()                # latched until ~/reset_estop
-        self.set_status(NodeState.UNCONFIGURED, 'unconfigured: waiting for configure')
+        # what the node does: its one state (the lifecycle's too) and the text saying why
+        self.status = Status(NodeState.UNCONFIGURED, 'unconfigured: waiting for configure')
         self.counters = {'commands': 0, 'hold_commands': 0, 'stale_events': 0, 'estops': 0,
                          'states_received': 0, 'states_dropped_nonfinite': 0,
                          'targets_ignored': 0, 'targets_out_of_reach': 0,
@@ -261,11 +273,16 @@ class PolicyNode(LifecycleNode):
             self.on_parameter(name, p[name])
         if p['autostart']:
             if self.trigger_configure() != TransitionCallbackReturn.SUCCESS:
-                raise ConfigError(self.failure)
+                raise self.refusal
             self.trigger_activate()
         else:
             self.get_logger().info('unconfigured: waiting for the lifecycle transitions '
                                    '(configure, then activate; or autostart:=true)')
+
+    @property
+    def guard(self) -> Optional[CommandGuard]:
+        """Return the configured deployment's CommandGuard, or None when unconfigured."""
+        return self.core.guard if self.core is not None else None
 
     def control_rate(self) -> float:
         """Return the command rate in Hz: the parameter, or one per control step."""
@@ -299,17 +316,19 @@ class PolicyNode(LifecycleNode):
 
     def on_configure(self, state) -> TransitionCallbackReturn:
         """Load and warm up the policy, check joints and kinematics, open the record."""
-        self.failure = self._configure()
-        if self.failure is not None:
-            self.set_status(NodeState.UNCONFIGURED, f'unconfigured: configure failed: '
-                                                    f'{self.failure}')
-            if self.params['autostart']:        # run() reports it, in one line, and exits
-                return TransitionCallbackReturn.FAILURE
-            self.get_logger().error(f'configure failed: {self.failure}')
+        self.refusal = None
+        try:
+            self._configure()
+        except ConfigError as exc:
+            self.refusal = exc
+            self.set_status(NodeState.UNCONFIGURED, f'unconfigured: configure failed: {exc}')
+            if not self.params['autostart']:    # with it, run() reports it in one line, exits
+                self.get_logger().error(f'configure failed: {exc}')
             return TransitionCallbackReturn.FAILURE
         return TransitionCallbackReturn.SUCCESS
 
-    def _configure(self) -> Optional[str]:
+    def _configure(self):
+        """Configure (:meth:`on_configure`); raise :class:`ConfigError`, the refusal."""
         p = self.params
         t0 = time.perf_counter()
         try:
@@ -317,26 +336,19 @@ class PolicyNode(LifecycleNode):
             model = mujoco.MjModel.from_xml_string(policy.card['model_xml'])
             builder = ObservationBuilder(model)
         except (PolicySourceError, ValueError) as exc:
-            return f"parameter 'policy_node.policy': {exc}"
+            raise ConfigError(f"parameter 'policy_node.policy': {exc}") from exc
         card, interface = policy.card, p['command_interface']
         arm = actuators(model)
-        reason = interfaces.check(arm, interface)
-        if reason is not None:
-            return reason
+        _refuse(interfaces.check(arm, interface))
         joints = list(card['joint_names'])
-        reason = self._await_inputs()
-        if reason is not None:
-            return reason
-        try:
-            index = joint_columns(self._names, joints, self.num_arms)
-        except ConfigError as exc:
-            return str(exc)
+        self._await_inputs()
+        index = joint_columns(self._names, joints, self.num_arms)
         self.kinematics = 'not checked: no robot_description received'
         if self.description is not None:
             tolerance = p['kinematics_tolerance']
             reason = compare_kinematics(model, self.description, tolerance=tolerance)
             if reason is not None:
-                return f"robot_description is not the policy's arm: {reason}"
+                raise ConfigError(f"robot_description is not the policy's arm: {reason}")
             self.kinematics = f'match robot_description within {1000 * tolerance:g} mm'
         # relative position targets (a card with max_position_delta): changes around q
         delta = (card.get('command_interfaces') or {}).get(interface, {}).get(
@@ -345,9 +357,7 @@ class PolicyNode(LifecycleNode):
                              position_delta=delta, inertia_at=inertia_at(model, joints))
         commanded = arm_joint_names([joints[c] for c in guard.cols], len(index),
                                     joints[0] in self._names)
-        reason = self._check_controller(commanded)
-        if reason is not None:
-            return reason
+        self._check_controller(commanded)
         load_seconds = time.perf_counter() - t0
         t0 = time.perf_counter()
         for _ in range(WARM_UP):                # the first calls allocate; not on the robot
@@ -366,16 +376,15 @@ class PolicyNode(LifecycleNode):
                     'command_interface': interface})
                 self.recorder.add_topic(TICKS_TOPIC, Float64MultiArray)
             except (OSError, ValueError) as exc:
-                return f"parameter 'policy_node.record': {exc}"
+                raise ConfigError(f"parameter 'policy_node.record': {exc}") from exc
             self.records_opened += 1
+        self.core = Deployment(guard, builder, policy.mean_std, p,
+                               np.random.default_rng(p['seed']), self.watchdog)
         self.policy, self.builder, self.actuators = policy, builder, arm
-        self.guard = guard
         self.joints, self.digest = joints, digest
         self.load_seconds, self.warm_up_ms = load_seconds, warm_ms
         self.policy_id = int(digest[:12], 16)
         self.base, self.reach = builder.reach()
-        self.rng = np.random.default_rng(p['seed'])
-        self.lifecycle = 'inactive'
         self.set_status(NodeState.INACTIVE, 'inactive: configured, waiting for activate')
         self._tf_listener()
         for frame, point in list(self.raw_targets.items()):
@@ -396,15 +405,14 @@ class PolicyNode(LifecycleNode):
         physics = physics_check.warning(card.get('physics') or {}, p)
         if physics:                             # one line: the robot is not what it learned
             self.get_logger().warn(physics)
-        return None
 
-    def _await_inputs(self) -> Optional[str]:
+    def _await_inputs(self):
         """
         Wait (``configure_timeout``) for the first joint state, and robot_description if required.
 
         Not through the executor, which is running this very callback (a lifecycle
         transition) or not yet (autostart): rclpy's ``wait_for_message`` waits on a
-        subscription of its own. Return the refusal, or None.
+        subscription of its own. Raise :class:`ConfigError` when one does not come.
         """
         p = self.params
         timeout = p['configure_timeout']
@@ -417,11 +425,11 @@ class PolicyNode(LifecycleNode):
             wanted.append(('robot_description', String, LATCHED, self.on_description,
                            'is robot_state_publisher running? (require_robot_description)'))
         if not wanted:
-            return None
+            return
         topics = ' and '.join(self.resolve_topic_name(w[0]) for w in wanted)
         self.set_status(NodeState.UNCONFIGURED, f'configuring: waiting up to {timeout:g} s '
                                                 f'for {topics}')
-        self.get_logger().info(self.status)
+        self.get_logger().info(self.status.text)
         self.publish_diag()
         deadline = time.monotonic() + timeout
         for topic, msg_type, qos, take, hint in wanted:
@@ -436,13 +444,12 @@ class PolicyNode(LifecycleNode):
                     break
                 self.publish_diag()
             if not ok:
-                return (f'no {self.resolve_topic_name(topic)} within {timeout:g} s '
-                        f'(configure_timeout): {hint}')
+                raise ConfigError(f'no {self.resolve_topic_name(topic)} within {timeout:g} s '
+                                  f'(configure_timeout): {hint}')
             take(msg)
         self.set_status(NodeState.UNCONFIGURED, 'unconfigured: configuring')
-        return None
 
-    def _check_controller(self, commanded: List[str]) -> Optional[str]:
+    def _check_controller(self, commanded: List[str]):
         """
         Compare the controller's ``joints`` parameter with the commanded joints.
 
@@ -453,15 +460,16 @@ class PolicyNode(LifecycleNode):
         from load on. ``controller_name`` is resolved as the command topic
         ``arm_controller/commands`` is: relative names in this node's namespace, so a robot
         in ``/left`` with its controller manager there needs nothing, and an absolute name
-        (``/arm_controller``) reaches a controller manager at the root. Return the refusal,
-        or None (also when the parameter cannot be read: then a warning, once).
+        (``/arm_controller``) reaches a controller manager at the root. Raise
+        :class:`ConfigError` when they differ (a parameter that cannot be read: a warning,
+        once).
         """
         p = self.params
         timeout, name = p['controller_timeout'], p['controller_name']
         self.joints_unchecked = False
         if timeout == 0:
             self.controller_joints = 'not checked (controller_timeout 0)'
-            return None
+            return
         # a node of its own, spun by an executor of its own: this node's executor is busy
         # running this callback (or not running yet, with autostart)
         helper = rclpy.create_node(f'{self.get_name()}_controller_check', context=self.context,
@@ -497,68 +505,61 @@ class PolicyNode(LifecycleNode):
             self.controller_joints = f'not checked: could not read {service} ({why})'
             self.warn_once(('controller', service), f'could not read {service}: joint order not '
                                                     f'checked ({why})')
-            return None
-        reason = controller_mismatch(commanded, served, controller,
-                                     ordered=p['command_message'] == 'forward')
-        if reason is not None:
-            return reason
+            return
+        _refuse(controller_mismatch(commanded, served, controller,
+                                    ordered=p['command_message'] == 'forward'))
         self.controller_joints = f'match {controller}'
-        return None
 
     def on_activate(self, state) -> TransitionCallbackReturn:
         """Start commanding, ramping in from hold over ``ramp_time``."""
-        self.guard.start_ramp(time.monotonic())
-        self.lifecycle = 'active'
-        self.set_status(NodeState.WAITING, 'waiting: no joint_states yet')
+        self.status = self.core.activate(time.monotonic())
         self.get_logger().info(f'active: commanding, ramping in from hold over '
                                f'{self.settings.ramp_time:g} s')
         return TransitionCallbackReturn.SUCCESS
 
     def on_deactivate(self, state) -> TransitionCallbackReturn:
         """Send one hold command and stop publishing."""
-        self.lifecycle = 'inactive'
-        self._hold_once()
         self.set_status(NodeState.INACTIVE, 'inactive: deactivated, one hold command sent')
-        self.get_logger().info(self.status)
+        self._hold_once()
+        self.get_logger().info(self.status.text)
         return TransitionCallbackReturn.SUCCESS
 
     def on_cleanup(self, state) -> TransitionCallbackReturn:
         """Unload the policy and close the record."""
         self._close_record()
-        self.policy = self.guard = self.builder = None
+        self.core = self.policy = self.builder = None
         self.targets.clear()
         self.joints_unchecked, self.controller_joints = False, 'not checked'
-        self.lifecycle = 'unconfigured'
         self.set_status(NodeState.UNCONFIGURED,
                         'unconfigured: cleaned up, waiting for configure')
-        self.get_logger().info(self.status)
+        self.get_logger().info(self.status.text)
         return TransitionCallbackReturn.SUCCESS
 
     def on_shutdown(self, state) -> TransitionCallbackReturn:
         """Hold (if active) and close the record."""
         self.stop()
-        self.lifecycle = 'finalized'
         self.set_status(NodeState.FINALIZED, 'finalized')
         return TransitionCallbackReturn.SUCCESS
 
     def on_error(self, state) -> TransitionCallbackReturn:
         """Hold, close the record and go back to unconfigured."""
         self.stop()
-        self.policy = self.guard = None
-        self.lifecycle = 'unconfigured'
+        self.core = self.policy = None
+        self.set_status(NodeState.UNCONFIGURED, 'unconfigured: error, waiting for configure')
         return TransitionCallbackReturn.SUCCESS
 
     def stop(self):
         """On shutdown or a signal: one hold command if commanding, and the record closed."""
-        if self.lifecycle == 'active':
-            self.lifecycle = 'inactive'
+        if self.status.lifecycle == 'active':
+            self.set_status(NodeState.INACTIVE, 'inactive: stopped, one hold command sent')
             self._hold_once()
         self._close_record()
 
     def _hold_once(self):
         """Send the one hold left in force (deactivate, stop): zero torque or the angles."""
-        if self.guard is not None and self.q is not None:     # a state was taken
-            self.publish_hold(decay=0.0)
+        hold = self.core.hold(self.joint_state) if self.core is not None else None
+        if hold is not None:                    # a state was taken
+            self.record(hold, self.publish(hold, hold=True), np.nan)
 
     def _close_record(self):
         if self.recorder is not None:
@@ -605,11 +606,10 @@ class PolicyNode(LifecycleNode):
             self.get_logger().warning('dropped a joint state with a non-finite position or '
                                       'velocity', throttle_duration_sec=1.0)
             return
-        self.q, self.qdot = q, qdot
-        self.state_time = time.monotonic()
         stamp = msg.header.stamp
-        self.state_stamp = (stamp.sec + 1e-9 * stamp.nanosec) if stamp.sec or stamp.nanosec \
-            else None
+        self.joint_state = JointSample(q, qdot, time.monotonic(),
+                                       (stamp.sec + 1e-9 * stamp.nanosec)
+                                       if stamp.sec or stamp.nanosec else None)
 
     def on_description(self, msg: String):
         """Keep ``robot_description`` (URDF) for the kinematics check on configure."""
@@ -712,62 +712,41 @@ class PolicyNode(LifecycleNode):
 
     def on_tick(self):
         """Publish one command computed from the newest joint state, or say why not."""
-        if self.lifecycle != 'active':
+        if self.status.lifecycle != 'active':
             return
-        now = time.monotonic()
-        timeout = self.params['state_timeout']
-        age, how = np.nan, ''
-        if self.state_time is not None:
-            age, how = state_age(now, self.state_time,
-                                 self.get_clock().now().nanoseconds * 1e-9, self.state_stamp,
-                                 timeout)
-        if self.estop.latched:
-            self.set_status(NodeState.ESTOP,
-                            'e-stop latched: hold command (clear with ~/reset_estop)')
-            if self.guard is not None and self.q is not None:
-                # the active hold from the newest state (a stale one's damping decays)
-                self.publish_hold(decay=hold_decay(age, timeout))
-            return
-        if self.state_time is None:
-            self.set_status(NodeState.WAITING, 'waiting: no joint_states yet')
-            return
-        if age > timeout:
-            if self.watchdog.begin():
-                self.counters['stale_events'] += 1
-                hint = (' (a simulator stamps simulated time: give policy_node '
-                        'use_sim_time:=true)' if 'stamp' in how and age > 1e4 else '')
-                self.get_logger().warning(
-                    f'joint states are {age:.3f} s old {how} (state_timeout {timeout:g} s): '
-                    f'hold command at every tick until fresh joint states come{hint}')
-            # every tick, not once: a forward command controller holds its last command
-            self.publish_hold(age, hold_decay(age, timeout))
-            self.set_status(NodeState.STALE, f'stale: joint states {age:.2f} s old {how}, '
-                                             'hold command, waiting for fresh ones')
-            return
-        target = target_array(self.targets, self.num_arms, self.plain)
-        if isinstance(target, str):
-            status = f'waiting: no target yet for {target}'
-            if status != self.status:
-                self.get_logger().info(f'not commanding: no target yet for {target} (on '
-                                       f"topic target, frame_id {self.params['base_frame']!r}"
-                                       f"{' or arm0' if self.plain else ' or arm<i>'})")
-            self.set_status(NodeState.WAITING, status)
-            return
-        if self.watchdog.end():
+        joints = self.joint_state
+        tick = self.core.tick(joints, target_array(self.targets, self.num_arms, self.plain),
+                              time.monotonic(), self.get_clock().now().nanoseconds * 1e-9,
+                              self.estop.latched)
+        for event in tick.events:
+            self.log_event(event, tick)
+        for event in tick.guard_events:
+            self.counters[f'guard_{event.key}'] += 1
+            if event.severity >= Severity.WARN:
+                self.get_logger().warning(event.warning, throttle_duration_sec=1.0)
+        if tick.command is not None:
+            self.record(tick.command, self.publish(tick.command, hold=tick.hold), tick.age,
+                        tick.obs, tick.mean, tick.action, tick.acted)
+            if not tick.hold:
+                self.ages.append(time.monotonic() - joints.arrival)
+        self.status = tick.status
+
+    def log_event(self, event: Event, tick):
+        """Count and log what a tick found (:class:`pg_node.control.deployment.Event`)."""
+        if event is Event.STALE:
+            self.counters['stale_events'] += 1
+            age, how, timeout = tick.age, tick.how, self.params['state_timeout']
+            hint = (' (a simulator stamps simulated time: give policy_node '
+                    'use_sim_time:=true)' if 'stamp' in how and age > 1e4 else '')
+            self.get_logger().warning(
+                f'joint states are {age:.3f} s old {how} (state_timeout {timeout:g} s): '
+                f'hold command at every tick until fresh joint states come{hint}')
+        elif event is Event.NO_TARGET:
+            self.get_logger().info(f'not commanding: no target yet for {tick.waiting_for} (on '
+                                   f"topic target, frame_id {self.params['base_frame']!r}"
+                                   f"{' or arm0' if self.plain else ' or arm<i>'})")
+        elif event is Event.FRESH:
             self.get_logger().info('fresh joint states: commanding again')
-        obs = self.builder(self.q, self.qdot, target)
-        mean, std = self.policy.mean_std(obs)
-        act = mean if self.params['deterministic'] else \
-            mean + std * self.rng.standard_normal(mean.shape)
-        cmd, acted = self.guard(act, self.q, self.qdot, now)
-        for event, arms in acted.items():
-            if arms.any():
-                self.counters[f'guard_{event.key}'] += 1
-                if event.severity >= Severity.WARN:
-                    self.get_logger().warning(event.warning, throttle_duration_sec=1.0)
-        self.record(cmd, self.publish(cmd), age, obs, mean, act, acted)
-        self.ages.append(time.monotonic() - self.state_time)
-        self.set_status(NodeState.COMMANDING, 'commanding')
 
     def publish_markers(self):
         """Publish the goals and fingertips (:mod:`pg_node.ros.policy_markers`) if watched."""
@@ -775,30 +754,17 @@ class PolicyNode(LifecycleNode):
             return
         goals = target_array(self.targets, self.num_arms, self.plain)
         goals = None if isinstance(goals, str) else goals
-        tips = None if self.q is None else self.builder.fingertips(self.q)
+        tips = None if self.joint_state is None else self.builder.fingertips(self.joint_state.q)
         arms = len(goals) if goals is not None else len(tips) if tips is not None else 0
         frame = self.params['marker_frame']
         frames = [frame or (self.params['base_frame'] if self.plain else f'arm{i}')
                   for i in range(arms)]
-        self.pub_markers.publish(policy_markers(goals, tips, self.state, frames,
+        self.pub_markers.publish(policy_markers(goals, tips, self.status.state, frames,
                                                 self.get_clock().now().to_msg()))
 
     def set_status(self, state: NodeState, text: str):
         """Note what the node is doing: the state (its level) and the text saying why."""
-        self.state, self.status = state, text
-
-    def publish_hold(self, age: float = np.nan, decay: float = 0.0):
-        """
-        Publish the hold command (:meth:`pg_node.control.guards.CommandGuard.hold`).
-
-        Effort: the damping torque from the newest state, scaled by ``decay``
-        (:func:`pg_node.control.watchdog.hold_decay`; 0, zero torque, for the one hold left
-        in force on deactivate or a stop); position: the last commanded angles.
-        ``age``: the joint state's age that made it a hold (stale), recorded with it; NaN for
-        an e-stop or a stop. The next command ramps in from this hold.
-        """
-        hold = self.guard.hold_tick(self.q, self.qdot, decay)
-        self.record(hold, self.publish(hold, hold=True), age)
+        self.status = Status(state, text)
 
     def publish(self, ctrl: np.ndarray, hold: bool = False) -> np.ndarray:
         """Publish controls ``ctrl`` (arms x actuators) in SI units; return those."""
@@ -816,7 +782,8 @@ class PolicyNode(LifecycleNode):
         """Return ``si`` as JTC's "apply now, hold": stamp 0, one point at time 0."""
         cols = self.guard.cols
         names = arm_joint_names([self.joints[c] for c in cols], self.num_arms, self.plain)
-        composed = command_trajectory(self.guard.interface, si, self.q[:, cols], names)
+        composed = command_trajectory(self.guard.interface, si, self.joint_state.q[:, cols],
+                                      names)
         (point,) = composed.points          # time_from_start 0, header.stamp 0: the defaults
         return JointTrajectory(joint_names=composed.joint_names,
                                points=[JointTrajectoryPoint(**point.fields)])
@@ -853,7 +820,7 @@ class PolicyNode(LifecycleNode):
         self._cpu = (cpu, wall)
         ages = np.array(self.ages) * 1e3
         values = dict(
-            state=self.status, lifecycle=self.lifecycle,
+            state=self.status.text, lifecycle=self.status.lifecycle,
             commands_per_second=round(self.rate.rate(), 1),
             control_rate=round(self.control_rate(), 3),
             command_interface=self.params['command_interface'],
@@ -879,18 +846,19 @@ class PolicyNode(LifecycleNode):
         # forward_command_controller/src/forward_controllers_base.cpp:73-89, 131-149;
         # joint_trajectory_controller/src/joint_trajectory_controller.cpp:1002-1004,
         # 1393-1397); whether it is active only the controller manager's list_controllers says
-        no_listener = self.lifecycle == 'active' and not values['command_subscribers']
+        no_listener = self.status.lifecycle == 'active' and not values['command_subscribers']
         faults = [f for f, on in ((Fault.STALE_STATE, self.watchdog.stale),
                                   (Fault.ESTOP, self.estop.latched),
                                   (Fault.NO_LISTENER, no_listener),
                                   (Fault.JOINTS_UNCHECKED, self.joints_unchecked)) if on]
-        message = self.status
+        message = self.status.text
         if no_listener:
             message += (f'; no subscriber on {self.pub.topic_name}: no controller is '
                         'listening (a subscriber would not prove an active one)')
         if self.joints_unchecked:
             message += f'; controller joints {self.controller_joints}'
-        self.diagnostics.publish(values, LEVELS[diagnostic_level(self.state, faults)], message)
+        level = LEVELS[diagnostic_level(self.status.state, faults)]
+        self.diagnostics.publish(values, level, message)
 
 
 def tick_from_msg(msg: Float64MultiArray):
@@ -909,6 +877,12 @@ def quat_rotate(wxyz, v: np.ndarray) -> np.ndarray:
     out = np.empty(3)
     mujoco.mju_rotVecQuat(out, np.asarray(v, dtype=float), np.asarray(wxyz, dtype=float))
     return out
+
+
+def _refuse(reason: Optional[str]):
+    """Raise :class:`ConfigError` with ``reason``, a check's refusal (None: it passed)."""
+    if reason is not None:
+        raise ConfigError(reason)
 
 
 def _ranges(low: np.ndarray, high: np.ndarray) -> str:
