@@ -25,6 +25,7 @@ from xml.sax.saxutils import escape
 
 import mujoco
 import numpy as np
+from pg_node.common.perturbations import parse_terms, TermSpec
 
 #: mesh formats MuJoCo reads
 MESH_FORMATS = ('.stl', '.obj', '.msh')
@@ -69,8 +70,9 @@ class ImportOptions:
     #: each arm joint's damping = effort / velocity limit: an assumption, kept in the model
     velocity_damping: bool = False
     #: joint limits as hard as MuJoCo keeps stable (``solreflimit`` time constant 2 x
-    #: ``timestep``, critically damped), a robot's end stop, not MuJoCo's 0.02 s spring
-    hard_limits: bool = False
+    #: ``timestep``, critically damped), a robot's end stop, not MuJoCo's 0.02 s spring;
+    #: None: chosen (:func:`with_defaults`: on with ``choose``)
+    hard_limits: Optional[bool] = False
     #: position actuators: rad per control step; the actions are changes around the
     #: measured angle (``pg_position_delta``); None: absolute targets over the range
     position_delta: Optional[float] = None
@@ -82,6 +84,13 @@ class ImportOptions:
     init_qvel_noise: float = 0.005
     seed: int = 0
     xacro_args: Mapping[str, str] = field(default_factory=dict)
+    #: the import chooses what these options leave None from the URDF (``arm import``
+    #: does): the start pose, the goal region, hard limits, an armature and a finer
+    #: timestep where the check needs them (docs/own_arm.md); False: the plain defaults
+    choose: bool = False
+    #: the training's randomization (``{term: text}``, as ``randomize_<term>``): the check
+    #: runs the model with each term at both ends of its range
+    randomization: Mapping[str, str] = field(default_factory=dict)
 
 
 @dataclass
@@ -107,6 +116,10 @@ class ImportResult:
     options: Optional[ImportOptions] = None
     #: what the import assumes that the URDF does not say (:func:`assumptions`)
     assumptions: List[str] = field(default_factory=list)
+    #: what the import chose and why, one line each (custom text ``pg_import_choices``)
+    choices: List[str] = field(default_factory=list)
+    #: why fewer targets than asked were kept: reason -> how many drawn poses it removed
+    rejected: Dict[str, int] = field(default_factory=dict)
 
 
 #: the default physics step, and the one of a torque-driven arm without damping
@@ -115,10 +128,10 @@ TIMESTEP, UNDAMPED_TIMESTEP = 0.02, 0.002
 
 def with_defaults(opts: ImportOptions) -> ImportOptions:
     """
-    Return ``opts`` with ``timestep`` decided where it is None.
+    Return ``opts`` with ``timestep`` and ``hard_limits`` decided where they are None.
 
     :data:`UNDAMPED_TIMESTEP` for motors with no damping (neither ``damping`` nor
-    ``velocity_damping``), else :data:`TIMESTEP`.
+    ``velocity_damping``), else :data:`TIMESTEP`; hard limits on (a robot's end stops).
 
     >>> with_defaults(ImportOptions(tip='tool0')).timestep
     0.002
@@ -130,7 +143,8 @@ def with_defaults(opts: ImportOptions) -> ImportOptions:
         undamped = (opts.actuator == 'motor' and not opts.velocity_damping
                     and opts.damping is None)
         timestep = UNDAMPED_TIMESTEP if undamped else TIMESTEP
-    return replace(opts, timestep=timestep)
+    hard = True if opts.hard_limits is None else opts.hard_limits
+    return replace(opts, timestep=timestep, hard_limits=hard)
 
 
 def assumptions(opts: ImportOptions) -> List[str]:
@@ -150,7 +164,7 @@ def assumptions(opts: ImportOptions) -> List[str]:
                    "import --damping, not the URDF's)")
     if opts.armature is not None:
         out.append(f'armature: every arm joint has {opts.armature:g} kg m^2 of rotor inertia '
-                   '(arm import --armature)')
+                   "(arm import --armature, or the import's choice: pg_import_choices)")
     if opts.gravity_compensation:
         out.append("gravity compensation: the robot cancels the arm's own weight (MuJoCo "
                    'gravcomp on every arm body); a payload it is not told of is not '
@@ -663,7 +677,6 @@ def import_urdf(urdf_path, opts: ImportOptions, out_path=None, command: str = ''
     ``<robot>`` already read (it is changed), else read from ``urdf_path``.
     """
     urdf_path = Path(urdf_path).resolve() if Path(urdf_path).exists() else Path(urdf_path)
-    opts = with_defaults(opts)
     warnings: List[str] = []
     if robot is None:
         robot = load_robot(urdf_path, opts.xacro_args, opts.package_paths, warnings)
@@ -674,20 +687,28 @@ def import_urdf(urdf_path, opts: ImportOptions, out_path=None, command: str = ''
     parts = _Robot(urdf=robot, path=urdf_path, base=base, arm=arm, coupled=coupled,
                    joints=joints, warnings=warnings)
     _check_options(parts, opts)
+    # a floating or planar joint (a mobile base) is fixed like every other non-arm joint;
+    # MuJoCo would refuse a free joint below the URDF's root body anyway
+    for j in robot.findall('joint'):
+        if j.get('type') in ('floating', 'planar'):
+            j.set('type', 'fixed')
+            parts.fixed.append(j.get('name'))
     with tempfile.TemporaryDirectory(prefix='pg_node_meshes_') as scratch:
         meshes = _Meshes(Path(scratch))
         _prepare_meshes(robot, urdf_dir, opts, warnings, meshes)
         source = (None if is_xacro(urdf_path) or not urdf_path.is_file()
                   else Path(os.path.relpath(urdf_path, out.parent)).as_posix())
-        xml, task, lag = _build(parts, opts, command=command, source=source)
+        xml, task, lag, parts, opts = _stable_build(parts, opts, command=command,
+                                                    source=source)
     mesh_dir = out.parent / f'{out.stem}_meshes'
     xml = _finish_xml(xml, meshes, mesh_dir, urdf_name=urdf_path.name, command=command)
-    return ImportResult(xml=xml, arm_joints=arm, fixed_joints=parts.fixed, warnings=warnings,
-                        n_targets=len(task.points), coupled_joints=coupled,
-                        mesh_dir=mesh_dir if meshes.files else None,
+    return ImportResult(xml=xml, arm_joints=arm, fixed_joints=parts.fixed,
+                        warnings=parts.warnings, n_targets=len(task.points),
+                        coupled_joints=coupled, mesh_dir=mesh_dir if meshes.files else None,
                         mesh_files=meshes.files, converted_meshes=meshes.converted,
                         timestep=opts.timestep, coupling_error=lag, options=opts,
-                        assumptions=assumptions(opts))
+                        assumptions=assumptions(opts), choices=task.choices,
+                        rejected=task.rejected)
 
 
 @dataclass
@@ -718,6 +739,9 @@ class _Robot:
     efforts: Dict[str, float] = field(default_factory=dict)
     #: per arm joint (low, high), rad; -pi..pi for a joint without limits
     ranges: Optional[np.ndarray] = None
+    #: MuJoCo's first reading of the robot, every joint and contact in it (:func:`_task`'s
+    #: kinematics and self-collisions)
+    model: Optional[mujoco.MjModel] = None
 
 
 @dataclass
@@ -731,6 +755,12 @@ class _Task:
     min_height: Optional[float]
     #: the goals, one fingertip position (x y z) a row
     points: Optional[np.ndarray] = None
+    #: goals in self-collision are drawn again (with a region the import chose)
+    no_self_collision: bool = False
+    #: what the import chose and why, one line each (``pg_import_choices``)
+    choices: List[str] = field(default_factory=list)
+    #: reason -> how many drawn poses it removed from the goals
+    rejected: Dict[str, int] = field(default_factory=dict)
 
 
 def _check_options(robot: _Robot, opts: ImportOptions) -> None:
@@ -753,15 +783,92 @@ def _check_options(robot: _Robot, opts: ImportOptions) -> None:
                               f'{", ".join(robot.arm)}), got {len(opts.home)}')
 
 
-def _build(robot: _Robot, opts: ImportOptions, *, command: str = '',
-           source: Optional[str] = None) -> Tuple[str, _Task, Dict[str, float]]:
+def _stable_build(robot: _Robot, given: ImportOptions, *, command: str = '',
+                  source: Optional[str] = None):
     """
-    Return the model's MJCF, its task and each coupled joint's lag (rad), step by step.
+    Return :func:`_build`'s model with physics the check keeps finite, and what it used.
+
+    Returns ``(xml, task, lag, robot, options)``. The options as given first; while the
+    model diverges under the check (:func:`diverges`) and ``choose`` leaves them open, an
+    armature of :data:`ARMATURES` (the smallest that holds: the motors' rotor inertia, which
+    the URDF does not give), then the timestep halved down to :data:`FINEST_TIMESTEP`. None
+    holding is refused with the reason; without ``choose`` the divergence is a warning.
+    """
+    tried = []
+    for opts, physics in _physics_candidates(given):
+        attempt = replace(robot, warnings=list(robot.warnings), fixed=list(robot.fixed),
+                          efforts={})
+        xml, task, lag, reason = _build(attempt, opts, physics, command=command,
+                                        source=source)
+        if reason is None or not given.choose:
+            if reason is not None:
+                attempt.warnings.append(reason)
+            return xml, task, lag, attempt, opts
+        tried.append(f'armature {opts.armature or 0:g} kg m^2, timestep {opts.timestep:g} s')
+    raise UrdfImportError(f'{reason}; tried {"; ".join(tried)}: give the motors\' real rotor '
+                          'inertia (--armature), a smaller --timestep, or --velocity-damping')
+
+
+#: a joint faster than this (rad/s) under the check's commands has diverged: the vendor
+#: arms MuJoCo keeps stable reach 160-650 rad/s under bang-bang torques at their URDF
+#: efforts (0.002 s), those that diverge 10^3-10^7 (docs/own_arm.md)
+DIVERGED_SPEED = 1000.0
+#: the armatures (kg m^2, every arm joint) the import tries, smallest first, while the
+#: model diverges; a 7-joint arm's motors reflect 0.1-1 kg m^2 through their gears
+ARMATURES = (0.01, 0.02, 0.05, 0.1, 0.2, 0.5)
+#: the finest timestep the import tries (s)
+FINEST_TIMESTEP = 0.0005
+
+
+def _physics_candidates(given: ImportOptions):
+    """Yield ``(options, the lines saying what was chosen)``, in the order they are tried."""
+    opts = with_defaults(given)
+    if not given.choose:
+        yield opts, []
+        return
+    said = []
+    if given.hard_limits is None:
+        said.append('hard limits: every limited arm joint stops as hard as MuJoCo keeps '
+                    "stable (solreflimit 2 x the timestep), as the robot's end stops and "
+                    "PyBullet's limits do (--no-hard-limits: MuJoCo's 0.02 s spring)")
+    step = ('timestep: {t:g} s, {why}; control step {c:g} s (frame_skip {k}), the '
+            "recipe's, 2 s episodes")
+    why = ('motors without damping need the finer step'
+           if opts.timestep == UNDAMPED_TIMESTEP else 'the default')
+    frame_skip = training_settings(opts.timestep)[0]
+    timed = [step.format(t=opts.timestep, why=why, c=frame_skip * opts.timestep,
+                         k=frame_skip)] if given.timestep is None else []
+    yield opts, said + timed
+    armatures = ARMATURES if given.armature is None else ()
+    for armature in armatures:
+        yield replace(opts, armature=armature), said + timed + [
+            f'armature: {armature:g} kg m^2 on every arm joint, the smallest of '
+            f"{_fmt(ARMATURES)} with which 2 s of full commands under the training's "
+            "randomization stay finite (the motors' rotor inertia, which the URDF does "
+            'not give; --armature sets it)']
+    if given.timestep is None:
+        last = replace(opts, armature=armatures[-1]) if armatures else opts
+        timestep = opts.timestep / 2
+        while timestep >= FINEST_TIMESTEP - 1e-12:
+            frame_skip = training_settings(timestep)[0]
+            yield replace(last, timestep=timestep), said + [
+                step.format(t=timestep, why='the finest that kept full commands finite',
+                            c=frame_skip * timestep, k=frame_skip)] + (
+                [f'armature: {last.armature:g} kg m^2 on every arm joint'] if armatures
+                else [])
+            timestep /= 2
+
+
+def _build(robot: _Robot, opts: ImportOptions, physics: Sequence[str] = (), *,
+           command: str = '', source: Optional[str] = None):
+    """
+    Return the model's MJCF, its task, each coupled joint's lag (rad) and why it diverges.
 
     MuJoCo compiles three times: to read the robot (:func:`_mujoco_spec`), to place the
     goals (:func:`_targets`: the fingertip's forward kinematics), and once the model is
     complete, for the checks. ``command`` and ``source`` (the vendor's URDF relative to the
-    model's folder) become custom texts.
+    model's folder) become custom texts, ``physics`` (what was chosen) with the task's
+    choices ``pg_import_choices``. The reason is None when the model holds.
     """
     spec, model = _mujoco_spec(robot)
     _joints(spec, model, robot, opts)
@@ -769,10 +876,12 @@ def _build(robot: _Robot, opts: ImportOptions, *, command: str = '',
     _actuators(spec, robot, opts)
     _scene(spec, opts)
     task = _task(robot, opts)
+    task.choices = task.choices + list(physics)
     _targets(spec, robot, task, opts)
     _custom(spec, task, opts, command=command, source=source)
-    lag = _checks(_compile(spec), robot, task, opts)
-    return spec.to_xml(), task, lag
+    xml = spec.to_xml()
+    lag, reason = _checks(_compile(spec), xml, robot, task, opts)
+    return xml, task, lag, reason
 
 
 def _mujoco_spec(robot: _Robot) -> Tuple[mujoco.MjSpec, mujoco.MjModel]:
@@ -782,12 +891,6 @@ def _mujoco_spec(robot: _Robot) -> Tuple[mujoco.MjSpec, mujoco.MjModel]:
     The model is MuJoCo's reading of the URDF: the inertias it balances, the masses it
     gives links without one (warned of here), the joint limits (:func:`_joints`).
     """
-    # a floating or planar joint (a mobile base) is fixed like every other non-arm joint;
-    # MuJoCo would refuse a free joint below the URDF's root body anyway
-    for j in robot.urdf.findall('joint'):
-        if j.get('type') in ('floating', 'planar'):
-            j.set('type', 'fixed')
-            robot.fixed.append(j.get('name'))
     for old in robot.urdf.findall('mujoco'):
         robot.urdf.remove(old)
     ext = ET.Element('mujoco')
@@ -797,6 +900,7 @@ def _mujoco_spec(robot: _Robot) -> Tuple[mujoco.MjSpec, mujoco.MjModel]:
                   discardvisual='false', boundmass=str(BOUND_MASS), boundinertia='1e-06')
     robot.urdf.insert(0, ext)
     spec, model = _load_spec(robot.urdf, robot.path, robot.warnings)
+    robot.model = model
     robot.warnings.extend(_mass_warnings(robot.urdf, model, robot.joints,
                                          robot.arm + list(robot.coupled)))
     return spec, model
@@ -912,30 +1016,188 @@ def _scene(spec: mujoco.MjSpec, opts: ImportOptions) -> None:
 
 
 def _task(robot: _Robot, opts: ImportOptions) -> _Task:
-    """Return the task: the start pose (``home``, else zero within the limits), the goals' area."""
+    """
+    Return the task: the start pose and the goals' area, as given or chosen.
+
+    ``home`` given is checked against the limits. Without ``choose``: zero within the
+    limits, goals anywhere above ``target_min_height``. With it, what is not given is
+    chosen from the robot (:func:`_choose_home`, :func:`_choose_region`), each with the
+    reason in ``choices``.
+    """
     ranges = robot.ranges
+    task = _Task(home=None, region=opts.target_region, min_height=opts.target_min_height)
+    kin = _Kinematics(robot, opts) if opts.choose else None
+    reach = kin.reach(np.random.default_rng(opts.seed)) if kin is not None else None
     if opts.home is not None:
         home = np.array(opts.home, dtype=float)
         if np.any(home < ranges[:, 0]) or np.any(home > ranges[:, 1]):
             raise UrdfImportError(f'--home {_fmt(home)} is outside the joint limits')
+    elif kin is not None:
+        home, why = _choose_home(kin, reach, opts.seed)
+        task.choices.append(f'home: {_fmt(home, 4)} ({why}; --home sets it)')
     else:   # zero, clipped into the limits with room for the start's noise (a Kinova's
         # zero is below three of its limits: on them, the noise started it beyond)
         margin = np.minimum(opts.init_qpos_noise, (ranges[:, 1] - ranges[:, 0]) / 2)
         home = np.clip(0.0, ranges[:, 0] + margin, ranges[:, 1] - margin)
-    return _Task(home=home, region=opts.target_region, min_height=opts.target_min_height)
+    task.home = home
+    if kin is not None and opts.target_region is None:
+        task.region, why = _choose_region(kin, home, reach)
+        task.no_self_collision = True
+        task.choices.append(f'goal region: {_fmt(task.region, 3)} (x y z r, m: {why}; '
+                            '--target-region sets it)')
+    return task
+
+
+#: the start poses tried, drawn in the middle half of every joint's range
+HOME_CANDIDATES = 1000
+#: the goal region's radius over the arm's reach (the Panda's and the UR5's tuned 0.3 m)
+REGION_SHARE = 0.35
+#: the start pose's fingertip at least this share of the reach above the base, and as far
+#: out from it: goals above a table, in front of the robot
+HOME_HEIGHT_SHARE, HOME_OUT_SHARE = 0.2, 0.3
+#: a contact deeper than this (m) between links that no joint joins is a self-collision
+#: (collision meshes are convex hulls and primitives that overlap where the links do not:
+#: the Panda of pg_node's URDF by 7 mm at its ready pose)
+COLLISION_DEPTH = 0.01
+
+
+class _Kinematics:
+    """The fingertip, its Jacobian and self-collisions at given arm angles (first model)."""
+
+    def __init__(self, robot: _Robot, opts: ImportOptions):
+        model = self.model = robot.model
+        self.data = mujoco.MjData(model)
+        self.ranges, self.coupled = robot.ranges, robot.coupled
+        self.adr = {name: model.joint(name).qposadr[0] for name in [*robot.arm, *robot.coupled]}
+        self.arm = robot.arm
+        self.dofs = [model.joint(name).dofadr[0] for name in robot.arm]
+        self.body = model.body(opts.tip).id
+        self.offset = np.array(opts.tip_offset, dtype=float)
+        self.base = model.body(robot.base).id
+        weld = model.body_weldid
+        # bodies that no joint parts move together; a joint's two sides touch at the joint
+        self.group = weld
+        self.parent_group = weld[model.body_parentid[weld]]
+        self.shoulder = model.jnt_bodyid[model.joint(robot.arm[0]).id]
+
+    def tip(self, q) -> np.ndarray:
+        """Return the fingertip at arm angles ``q`` (coupled joints on their mimic)."""
+        data = self.data
+        for name, value in zip(self.arm, q):
+            data.qpos[self.adr[name]] = value
+        for _ in self.coupled:   # in chain order; a mimic of a mimic settles in as many passes
+            for name, (leader, multiplier, offset) in self.coupled.items():
+                data.qpos[self.adr[name]] = offset + multiplier * data.qpos[self.adr[leader]]
+        mujoco.mj_kinematics(self.model, data)
+        return data.xpos[self.body] + data.xmat[self.body].reshape(3, 3) @ self.offset
+
+    def collides(self) -> bool:
+        """Return whether two links no joint joins overlap at the angles of :meth:`tip`."""
+        model, data = self.model, self.data
+        mujoco.mj_collision(model, data)
+        for contact in data.contact[:data.ncon]:
+            if contact.dist > -COLLISION_DEPTH:
+                continue
+            a, b = (self.group[model.geom_bodyid[g]] for g in (contact.geom1, contact.geom2))
+            if a != b and self.parent_group[a] != b and self.parent_group[b] != a:
+                return True
+        return False
+
+    def manipulability(self) -> float:
+        """
+        Return the fingertip's manipulability at :meth:`tip`'s angles.
+
+        The product of the position Jacobian's singular values, as many as it can have
+        (3; 2 for a planar arm): zero at a singularity.
+        """
+        model, data = self.model, self.data
+        mujoco.mj_comPos(model, data)
+        jacp = np.zeros((3, model.nv))
+        point = data.xpos[self.body] + data.xmat[self.body].reshape(3, 3) @ self.offset
+        mujoco.mj_jac(model, data, jacp, None, point, self.body)
+        values = np.linalg.svd(jacp[:, self.dofs], compute_uv=False)
+        return float(np.prod(values[:min(3, len(self.dofs))]))
+
+    def origin(self) -> np.ndarray:
+        """Return the base link's and the first arm joint's body's positions (at any angles)."""
+        return self.data.xpos[self.base].copy(), self.data.xpos[self.shoulder].copy()
+
+    def reach(self, rng: np.random.Generator, draws: int = 300) -> float:
+        """Return the farthest the fingertip gets from the first arm joint's body (m)."""
+        lo, hi = self.ranges.T
+        out = 0.0
+        for q in rng.uniform(lo, hi, (draws, len(self.arm))):
+            tip = self.tip(q)
+            out = max(out, float(np.linalg.norm(tip - self.data.xpos[self.shoulder])))
+        return out
+
+
+def _choose_home(kin: _Kinematics, reach: float, seed: int) -> Tuple[np.ndarray, str]:
+    """
+    Return a start pose away from the limits and singularities, and why it was chosen.
+
+    Among :data:`HOME_CANDIDATES` poses drawn in the middle half of every joint's range
+    (a quarter of the range from each limit), those without self-collision whose fingertip
+    is above the base by :data:`HOME_HEIGHT_SHARE` of the reach and out from it by
+    :data:`HOME_OUT_SHARE`; the one of most manipulability (farthest from a singularity).
+    Each condition no pose meets is dropped, and the reason says so.
+    """
+    rng = np.random.default_rng(seed)
+    lo, hi = kin.ranges.T
+    mid, half = (lo + hi) / 2, (hi - lo) / 2
+    poses = mid + rng.uniform(-0.5, 0.5, (HOME_CANDIDATES, len(lo))) * half
+    rows = []
+    for q in poses:
+        tip = kin.tip(q)
+        base, shoulder = kin.origin()
+        rows.append((not kin.collides(), tip[2] - base[2] >= HOME_HEIGHT_SHARE * reach,
+                     np.linalg.norm((tip - shoulder)[:2]) >= HOME_OUT_SHARE * reach,
+                     kin.manipulability()))
+    free, high, out, score = (np.array(col) for col in zip(*rows))
+    for keep, which in (
+            (free & high & out, 'without self-collision, the fingertip above the base and '
+                                'out in front'),
+            (free & high, 'without self-collision, the fingertip above the base (none also '
+                          'out in front)'),
+            (free, 'without self-collision (none with the fingertip above the base)'),
+            (np.ones(len(poses), bool), '(every one in self-collision)')):
+        if keep.any():
+            break
+    best = int(np.argmax(np.where(keep, score, -1.0)))
+    why = (f'the one farthest from a singularity (manipulability {score[best]:.3g}) of the '
+           f'{int(keep.sum())} of {HOME_CANDIDATES} poses in the middle half of every range '
+           f'{which}; reach {reach:.2f} m')
+    return np.round(poses[best], 4), why
+
+
+def _choose_region(kin: _Kinematics, home: np.ndarray, reach: float
+                   ) -> Tuple[Tuple[float, ...], str]:
+    """Return a goal ball around the start pose's fingertip, and why that one."""
+    center = np.round(kin.tip(home), 3)
+    radius = round(REGION_SHARE * reach, 3)
+    return (*center.tolist(), radius), (f'a ball of {REGION_SHARE:g} x the reach '
+                                        f"{reach:.2f} m around the start pose's fingertip; "
+                                        'goals in self-collision drawn again')
 
 
 def _targets(spec: mujoco.MjSpec, robot: _Robot, task: _Task, opts: ImportOptions) -> None:
     """Draw the goals (``task.points``) and add the mocap ``target`` at the first."""
     # compiled here for the fingertip's forward kinematics; the target's place, and so
     # the complete model, waits for the goals
-    points = _reachable_points(_compile(spec), robot, task, count=opts.targets, seed=opts.seed)
+    kin = _Kinematics(robot, opts) if task.no_self_collision else None
+    points, task.rejected = _reachable_points(_compile(spec), robot, task, count=opts.targets,
+                                              seed=opts.seed, kin=kin)
     if len(points) == 0:
-        raise UrdfImportError('no reachable target is left after the height/region filter')
+        raise UrdfImportError('no reachable target is left: ' + rejected_text(task.rejected))
     task.points = points
     target = spec.worldbody.add_body(name='target', mocap=True, pos=list(points[0]))
     target.add_geom(name='target', type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[0.02, 0, 0],
                     rgba=[0.9, 0.2, 0.2, 1], contype=0, conaffinity=0)
+
+
+def rejected_text(rejected: Mapping[str, int]) -> str:
+    """Return why drawn poses gave no goal, e.g. ``'699 below the base plane, 3 ...'``."""
+    return ', '.join(f'{n} {why}' for why, n in rejected.items() if n) or 'none rejected'
 
 
 def _custom(spec: mujoco.MjSpec, task: _Task, opts: ImportOptions, *, command: str,
@@ -952,28 +1214,36 @@ def _custom(spec: mujoco.MjSpec, task: _Task, opts: ImportOptions, *, command: s
         spec.add_text(name='pg_import_command', data=command)
     if source:
         spec.add_text(name='pg_source_urdf', data=source)
+    if task.choices:
+        spec.add_text(name='pg_import_choices', data='\n'.join(task.choices))
     said = assumptions(opts)
     if said:
         spec.add_text(name='pg_physics_assumptions', data='\n'.join(said))
 
 
-def _checks(model: mujoco.MjModel, robot: _Robot, task: _Task,
-            opts: ImportOptions) -> Dict[str, float]:
+def _checks(model: mujoco.MjModel, xml: str, robot: _Robot, task: _Task,
+            opts: ImportOptions) -> Tuple[Dict[str, float], Optional[str]]:
     """
-    Warn of what 2 s of hard commands show on the complete model; return the coupled lags.
+    Warn of what 2 s of hard commands show; return the lags and why the model diverges.
 
-    Unstable steps (:func:`unstable_steps`), velocity servos that chatter past their
+    The reason is None when it does not.
+
+    With ``choose`` or a training randomization, the divergence is :func:`diverges`' (the
+    training's task and randomization); else MuJoCo's unstable steps
+    (:func:`unstable_steps`), as before issue 55. Velocity servos that chatter past their
     limits, and coupled joints that stray from their ``<mimic>`` (MuJoCo's joint equality
     is soft) are each said in one warning.
     """
     arm, home = robot.arm, task.home
-    unstable = unstable_steps(model, arm, home, opts)
-    if unstable:
+    if opts.choose or opts.randomization:
+        reason = diverges(xml, robot, opts)
+    else:
+        unstable = unstable_steps(model, arm, home, opts)
         times = 'once' if unstable == 1 else f'{unstable} times'
-        robot.warnings.append(f'MuJoCo found the simulation unstable {times} in 2 s of '
-                              f'full-torque commands at timestep {opts.timestep:g} s: give the '
-                              "motors' rotor inertia (--armature), a smaller --timestep, or "
-                              '--velocity-damping (a damping a robot in torque mode lacks)')
+        reason = (f'MuJoCo found the simulation unstable {times} in 2 s of full-torque '
+                  f"commands at timestep {opts.timestep:g} s: give the motors' rotor "
+                  'inertia (--armature), a smaller --timestep, or --velocity-damping (a '
+                  'damping a robot in torque mode lacks)') if unstable else None
     if opts.actuator == 'velocity':
         limits = np.array([_velocity_limit(robot.joints[name]) for name in arm])
         fast = _overspeed(model, arm, home, opts, limits)
@@ -989,7 +1259,76 @@ def _checks(model: mujoco.MjModel, robot: _Robot, task: _Task,
             robot.warnings.append(f'coupled joint {name!r} is up to {error:.2g} rad off its '
                                   "<mimic> under random commands: MuJoCo's joint equality is "
                                   'soft; a smaller --timestep or an --armature tightens it')
-    return lag
+    return lag, reason
+
+
+def randomization_ends(randomization: Mapping[str, str]) -> Dict[str, Dict[str, TermSpec]]:
+    """
+    Return the training's randomization with every term fixed at its low, then high end.
+
+    ``{'nominal': {}, 'low': {...}, 'high': {...}}``; without terms only the nominal arm.
+
+    >>> ends = randomization_ends({'damping': 'abs uniform 0 0.1'})
+    >>> [(k, {t: v.text() for t, v in terms.items()}) for k, terms in ends.items()]
+    ... # doctest: +NORMALIZE_WHITESPACE
+    [('nominal', {}), ('low', {'damping': 'abs 0 startup'}),
+     ('high', {'damping': 'abs 0.1 startup'})]
+    """
+    terms = parse_terms(randomization)
+    out = {'nominal': {}}
+    if terms:
+        for end, label in ((0, 'low'), (1, 'high')):
+            out[label] = {name: replace(term, distribution='uniform', a=term.bounds[end],
+                                        b=term.bounds[end], when='startup')
+                          for name, term in terms.items()}
+    return out
+
+
+def diverges(xml: str, robot: _Robot, opts: ImportOptions) -> Optional[str]:
+    """
+    Return why the model diverges under the training it is printed with, or None.
+
+    The training's task (:class:`~pg_node.sim.arm_task.ArmTask` at the recipe's frame_skip,
+    4 arms, two 2 s episodes from the start pose and its noise) under bang-bang commands
+    (-1 or 1 per actuator every control step, the worst an exploring policy commands), on
+    the nominal arm and with every term of ``opts.randomization`` at each end of its
+    range: a joint faster than :data:`DIVERGED_SPEED`, or not finite, has diverged.
+    """
+    from pg_node.sim.arm_task import ArmTask
+    frame_skip, steps = training_settings(opts.timestep)
+    previous = mujoco.get_mju_user_warning()
+    mujoco.set_mju_user_warning(lambda text: None)   # said in the one reason
+    try:
+        with tempfile.TemporaryDirectory(prefix='pg_node_check_') as folder:
+            path = Path(folder) / 'check.xml'
+            path.write_text(xml)
+            for label, terms in randomization_ends(opts.randomization).items():
+                task = ArmTask(path, num_envs=4, seed=opts.seed, frame_skip=frame_skip,
+                               max_episode_steps=steps, num_threads=1, randomization=terms)
+                task.reset()
+                rng = np.random.default_rng(opts.seed)
+                worst = np.zeros(task.n_joints)
+                for step in range(2 * steps):
+                    task.step(rng.choice([-1.0, 1.0], (task.num_envs, task.act_dim)))
+                    for data in task.datas:
+                        speed = np.abs(data.qvel[task.spec.dof_adr])
+                        worst = np.maximum(worst, np.nan_to_num(speed, nan=np.inf))
+                    if worst.max() > DIVERGED_SPEED:
+                        task.close()
+                        joint = robot.arm[int(np.argmax(worst))]
+                        where = ('the nominal arm' if label == 'nominal' else
+                                 f'the randomization at its {label} ends ('
+                                 + ', '.join(f'{t} {v.text().rsplit(" ", 1)[0]}'
+                                             for t, v in terms.items()) + ')')
+                        return (f"MuJoCo diverges under the training's commands: joint "
+                                f'{joint!r} passes {DIVERGED_SPEED:g} rad/s within '
+                                f'{step + 1} control steps of bang-bang commands on {where}, '
+                                f'timestep {opts.timestep:g} s, frame_skip {frame_skip}, '
+                                f'armature {opts.armature or 0:g} kg m^2')
+                task.close()
+    finally:
+        mujoco.set_mju_user_warning(previous)
+    return None
 
 
 def _finish_xml(xml: str, meshes: _Meshes, mesh_dir: Path, *, urdf_name: str,
@@ -1099,12 +1438,13 @@ def write_model(result: ImportResult, out_path) -> None:
 
 
 def _reachable_points(model: mujoco.MjModel, robot: _Robot, task: _Task, *, count: int,
-                      seed: int) -> np.ndarray:
+                      seed: int, kin: Optional[_Kinematics] = None):
     """
-    Return up to ``count`` goals: fingertip positions at uniform angles within the limits.
+    Return up to ``count`` goals, fingertip positions at uniform angles within the limits.
 
-    Coupled joints follow their mimic; a point below ``task.min_height`` or outside
-    ``task.region`` is drawn again (at most 50 draws a goal). Rounded to 0.1 mm.
+    Coupled joints follow their mimic; a point below ``task.min_height``, outside
+    ``task.region`` or (with ``kin``) at a pose in self-collision is drawn again (at most
+    50 draws a goal). Rounded to 0.1 mm. Returns ``(points, {reason: poses it removed})``.
     """
     arm, coupled, ranges = robot.arm, robot.coupled, robot.ranges
     rng = np.random.default_rng(seed)
@@ -1114,19 +1454,30 @@ def _reachable_points(model: mujoco.MjModel, robot: _Robot, task: _Task, *, coun
     qpos = {name: model.joint(name).qposadr[0] for name in [*arm, *coupled]}
     keep = []
     tries = 0
+    low = ('below the base plane' if task.min_height == 0
+           else f'below z = {task.min_height:g} m')
+    rejected = {low: 0, 'outside the goal region': 0, 'in self-collision': 0}
     while len(keep) < count and tries < 50 * count:
         tries += 1
-        data.qpos[adr] = rng.uniform(ranges[:, 0], ranges[:, 1])
+        q = rng.uniform(ranges[:, 0], ranges[:, 1])
+        data.qpos[adr] = q
         for _ in coupled:   # in chain order; a mimic of a mimic settles in as many passes
             for name, (leader, multiplier, offset) in coupled.items():
                 data.qpos[qpos[name]] = offset + multiplier * data.qpos[qpos[leader]]
         mujoco.mj_kinematics(model, data)
         p = data.site_xpos[site].copy()
         if task.min_height is not None and p[2] < task.min_height:
+            rejected[low] += 1
             continue
         if task.region is not None:
             center, radius = np.array(task.region[:3]), task.region[3]
             if np.linalg.norm(p - center) > radius:
+                rejected['outside the goal region'] += 1
+                continue
+        if kin is not None:
+            kin.tip(q)
+            if kin.collides():
+                rejected['in self-collision'] += 1
                 continue
         keep.append(p)
-    return np.round(np.array(keep).reshape(-1, 3), 4)
+    return np.round(np.array(keep).reshape(-1, 3), 4), rejected

@@ -1,22 +1,33 @@
 """
 ``python -m pg_node arm import ROBOT.urdf --tip LINK``: your robot's URDF as a pg_node arm.
 
-Writes an MJCF (``-o``, default ``<robot>.xml`` in the current folder) that ``model:=FILE``
-trains with, and its meshes in ``<model>_meshes/`` beside it; see
-:mod:`pg_node.sim.urdf_import` for what it holds. A ``.xacro`` file is expanded first
-(``--xacro-arg NAME:=VALUE``). It prints which joints became arm joints and which were
-fixed or coupled, the physics chosen, where the meshes went, the ``train`` command with
-the settings that fit the timestep, the recipe measured to learn for the chosen command
-interface (:data:`RECIPES`; or that none was measured yet), and every warning (inertias
-balanced, links without mass, meshes converted or replaced). A bad input ends in one line
-on stderr and exit status 1 (2 for a usage error). Documentation: docs/own_arm.md.
+Writes an MJCF (``-o``, default ``models/<robot>.xml`` in the current folder, a folder
+git ignores) that ``model:=FILE`` trains with, and its meshes in ``<model>_meshes/``
+beside it; see :mod:`pg_node.sim.urdf_import` for what it holds. A ``.xacro`` file is
+expanded first (``--xacro-arg NAME:=VALUE``). What the options leave open (the start pose,
+the goal region, hard limits, an armature, the timestep) the import chooses from the
+robot, each with its reason. It prints which joints became arm joints and which were
+fixed or coupled, the physics and task chosen and why, where the meshes went, how many
+goals were kept and why not more, ONE ``train`` command (the recipe measured to learn for
+the chosen command interface, :data:`RECIPES`, with the settings that fit the timestep;
+the import checked the model under that recipe's randomization), what the recipe gave,
+and every warning (inertias balanced, links without mass, meshes converted or replaced).
+A bad input, or a model that diverges under the recipe with nothing left to choose, ends
+in one line on stderr and exit status 1 (2 for a usage error). Documentation:
+docs/own_arm.md.
 """
 import argparse
+from dataclasses import replace
 from pathlib import Path
 import shlex
 import sys
 
 from pg_node.tools.args import positive_float, positive_int
+
+
+#: where ``arm import`` writes without ``-o`` (relative to the current folder; the
+#: repository's .gitignore ignores it)
+MODELS = 'models'
 
 
 def _height(text: str):
@@ -48,7 +59,8 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument('--tip', required=True, help='link whose origin is the fingertip')
     p.add_argument('--base', help='link the arm starts at (default: the root link); joints '
                                   'above it are fixed')
-    p.add_argument('-o', '--output', help='MJCF file to write (default: <robot name>.xml)')
+    p.add_argument('-o', '--output', help='MJCF file to write (default: models/<robot '
+                                          'name>.xml, a folder git ignores)')
     p.add_argument('--actuator', choices=('motor', 'position', 'velocity'), default='motor',
                    help='motor: torque u * effort; position: target angle mapped from u over '
                         'the joint range; velocity: target speed u * the URDF velocity limit '
@@ -83,10 +95,14 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument('--timestep', type=positive_float,
                    help='physics step in s (default: 0.02, with the default frame_skip 2 a '
                         '0.04 s control step, 50 steps a 2 s episode; 0.002 for motor '
-                        'actuators without damping, which blow up at 0.02)')
+                        'actuators without damping, which blow up at 0.02; halved while the '
+                        'model diverges under the recipe and an armature does not hold it)')
     p.add_argument('--integrator', choices=('euler', 'rk4', 'implicit', 'implicitfast'),
                    default='implicitfast', help='default: %(default)s')
-    p.add_argument('--armature', type=float, help='rotor inertia added to every arm joint')
+    p.add_argument('--armature', type=float,
+                   help='rotor inertia added to every arm joint, kg m^2 (default: none, or '
+                        'the smallest of 0.01-0.5 that keeps the model finite under the '
+                        "recipe's commands and randomization)")
     p.add_argument('--damping', type=float,
                    help='damping of every arm joint (default: the URDF <dynamics>)')
     p.add_argument('--velocity-damping', action=argparse.BooleanOptionalAction,
@@ -95,20 +111,23 @@ def parser() -> argparse.ArgumentParser:
                         'full torque moves it at most at its velocity limit; an assumption '
                         'the model and the card keep: a robot in torque mode has no such '
                         'damping (default: off)')
-    p.add_argument('--hard-limits', action='store_true',
+    p.add_argument('--hard-limits', action=argparse.BooleanOptionalAction, default=None,
                    help='joint limits as hard as MuJoCo keeps stable (solreflimit 2 x the '
-                        "timestep), as a robot's end stops and PyBullet's limits are; default: "
-                        "MuJoCo's soft limit, a 0.02 s spring a policy can learn to lean on "
-                        '(docs/sim_to_sim.md)')
+                        "timestep), as a robot's end stops and PyBullet's limits are "
+                        "(default: on); --no-hard-limits: MuJoCo's soft limit, a 0.02 s spring "
+                        'a policy can learn to lean on (docs/sim_to_sim.md)')
     p.add_argument('--home', type=float, nargs='+', metavar='Q',
-                   help='start pose, one angle per arm joint (default: 0, moved 0.1 rad '
-                        'inside the limits where it is not)')
+                   help='start pose, one angle per arm joint (default: chosen, the pose of '
+                        'most manipulability in the middle half of every range, its '
+                        'fingertip above the base and in front, without self-collision)')
     p.add_argument('--targets', type=positive_int, default=1000,
                    help='reachable target points to store (default: %(default)s)')
     p.add_argument('--target-min-height', type=_height, default=0.0, metavar='Z',
                    help="lowest target z in m, or 'none' (default: %(default)s)")
     p.add_argument('--target-region', type=float, nargs=4, metavar=('X', 'Y', 'Z', 'R'),
-                   help='keep only targets within R m of (X, Y, Z)')
+                   help='keep only targets within R m of (X, Y, Z); R inf: anywhere '
+                        "(default: chosen, a ball of 0.35 x the arm's reach around the start "
+                        "pose's fingertip, goals in self-collision left out)")
     p.add_argument('--seed', type=int, default=0,
                    help='seed of the target sampling (default: %(default)s)')
     return top
@@ -116,7 +135,9 @@ def parser() -> argparse.ArgumentParser:
 
 #: per command interface, the recipe measured to learn (docs/own_arm.md, "Recipes that
 #: learned"; docs/results/BENCHMARKS.md gives the runs): what follows the import flags,
-#: the training's extra arguments, and what came of it. Only measured figures go here.
+#: the training's arguments (the printed command adds the model and the frame_skip and
+#: episode length of its timestep; the import checks the model under its randomization),
+#: and what came of it. Only measured figures go here.
 RECIPES = {
     'velocity': (
         '--actuator velocity, a --home with the arm raised, --target-region X Y Z R: goals '
@@ -131,7 +152,7 @@ RECIPES = {
         "the defaults (the URDF's damping and nothing more, --timestep 0.002, gravity "
         'compensation on), a --home away from the limits, --target-region X Y Z R: goals in '
         "front of the robot above the table (Panda: Franka's ready pose, 0.45 0 0.35 0.3)",
-        "--config arm7 frame_skip:=20 randomize_damping='abs uniform 0 0.1' "
+        "--config arm7 randomize_damping='abs uniform 0 0.1' "
         "randomize_frictionloss='abs uniform 0 0.2' randomize_payload='uniform 0 0.3' "
         "randomize_servo_latency='uniform 0 0.04'",
         'Panda of example-robot-data, 2M steps: 1.02 cm mean final distance, 99% within 2 cm '
@@ -142,7 +163,7 @@ RECIPES = {
         '--actuator position --kp 500 --kv 20 --timestep 0.005 --position-delta 0.04 (what a '
         'UR e-Series driver accepts per 2 ms cycle), a --home with the arm raised, '
         '--target-region X Y Z R (UR5: 0.4 0 0.3 0.3)',
-        '--config arm7 frame_skip:=8 reward_control_weight:=0.05 '
+        '--config arm7 reward_control_weight:=0.05 '
         "randomize_servo_bandwidth='uniform 5 20' randomize_servo_latency='uniform 0 0.04'",
         'UR5 of example-robot-data, 5M steps: 2.89 cm mean final distance, 33% within 2 cm '
         '(PyBullet: 2.81 cm, 35%), 29 min on 2 shared cores; with '
@@ -152,7 +173,7 @@ RECIPES = {
     'position': (
         '--actuator position --kp 500 --kv 20 --timestep 0.005 (absolute targets: 0.1 of '
         "action is 0.314 rad on a +-pi joint), as 'position, bounded changes'",
-        '--config arm7 frame_skip:=8 reward_control_weight:=0.05 '
+        '--config arm7 reward_control_weight:=0.05 '
         "randomize_servo_bandwidth='uniform 5 20' randomize_servo_latency='uniform 0 0.04'",
         'UR5 of example-robot-data, 500k steps: 7.34 cm mean final distance, 3% within 2 cm '
         '(PyBullet: 9.63 cm, 0%), 2 min; unsafe: its targets lie up to 4.81 rad from the '
@@ -168,25 +189,46 @@ RECIPES = {
 }
 
 
+def interface(opts) -> str:
+    """Return the name of ``opts``' command interface, as :data:`RECIPES` keys it."""
+    if opts.actuator == 'motor' and opts.velocity_damping:
+        return 'motor, velocity damping'
+    if opts.actuator == 'position' and opts.position_delta is not None:
+        return 'position, bounded changes'
+    return opts.actuator
+
+
+def training_arguments(opts) -> list:
+    """Return the measured recipe's ``train`` arguments for ``opts``' interface ([] if none)."""
+    recipe_ = RECIPES.get(interface(opts))
+    return shlex.split(recipe_[1]) if recipe_ else []
+
+
+def randomization(opts) -> dict:
+    """Return the recipe's ``{term: text}`` (its ``randomize_<term>`` arguments)."""
+    out = {}
+    for arg in training_arguments(opts):
+        key, _, value = arg.replace(':=', '=', 1).partition('=')
+        if key.startswith('randomize_'):
+            out[key[len('randomize_'):]] = value
+    return out
+
+
 def recipe(opts) -> str:
     """Return the line with the measured recipe for ``opts``' command interface."""
-    interface = opts.actuator
-    if interface == 'motor' and opts.velocity_damping:
-        interface = 'motor, velocity damping'
-    elif interface == 'position' and opts.position_delta is not None:
-        interface = 'position, bounded changes'
-    if interface not in RECIPES:
-        return (f'recipe: none measured yet for {interface} actuators; docs/own_arm.md '
+    name = interface(opts)
+    if name not in RECIPES:
+        return (f'recipe: none measured yet for {name} actuators; docs/own_arm.md '
                 '("Recipes that learned") lists those that were')
-    flags, train, result = RECIPES[interface]
-    return (f'recipe measured for {interface} actuators: import with {flags}; train with '
-            f'{train}; {result} (docs/own_arm.md)')
+    flags, _, result = RECIPES[name]
+    return (f'recipe measured for {name} actuators: import with {flags}; trained with the '
+            f'command above: {result} (docs/own_arm.md)')
 
 
 def options(args):
     """Return the :class:`~pg_node.sim.urdf_import.ImportOptions` of parsed arguments."""
     from pg_node.sim.urdf_import import ImportOptions
-    return ImportOptions(
+    opts = ImportOptions(
         tip=args.tip, base=args.base, actuator=args.actuator, kp=args.kp, kv=args.kv,
         velocity_gain=args.velocity_gain,
         effort_scale=args.effort_scale, gravity_compensation=args.gravity_compensation,
@@ -198,7 +240,8 @@ def options(args):
         targets=args.targets,
         target_min_height=args.target_min_height,
         target_region=tuple(args.target_region) if args.target_region else None,
-        seed=args.seed, xacro_args=dict(args.xacro_arg))
+        seed=args.seed, xacro_args=dict(args.xacro_arg), choose=True)
+    return replace(opts, randomization=randomization(opts))
 
 
 def main(argv=None) -> int:
@@ -212,7 +255,7 @@ def main(argv=None) -> int:
     warnings = []
     try:
         robot = load_robot(args.urdf, opts.xacro_args, opts.package_paths, warnings)
-        out = args.output or default_output(args.urdf, robot)
+        out = args.output or str(Path(MODELS) / default_output(args.urdf, robot))
         result = import_urdf(args.urdf, opts, out_path=out, command=command, robot=robot)
     except UrdfImportError as exc:
         print(f'arm import: {exc}', file=sys.stderr)
@@ -222,6 +265,8 @@ def main(argv=None) -> int:
         print(f'arm import: {args.urdf}: {reason}', file=sys.stderr)
         return 1
     try:
+        if not args.output:
+            Path(MODELS).mkdir(exist_ok=True)
         write_model(result, out)
     except OSError as exc:
         print(f'arm import: cannot write {exc.filename or out}: {exc.strerror}',
@@ -257,8 +302,10 @@ def report(result, opts, out) -> list:
         damping = "the URDF's damping (no velocity damping)"
     limits = ('hard joint limits' if opts.hard_limits
               else "MuJoCo's soft joint limits (--hard-limits for a robot's)")
-    lines.append(f'physics: timestep {opts.timestep:g} s ({opts.integrator}), {damping}, '
-                 f'gravity compensation {"on" if opts.gravity_compensation else "off"}, '
+    armature = f', armature {opts.armature:g} kg m^2' if opts.armature is not None else ''
+    gravity = 'on' if opts.gravity_compensation else 'off'
+    lines.append(f'physics: timestep {opts.timestep:g} s ({opts.integrator}), {damping}'
+                 f'{armature}, gravity compensation {gravity}, '
                  f'{opts.actuator} actuators, {limits}')
     if opts.position_delta is not None:
         lines.append(f'actions: changes of at most {opts.position_delta:g} rad per control '
@@ -272,17 +319,30 @@ def report(result, opts, out) -> list:
                      f'{result.mesh_dir}; the model names them by absolute path, so that it '
                      "and a trained policy's card load from any folder (import again to "
                      'move them)')
+    lines += [f'chose {line}' for line in result.choices]
     frame_skip, steps = training_settings(result.timestep)
     defaults = (SIM_PARAMS['frame_skip'].default, SIM_PARAMS['max_episode_steps'].default)
     extra = ''.join(f' {key}:={value}' for key, value, default in
                     (('frame_skip', frame_skip, defaults[0]),
                      ('max_episode_steps', steps, defaults[1])) if value != default)
-    lines.append(f'{result.n_targets} reachable targets; wrote {out}')
+    kept = f'{result.n_targets} reachable targets'
+    if result.n_targets < opts.targets:
+        from pg_node.sim.urdf_import import rejected_text
+        kept = (f'{result.n_targets} of {opts.targets} reachable targets (the poses drawn '
+                f'for the rest: {rejected_text(result.rejected)}; 50 draws a target at most)')
+    lines.append(f'{kept}; wrote {out}')
     # the absolute path: the run keeps it, and play, export and policy_node find the model
     # from any folder
     model = shlex.quote(str(Path(out).resolve()))
-    lines.append(f'train with: python -m pg_node train model:={model}{extra}  (a control step '
-                 f'of {frame_skip} x {result.timestep:g} s = {frame_skip * result.timestep:g} '
+    # the recipe's arguments as written in RECIPES, its --config first
+    train = RECIPES[interface(opts)][1] if interface(opts) in RECIPES else ''
+    config, rest = '', train
+    if train.startswith('--config '):
+        config, _, rest = train.partition(' ')[2].partition(' ')
+        config = f'--config {config} '
+    lines.append(f'train with: python -m pg_node train {config}'
+                 f'model:={model}{extra}{" " + rest if rest else ""}  (a control step of '
+                 f'{frame_skip} x {result.timestep:g} s = {frame_skip * result.timestep:g} '
                  f's, {steps}-step episodes of {steps * frame_skip * result.timestep:g} s)')
     lines.append(recipe(opts))
     return lines
