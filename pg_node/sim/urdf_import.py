@@ -57,6 +57,9 @@ class ImportOptions:
     #: per joint effort / velocity limit (the effort limit at an error of the whole limit)
     velocity_gain: Optional[float] = None
     effort_scale: float = 1.0
+    #: rad/s^2: each arm joint's effort is capped at this times its inertia at the start
+    #: pose (:func:`_cap_efforts`); None: the URDF's (with ``choose``: :data:`MAX_ACCELERATION`)
+    max_acceleration: Optional[float] = None
     gravity_compensation: bool = True
     tip_offset: Tuple[float, float, float] = (0.0, 0.0, 0.0)
     package_paths: Sequence[str] = ()
@@ -171,6 +174,10 @@ def assumptions(opts: ImportOptions) -> List[str]:
                    'cancelled')
     if opts.effort_scale != 1:
         out.append(f'effort: the URDF effort limits x {opts.effort_scale:g} (--effort-scale)')
+    if opts.max_acceleration is not None and math.isfinite(opts.max_acceleration):
+        out.append(f'effort: each arm joint\'s effort at most {opts.max_acceleration:g} rad/s^2 x '
+                   'its inertia at the start pose (arm import --max-acceleration; '
+                   'pg_import_choices names the joints it caps)')
     return out
 
 
@@ -826,6 +833,8 @@ def _physics_candidates(given: ImportOptions):
     if not given.choose:
         yield opts, []
         return
+    if given.max_acceleration is None:
+        opts = replace(opts, max_acceleration=MAX_ACCELERATION)
     said = []
     if given.hard_limits is None:
         said.append('hard limits: every limited arm joint stops as hard as MuJoCo keeps '
@@ -872,11 +881,12 @@ def _build(robot: _Robot, opts: ImportOptions, physics: Sequence[str] = (), *,
     """
     spec, model = _mujoco_spec(robot)
     _joints(spec, model, robot, opts)
+    task = _task(robot, opts)
+    capped = _cap_efforts(spec, robot, task, opts)
+    task.choices = task.choices + ([capped] if capped else []) + list(physics)
     _physics(spec, robot, opts)
     _actuators(spec, robot, opts)
     _scene(spec, opts)
-    task = _task(robot, opts)
-    task.choices = task.choices + list(physics)
     _targets(spec, robot, task, opts)
     _custom(spec, task, opts, command=command, source=source)
     xml = spec.to_xml()
@@ -1046,6 +1056,49 @@ def _task(robot: _Robot, opts: ImportOptions) -> _Task:
         task.choices.append(f'goal region: {_fmt(task.region, 3)} (x y z r, m: {why}; '
                             '--target-region sets it)')
     return task
+
+
+#: rad/s^2 a full command may give a joint at the start pose (:func:`_cap_efforts`): the
+#: Panda's URDF efforts give 30-1800, the UR5's 47-1630 (both learned with them);
+#: pybullet_data's iiwa, 300 N m on every joint, 105-27000 (its 0.3 kg last link)
+MAX_ACCELERATION = 2000.0
+
+
+def _cap_efforts(spec: mujoco.MjSpec, robot: _Robot, task: _Task,
+                 opts: ImportOptions) -> str:
+    """
+    Cap each arm joint's effort at ``max_acceleration`` x its inertia at the start pose.
+
+    The inertia is the joint-space mass matrix's diagonal at ``task.home`` (what the joint
+    moves, armature included). A URDF that gives a light wrist the shoulder's torque makes
+    a full command, and an exploring policy's noise, whip it round; the cap is what a
+    policy then commands at most on the robot. Returns the line that says what was capped
+    ('' if nothing).
+    """
+    if opts.max_acceleration is None or not math.isfinite(opts.max_acceleration):
+        return ''
+    model, data = robot.model, mujoco.MjData(robot.model)
+    kin = _Kinematics(robot, opts)
+    kin.tip(task.home)
+    data.qpos[:] = kin.data.qpos
+    mujoco.mj_fwdPosition(model, data)
+    inertia = np.zeros((model.nv, model.nv))
+    mujoco.mj_fullM(model, data, inertia)
+    capped = []
+    for name, dof in zip(robot.arm, kin.dofs):
+        cap = opts.max_acceleration * (inertia[dof, dof] + (opts.armature or 0.0))
+        urdf = robot.efforts[name]
+        if cap < urdf:
+            cap = float(f'{cap:.3g}')
+            robot.efforts[name] = cap
+            spec.joint(name).actfrcrange = [-cap, cap]
+            capped.append(f'{name} {cap:g} (URDF {urdf:g})')
+    if not capped:
+        return ''
+    return (f'efforts: capped at {opts.max_acceleration:g} rad/s^2 x each joint\'s inertia at '
+            f'the start pose, N m: {", ".join(capped)}: a full command no longer whips the '
+            'light links, and the policy commands no more than this on the robot '
+            '(--max-acceleration sets the rate, inf keeps the URDF\'s)')
 
 
 #: the start poses tried, drawn in the middle half of every joint's range

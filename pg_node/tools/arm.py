@@ -30,6 +30,14 @@ from pg_node.tools.args import positive_float, positive_int
 MODELS = 'models'
 
 
+def _acceleration(text: str) -> float:
+    """Return ``text`` as a number > 0 (``inf`` too), or raise argparse's type error."""
+    value = float(text)
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f'must be > 0, got {text}')
+    return value
+
+
 def _height(text: str):
     return None if text.lower() == 'none' else float(text)
 
@@ -79,6 +87,10 @@ def parser() -> argparse.ArgumentParser:
                         'the joint range (default: absolute targets)')
     p.add_argument('--effort-scale', type=positive_float, default=1.0,
                    help='multiplies every URDF effort limit (default: %(default)s)')
+    p.add_argument('--max-acceleration', type=_acceleration, metavar='RAD_S2',
+                   help="caps each arm joint's effort at RAD_S2 x its inertia at the start "
+                        "pose, so that a full command does not whip a light wrist (default: "
+                        "2000; inf: the URDF's efforts)")
     p.add_argument('--gravity-compensation', action=argparse.BooleanOptionalAction,
                    default=True,
                    help="compensate the arm's weight (MuJoCo gravcomp), as torque-controlled "
@@ -230,7 +242,7 @@ def options(args):
     from pg_node.sim.urdf_import import ImportOptions
     opts = ImportOptions(
         tip=args.tip, base=args.base, actuator=args.actuator, kp=args.kp, kv=args.kv,
-        velocity_gain=args.velocity_gain,
+        velocity_gain=args.velocity_gain, max_acceleration=args.max_acceleration,
         effort_scale=args.effort_scale, gravity_compensation=args.gravity_compensation,
         tip_offset=tuple(args.tip_offset), package_paths=args.package_path,
         visual_meshes=not args.no_visual_meshes, contacts=args.contacts,
