@@ -97,7 +97,9 @@ def fingertip_positions(model, joint_names, angles):
 def two_link(tmp_path_factory):
     """Import the two-link fixture once; return the written model's path."""
     out = tmp_path_factory.mktemp('two_link') / 'two_link.xml'
-    assert arm.main(['import', str(TWO_LINK), '--tip', 'fingertip', '-o', str(out)]) == 0
+    # reacher2's efforts: the import's cap (issue 55) would lower them
+    assert arm.main(['import', str(TWO_LINK), '--tip', 'fingertip', '--max-acceleration', 'inf',
+                     '-o', str(out)]) == 0
     return out
 
 
@@ -450,7 +452,8 @@ def test_links_without_mass_are_named(tmp_path, capsys):
 def test_continuous_joints_turn_without_end(tmp_path, capsys):
     out = tmp_path / 'cont.xml'
     code, stdout, err = run_import(capsys, FIXTURES / 'continuous.urdf', '--tip', 'tip',
-                                   '--velocity-damping', *ANYWHERE, '-o', out)
+                                   '--velocity-damping', *ANYWHERE, '--max-acceleration',
+                                   'inf', '-o', out)
     assert code == 0, err
     assert 'arm joints (2): joint0, joint1' in stdout
     assert "joint 'joint0' has no effort limit; using 1 N m" in err
@@ -611,9 +614,11 @@ def test_torque_defaults_add_no_damping_and_what_the_command_says(tmp_path, caps
     code, stdout, err = run_import(capsys, TWO_LINK, '--tip', 'fingertip', '-o', out)
     assert code == 0 and not err, err
     assert ("physics: timestep 0.002 s (implicitfast), the URDF's damping (no velocity "
-            'damping), armature 0.1 kg m^2, gravity compensation on, motor actuators, hard '
+            'damping), armature 0.01 kg m^2, gravity compensation on, motor actuators, hard '
             'joint limits') in stdout
-    assert 'chose armature: 0.1 kg m^2 on every arm joint, the smallest of ' in stdout
+    assert 'chose armature: 0.01 kg m^2 on every arm joint, the smallest of ' in stdout
+    # and 2000 rad/s^2 at most: 21 N m of the URDF's 200 (issue 55)
+    assert 'chose efforts: capped at 2000 rad/s^2 x each joint' in stdout
     assert (f"model:={out} frame_skip:=20 randomize_damping='abs uniform 0 0.1' "
             in stdout)
     assert ('  (a control step of 20 x 0.002 s = 0.04 s, 50-step episodes of 2 s)'
@@ -621,11 +626,13 @@ def test_torque_defaults_add_no_damping_and_what_the_command_says(tmp_path, caps
     model = mujoco.MjModel.from_xml_path(str(out))
     assert model.opt.timestep == 0.002
     np.testing.assert_allclose(model.dof_damping, [1, 1])
-    np.testing.assert_allclose(model.dof_armature, [0.1, 0.1])
+    np.testing.assert_allclose(model.dof_armature, [0.01, 0.01])
+    np.testing.assert_allclose(model.actuator_gear[:, 0], [21.3, 20.3])
     assert model.body_gravcomp[model.body('link1').id] == 1.0
     said = model_text(out, 'pg_physics_assumptions')
     assert 'gravity compensation: the robot cancels' in said and 'velocity' not in said
-    assert said.startswith('armature: every arm joint has 0.1 kg m^2')
+    assert said.startswith('armature: every arm joint has 0.01 kg m^2')
+    assert said.splitlines()[-1].startswith("effort: each arm joint's effort at most 2000")
     # position servos get no velocity damping either (issue 46), and the 0.02 s step
     code, stdout, err = run_import(capsys, TWO_LINK, '--tip', 'fingertip', '--actuator',
                                    'position', '-o', out)
@@ -667,8 +674,10 @@ def test_velocity_damping_is_the_old_default_kept_as_an_assumption(tmp_path, cap
 
     assert fastest(out) < 1.5 * 10
     code, stdout, err = run_import(capsys, TWO_LINK, '--tip', 'fingertip',
-                                   '--no-gravity-compensation', '-o', out)
-    # (the armature the import gives the fixture's light links, issue 55, does not hold them)
+                                   '--no-gravity-compensation', '--max-acceleration', 'inf',
+                                   '-o', out)
+    # (the armature the import gives the fixture's light links, issue 55, does not hold them;
+    # its effort cap would)
     assert code == 0 and ("the URDF's damping (no velocity damping), armature 0.1 kg m^2, "
                           'gravity compensation off') in stdout
     assert model_text(out, 'pg_physics_assumptions').startswith('armature: ')
@@ -1096,7 +1105,7 @@ def test_the_import_holds_the_model_under_the_recipe_it_prints(tmp_path, capsys)
                                    '--armature', 0, '--timestep', 0.002, '-o', bare)
     assert code == 1 and len(err.strip().splitlines()) == 1, err
     assert ("MuJoCo diverges under the training's commands: joint" in err
-            and 'randomization at its low ends (damping abs 0' in err
+            and 'control steps of bang-bang commands on the ' in err
             and '--armature' in err), err
 
 
@@ -1177,8 +1186,8 @@ def test_the_import_chooses_the_task_from_the_urdf_and_says_why(tmp_path, capsys
                                    '--targets', 200, '--no-visual-meshes', '-o', out)
     assert code == 0, err
     choices = model_text(out, 'pg_import_choices').splitlines()
-    assert [line.split(':')[0] for line in choices][:4] == [
-        'home', 'goal region', 'hard limits', 'timestep']
+    assert [line.split(':')[0] for line in choices][:5] == [
+        'home', 'goal region', 'efforts', 'hard limits', 'timestep']
     assert all(f'chose {line}' in stdout for line in choices)
     task = ArmTask(out)
     spec, model = task.spec, task.model

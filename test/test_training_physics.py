@@ -42,12 +42,13 @@ def test_a_torque_import_card_has_only_the_robots_own_damping(tmp_path, capsys):
     capsys.readouterr()
     physics = make_card(str(out), 12, 2, 20, {})['physics']
     assert physics['damping'] == [1.0, 1.0]         # the URDF's <dynamics damping>
-    # the armature the import chose for the fixture's light links (issue 55), said so
-    assert physics['armature'] == [0.1, 0.1]
+    # the armature and effort cap the import chose for the fixture's light links (issue
+    # 55), said so
+    assert physics['armature'] == [0.01, 0.01]
     assert (physics['timestep'], physics['frame_skip']) == (0.002, 20)
     assert physics['control_period'] == pytest.approx(0.04)
-    assert [a.split(':')[0] for a in physics['assumptions']] == ['armature',
-                                                                 'gravity compensation']
+    assert [a.split(':')[0] for a in physics['assumptions']] == [
+        'armature', 'gravity compensation', 'effort']
 
 
 def test_the_card_of_a_checkpoint_records_its_runs_randomization(tmp_path):

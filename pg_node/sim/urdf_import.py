@@ -58,7 +58,8 @@ class ImportOptions:
     velocity_gain: Optional[float] = None
     effort_scale: float = 1.0
     #: rad/s^2: each arm joint's effort is capped at this times its inertia at the start
-    #: pose (:func:`_cap_efforts`); None: the URDF's (with ``choose``: :data:`MAX_ACCELERATION`)
+    #: pose (:func:`_cap_efforts`); None: the URDF's (with ``choose`` and motor actuators:
+    #: :data:`MAX_ACCELERATION`)
     max_acceleration: Optional[float] = None
     gravity_compensation: bool = True
     tip_offset: Tuple[float, float, float] = (0.0, 0.0, 0.0)
@@ -833,8 +834,8 @@ def _physics_candidates(given: ImportOptions):
     if not given.choose:
         yield opts, []
         return
-    if given.max_acceleration is None:
-        opts = replace(opts, max_acceleration=MAX_ACCELERATION)
+    if given.max_acceleration is None and given.actuator == 'motor':   # a full command is a
+        opts = replace(opts, max_acceleration=MAX_ACCELERATION)          # full torque
     said = []
     if given.hard_limits is None:
         said.append('hard limits: every limited arm joint stops as hard as MuJoCo keeps '

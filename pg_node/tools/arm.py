@@ -89,8 +89,8 @@ def parser() -> argparse.ArgumentParser:
                    help='multiplies every URDF effort limit (default: %(default)s)')
     p.add_argument('--max-acceleration', type=_acceleration, metavar='RAD_S2',
                    help="caps each arm joint's effort at RAD_S2 x its inertia at the start "
-                        "pose, so that a full command does not whip a light wrist (default: "
-                        "2000; inf: the URDF's efforts)")
+                        "pose, so that a full torque does not whip a light wrist (default: 2000 "
+                        "for motor actuators, none for servos; inf: the URDF's efforts)")
     p.add_argument('--gravity-compensation', action=argparse.BooleanOptionalAction,
                    default=True,
                    help="compensate the arm's weight (MuJoCo gravcomp), as torque-controlled "
