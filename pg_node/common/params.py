@@ -139,7 +139,6 @@ LEARNER_PARAMS: Dict[str, Param] = {
     'sched_idle': SCHED_IDLE,
 }
 
-
 SIM_PARAMS: Dict[str, Param] = {
     'frame_skip': Param(2, 'physics steps per control step', low=1),
     'max_episode_steps': Param(50, 'control steps after which an episode is truncated', low=1),
