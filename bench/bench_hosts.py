@@ -38,7 +38,8 @@ sys.path.insert(0, str(REPO))
 from bench.lan import dds_env, Lan, unavailable  # noqa: E402
 from bench.tax import split_round_trips  # noqa: E402
 import numpy as np  # noqa: E402
-from pg_node.common.params import defaults, load_config, SHARED  # noqa: E402
+from pg_node.common.config_files import load_config  # noqa: E402
+from pg_node.common.params import defaults, SHARED  # noqa: E402
 from pg_node.tools import processes  # noqa: E402
 
 

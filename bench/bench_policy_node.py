@@ -59,7 +59,7 @@ def make_policy(workdir: Path, given):
     from pg_node.rl.onnx_export import export_policy
     from pg_node.rl.trained_policy import find_checkpoint, TorchPolicy
     if given is None:
-        from pg_node.common.params import load_config
+        from pg_node.common.config_files import load_config
         from pg_node.rl.train_inprocess import train_inprocess
         summary = train_inprocess(load_config(None, ['num_envs=8']), 4096, eval_episodes=1)
         given = workdir / 'run'

@@ -20,7 +20,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # the repositor
 
 from bench.runs import run_graph  # noqa: E402
 import numpy as np  # noqa: E402
-from pg_node.common.params import load_config  # noqa: E402
+from pg_node.common.config_files import load_config  # noqa: E402
 from pg_node.common.paths import config_file  # noqa: E402
 from pg_node.tools.train import read_progress  # noqa: E402
 

@@ -236,7 +236,7 @@ def main(argv=None) -> int:
     parser.add_argument('--publish', action='store_true',
                         help='also time publishing the metric messages (rclpy)')
     args = parser.parse_intermixed_args(argv)
-    from pg_node.common.params import load_config
+    from pg_node.common.config_files import load_config
     import torch
     torch.set_num_threads(1)                        # as the nodes and train_inprocess
     cfg = load_config(None, args.overrides)

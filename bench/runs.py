@@ -83,7 +83,7 @@ def sim_node_lock_step(n: int, seconds: float) -> float:
 
 def a2c_in_process(steps: int, seed: int = 0) -> Dict:
     """Train pg_node A2C in-process for ``steps``; return its summary (numbers only)."""
-    from pg_node.common.params import load_config
+    from pg_node.common.config_files import load_config
     from pg_node.rl.train_inprocess import train_inprocess
     summary = train_inprocess(load_config(None, [f'seed={seed}']), steps, eval_episodes=10)
     return {k: summary[k] for k in ('total_steps', 'wall_seconds', 'steps_per_second')}
@@ -328,7 +328,7 @@ def sb3_learning(algo: str, env_id: str, steps: int, seed: int, eval_points: Seq
 def inprocess_learning(steps: int, seed: int, eval_points: Sequence[int],
                        eval_episodes: int = 100) -> Dict:
     """Train pg_node A2C in-process; deterministic evaluations at ``eval_points``."""
-    from pg_node.common.params import load_config
+    from pg_node.common.config_files import load_config
     from pg_node.rl import train_inprocess as tip
     from pg_node.rl.evaluate import evaluate_policy
     points = sorted({int(p) for p in eval_points})
@@ -450,7 +450,7 @@ def profile_inprocess(steps: int, seed: int = 0, overrides: Sequence[str] = (),
     """
     import cProfile
     import pstats
-    from pg_node.common.params import load_config
+    from pg_node.common.config_files import load_config
     from pg_node.rl.train_inprocess import train_inprocess
     cfg = load_config(None, [f'seed={seed}', *overrides])
     prof = cProfile.Profile()

@@ -41,7 +41,9 @@ import signal
 import sys
 import time
 
-from pg_node.common.params import ConfigError, load_config, SHARED
+from pg_node.common.config_files import load_config
+from pg_node.common.param_schema import ConfigError
+from pg_node.common.params import SHARED
 from pg_node.common.run import COMMANDS, pair_namespace, run_id_for_dir, run_topic
 from pg_node.tools.processes import terminate_as_interrupt
 

@@ -100,7 +100,7 @@ class LoadWatch:
 
 def inprocess_rate(steps: int, overrides: Sequence[str] = ()) -> float:
     """Return env steps/s of in-process training (clock from the first update, as the graph)."""
-    from pg_node.common.params import load_config
+    from pg_node.common.config_files import load_config
     from pg_node.rl.train_inprocess import train_inprocess
     first = []
 

@@ -31,7 +31,7 @@ def main() -> int:
     parser.add_argument('--eval-episodes', type=int, default=100)
     parser.add_argument('--save', type=Path, help='keep the checkpoint in DIR/checkpoints')
     args = parser.parse_args()
-    from pg_node.common.params import load_config
+    from pg_node.common.config_files import load_config
     from pg_node.common.paths import config_file
     from pg_node.rl.train_inprocess import train_inprocess
     cfg = load_config(config_file(args.config), args.overrides)

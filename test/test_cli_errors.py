@@ -11,7 +11,7 @@ import subprocess
 import sys
 
 from domains import ros_domain
-from pg_node.common.params import load_config
+from pg_node.common.config_files import load_config
 from pg_node.common.paths import default_config
 from pg_node.rl.checkpoint import save_checkpoint
 from pg_node.rl.learner import Learner

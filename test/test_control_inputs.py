@@ -9,7 +9,7 @@ refusal), :mod:`pg_node.control.targets` (frames, the reach clamp, goals per arm
 import doctest
 
 import numpy as np
-from pg_node.common.params import ConfigError
+from pg_node.common.param_schema import ConfigError
 from pg_node.control import joint_map, targets, watchdog
 from pg_node.control.estop import EStop
 from pg_node.control.joint_map import arm_joint_names, controller_mismatch, joint_columns

@@ -7,7 +7,7 @@ import sys
 
 from domains import ros_domain
 import numpy as np
-from pg_node.common.params import load_config
+from pg_node.common.config_files import load_config
 from pg_node.rl.a2c import PolicyBatch
 from pg_node.rl.learner import Learner
 from pg_node.rl.natural_gradient import (conjugate_gradient, fisher_vector_product, flat,

@@ -140,7 +140,7 @@ def test_policy_node_commands_changes_around_the_measured_angle(tmp_path):
     import time
     from domains import ros_domain
     from mcap_ros2.reader import read_ros2_messages
-    from pg_node.common.params import load_config
+    from pg_node.common.config_files import load_config
     from pg_node.rl.train_inprocess import train_inprocess
     from pg_node.ros.policy_node import tick_from_msg
     from pg_node.tools import processes
@@ -196,7 +196,7 @@ def test_policy_node_commands_changes_around_the_measured_angle(tmp_path):
 
 def test_a_run_sets_the_delta_without_importing_again(tmp_path, capsys):
     """``sim_node.position_delta`` makes an absolute import's actions bounded changes."""
-    from pg_node.common.params import ConfigError
+    from pg_node.common.param_schema import ConfigError
     code, out, _, _ = import_arm(tmp_path, capsys)
     assert code == 0
     task = ArmTask(out, seed=0, position_delta=0.05)
@@ -235,7 +235,7 @@ def test_train_refuses_a_delta_for_torque_arms_in_one_line(tmp_path, capsys):
 def trained(tmp_path, model, delta, steps, seed=0):
     """Train ``model`` in-process ``steps`` steps with ``position_delta``; save it as a run."""
     import yaml
-    from pg_node.common.params import load_config
+    from pg_node.common.config_files import load_config
     from pg_node.rl.train_inprocess import train_inprocess
     # a small control cost: at the default 1, a full change (|a| = 1 per joint) costs 2 a
     # step against a distance of about 0.2 m, and the policy learns to stay still

@@ -127,7 +127,7 @@ def test_resume_says_so_and_counts_this_session_only(runs):
 @pytest.mark.parametrize('pairs', [1, 2])
 def test_compose_runs_each_simulator_and_its_actor_as_one_process(tmp_path, pairs):
     """By default one process per pair and one for the critic and the learner."""
-    from pg_node.common.params import load_config
+    from pg_node.common.config_files import load_config
     from pg_node.tools.train import learner_process, node_commands, sim_seeds
     cfg = load_config(None, [f'num_actors={pairs}', 'seed=5', 'num_envs=16'])
     params = tmp_path / 'params.yaml'

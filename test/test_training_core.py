@@ -2,7 +2,8 @@
 import os
 
 import numpy as np
-from pg_node.common.params import ConfigError, load_config, Param
+from pg_node.common.config_files import load_config
+from pg_node.common.param_schema import ConfigError, Param
 from pg_node.rl.checkpoint import list_checkpoints, load_latest, save_checkpoint
 from pg_node.rl.critic import Critic
 from pg_node.rl.learner import EpisodeStats, Learner
@@ -403,7 +404,7 @@ def test_last_progress_reads_the_newest_finished_row_from_the_tail(tmp_path):
 def test_docs_parameter_table_is_the_parameter_table():
     """docs/ros_graph.md's table is generated from the table the nodes declare (no drift)."""
     from pathlib import Path
-    from pg_node.common.params import markdown_table
+    from pg_node.tools.param_docs import markdown_table
     page = (Path(__file__).resolve().parent.parent / 'docs' / 'ros_graph.md').read_text()
     start = page.index('<!-- parameter table:')
     end = page.index('<!-- end of parameter table -->')

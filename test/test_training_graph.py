@@ -21,7 +21,7 @@ import time
 
 from domains import ros_domain
 import numpy as np
-from pg_node.common.params import load_config
+from pg_node.common.config_files import load_config
 from pg_node.common.paths import default_config
 from pg_node.rl.evaluate import evaluate_policy
 from pg_node.rl.learner import make_policy

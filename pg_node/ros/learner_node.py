@@ -42,11 +42,13 @@ import time
 from diagnostic_msgs.msg import DiagnosticStatus
 import numpy as np
 from pg_node.bag.recorder import EPISODE_QOS, EpisodeRecorder
-from pg_node.common.params import check_algo_setting, ConfigError, params_for
+from pg_node.common.param_schema import ConfigError
+from pg_node.common.params import params_for
 from pg_node.common.paths import resolve_model
 from pg_node.rl.learner import EpisodeStats, Learner
 from pg_node.rl.learner_gate import LearnerGate, Verdict
 from pg_node.rl.logger import TensorBoardLog
+from pg_node.rl.updaters import check_algo_setting
 from pg_node.ros import messages
 from pg_node.ros import table_msg
 from pg_node.ros.diagnostics import Diagnostics, RateCounter

@@ -127,7 +127,8 @@ from geometry_msgs.msg import PointStamped
 import mujoco
 import numpy as np
 from pg_node.bag.writer import BagWriter
-from pg_node.common.params import ConfigError, POLICY_PARAMS
+from pg_node.common.param_schema import ConfigError
+from pg_node.common.params import POLICY_PARAMS
 from pg_node.common.run import CONTROLLER_COMMANDS, CONTROLLER_TRAJECTORY
 from pg_node.control import interfaces, physics_check
 from pg_node.control.composers import command_trajectory

@@ -126,7 +126,8 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Point, PointStamped
 import numpy as np
 from pg_node.bag.ros_types import float64_field
-from pg_node.common.params import arm_indices, ConfigError, params_for
+from pg_node.common.param_schema import arm_indices, ConfigError
+from pg_node.common.params import params_for
 from pg_node.common.paths import resolve_model
 from pg_node.common.perturbations import from_params
 from pg_node.common.run import COMMANDS, CONTROLLER_TRAJECTORY

@@ -69,7 +69,7 @@ from typing import List, Mapping, Optional
 
 import mujoco
 import numpy as np
-from pg_node.common.params import ConfigError
+from pg_node.common.param_schema import ConfigError
 from pg_node.common.perturbations import parse_terms
 from pg_node.control import position_delta
 from pg_node.control.interfaces import INTERFACES

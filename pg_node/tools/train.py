@@ -36,8 +36,10 @@ from typing import List, Optional
 
 from pg_node.bag.reader import bag_dirs
 from pg_node.common import graph_plan
+from pg_node.common.config_files import load_config
 from pg_node.common.graph_plan import module_of
-from pg_node.common.params import ConfigError, load_config, SHARED
+from pg_node.common.param_schema import ConfigError
+from pg_node.common.params import SHARED
 from pg_node.common.paths import preset_names
 from pg_node.common.run import run_id_for_dir, run_namespace
 from pg_node.tools.args import non_negative_float, run_id_arg
@@ -101,6 +103,7 @@ def parse_args(argv):
 def resolve_config(args) -> dict:
     """Return the validated configuration of every node, overrides applied."""
     from pg_node.common.paths import config_file, default_config
+    from pg_node.rl.updaters import check_settings
     overrides = list(args.overrides)
     if args.total_steps is not None:
         overrides.append(f'total_steps={args.total_steps}')
@@ -114,7 +117,7 @@ def resolve_config(args) -> dict:
         path = config_file(args.config) if args.config else default_config()
     except FileNotFoundError as exc:
         raise ConfigError(str(exc)) from None
-    cfg = load_config(path, overrides)
+    cfg = load_config(path, overrides, check=check_settings)
     if not cfg[SHARED]['run_id']:
         # a run always has an identity on the network: its directory's name by default
         cfg = load_config(path, overrides + [f'run_id={run_id_for_dir(run_dir)}'])

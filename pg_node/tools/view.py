@@ -293,7 +293,7 @@ def _set_target(spec, data, point) -> None:
 
 def main(argv=None) -> int:
     """Serve the live graph or a bag to the Foxglove app; return the exit status."""
-    from pg_node.common.params import arm_indices
+    from pg_node.common.param_schema import arm_indices
     parser = argparse.ArgumentParser(prog='python -m pg_node view',
                                      description=__doc__.split('\n\n')[0].strip('`'))
     parser.add_argument('run', nargs='?', help='run directory, bag directory or .mcap '
