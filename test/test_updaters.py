@@ -7,20 +7,27 @@ configuration, when the learner is built, and when it is changed live), while a 
 update shares with others, or a default given back, is accepted.
 """
 import inspect
+import os
+from pathlib import Path
+import subprocess
+import sys
 
 import numpy as np
 from pg_node.common.config_files import load_config
 from pg_node.common.param_schema import ConfigError
 from pg_node.common.params import defaults, LEARNER_PARAMS
 from pg_node.common.paths import default_config
+from pg_node.rl import update_settings
 from pg_node.rl.a2c import A2CUpdate, PolicyBatch, PPOUpdate
 from pg_node.rl.learner import Learner
 from pg_node.rl.policy import GaussianPolicy
-from pg_node.rl.updaters import check_algo_setting, check_settings, make_updater, UPDATERS
+from pg_node.rl.update_settings import check_algo_setting, check_settings
+from pg_node.rl.updaters import make_updater, UPDATERS
 import pytest
 import torch
 
-#: the settings each update declares (its class is the one place that says so)
+REPO = Path(__file__).resolve().parent.parent
+#: the settings each update is built from (update_settings.SETTINGS is the one place)
 ALGO_SETTINGS = {name: cls.settings for name, cls in UPDATERS.items()}
 SETTINGS = sorted(set().union(*ALGO_SETTINGS.values()))
 
@@ -44,8 +51,10 @@ def learner_cfg(**change):
 
 def test_the_registry_holds_exactly_the_algos_the_parameter_offers():
     assert tuple(UPDATERS) == LEARNER_PARAMS['algo'].choices
+    assert tuple(update_settings.SETTINGS) == tuple(UPDATERS)
     for name, cls in UPDATERS.items():
         assert cls.name == name
+        assert cls.settings is update_settings.SETTINGS[name], name
         assert len(set(cls.settings)) == len(cls.settings), name
 
 
@@ -141,11 +150,12 @@ def test_a_skipped_step_merges_the_observations_only_where_others_moved_the_poli
     assert (float(learner.policy.obs_norm.count) > count) == merged
 
 
-def test_a_setting_declared_on_an_update_class_is_checked_with_no_other_edit(monkeypatch):
-    """The class is the one source: give A2C clip_range and every check follows at once."""
+def test_a_setting_added_to_the_table_is_checked_with_no_other_edit(monkeypatch):
+    """SETTINGS is the one source: give A2C clip_range and every check follows at once."""
     with pytest.raises(ConfigError, match="algo 'a2c' has no clip_range"):
         load_config(None, ['algo=a2c', 'clip_range=0.3'], check=check_settings)
-    monkeypatch.setattr(A2CUpdate, 'settings', A2CUpdate.settings + ('clip_range',))
+    monkeypatch.setitem(update_settings.SETTINGS, 'a2c',
+                        update_settings.SETTINGS['a2c'] + ('clip_range',))
     cfg = load_config(None, ['algo=a2c', 'clip_range=0.3'], check=check_settings)
     assert cfg['learner_node']['clip_range'] == 0.3
     with pytest.raises(ConfigError) as err:
@@ -189,3 +199,16 @@ def test_target_kl_from_the_configuration_reaches_ppo_and_ends_its_epochs(monkey
     assert epochs_run(learner.update) == 3
     with pytest.raises(ConfigError, match="algo 'a2c' has no target_kl"):
         Learner(3, 1, learner_cfg(algo='a2c', target_kl=0.01))
+
+
+def test_train_checks_the_algorithm_settings_without_torch():
+    """The table and its check import no torch: train refuses a setting before it loads."""
+    from test_architecture import BLOCKER
+    code = BLOCKER.split('import pg_node')[0] + (
+        'from pg_node.common.config_files import load_config\n'
+        'from pg_node.rl.update_settings import check_settings\n'
+        'load_config(None, ["algo=trpo"], check=check_settings)\n')
+    done = subprocess.run([sys.executable, '-c', code, 'torch'], capture_output=True,
+                          text=True, timeout=60, cwd=REPO, env={**os.environ,
+                                                                'PYTHONPATH': str(REPO)})
+    assert done.returncode == 0, done.stderr

@@ -15,6 +15,7 @@ from typing import Dict, List, Optional
 
 import numpy as np
 from pg_node.rl import losses
+from pg_node.rl.update_settings import SETTINGS
 import torch
 from torch import nn
 
@@ -96,7 +97,7 @@ class A2CUpdate(_Optimized):
 
     name = 'a2c'
     #: the learner parameters it is built from (pg_node.rl.updaters checks configurations here)
-    settings = ('learning_rate', 'optimizer', 'ent_coef', 'max_grad_norm', 'normalize_advantage')
+    settings = SETTINGS['a2c']
     #: a skipped step left the policy as it was: its batch's observations are not merged
     merge_obs_after_skip = False
     #: stop a batch's epochs once the approximate KL exceeds 1.5 of this (0: never; PPO's)
@@ -169,7 +170,7 @@ class PPOUpdate(A2CUpdate):
     """PPO: ``n_epochs`` passes of shuffled minibatches on the clipped surrogate."""
 
     name = 'ppo'
-    settings = A2CUpdate.settings + ('n_epochs', 'batch_size', 'clip_range', 'target_kl')
+    settings = SETTINGS['ppo']
     #: ``skipped`` counts minibatches: the others moved the policy, so the batch is merged
     merge_obs_after_skip = True
 

@@ -14,7 +14,8 @@ import numpy as np
 from pg_node.rl.a2c import PolicyBatch
 from pg_node.rl.checkpoint import load_latest, save_checkpoint
 from pg_node.rl.policy import GaussianPolicy
-from pg_node.rl.updaters import check_algo_setting, make_updater
+from pg_node.rl.update_settings import check_algo_setting
+from pg_node.rl.updaters import make_updater
 from pg_node.rl.weights import flatten_state
 import torch
 

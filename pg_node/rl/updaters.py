@@ -8,19 +8,17 @@ their losses, :class:`~pg_node.rl.natural_gradient.NPGUpdate` and
 knows an update only through this protocol, and picks its class here by name; the math
 stays in its modules, the choice lives in this one.
 
-Each class declares the learner parameters it is built from (its ``settings``), and this
-registry is the one place that says which update has which: :func:`check_algo_setting`
-refuses a setting the chosen update lacks, for ``train``'s configuration
-(:func:`check_settings`, given to :func:`pg_node.common.config_files.load_config`), for the
-learner when it is built and for ``ros2 param set``. The parameter table (a lower layer)
-lists the same names as ``algo``'s choices; a test keeps the two equal.
+Each class is built from the learner parameters :data:`pg_node.rl.update_settings.SETTINGS`
+gives its ``algo`` (its ``settings``): that table, free of torch, is the one place that says
+which update has which, and :func:`pg_node.rl.update_settings.check_algo_setting` refuses a
+setting the chosen update lacks, for ``train``'s configuration before any node starts, for
+the learner when it is built and for ``ros2 param set``.
 """
-from typing import Any, Dict, Optional, Protocol, Tuple, Type
+from typing import Dict, Optional, Protocol, Tuple, Type
 
-from pg_node.common.param_schema import ConfigError
-from pg_node.common.params import LEARNER_PARAMS
 from pg_node.rl.a2c import A2CUpdate, PolicyBatch, PPOUpdate
 from pg_node.rl.natural_gradient import NPGUpdate, TRPOUpdate
+from pg_node.rl.update_settings import check_settings
 from torch import nn
 
 
@@ -55,36 +53,6 @@ class Updater(Protocol):
 #: every policy update by the name ``algo`` gives it
 UPDATERS: Dict[str, Type[Updater]] = {
     cls.name: cls for cls in (A2CUpdate, PPOUpdate, NPGUpdate, TRPOUpdate)}
-
-
-def check_algo_setting(label: str, algo: str, key: str, value) -> None:
-    """
-    Raise ConfigError if ``key`` is a setting ``algo``'s update lacks, set off its default.
-
-    A value equal to the default passes: the shipped parameter file and ``ros2 param dump``
-    list every parameter, every update's settings included, and giving those back changes
-    nothing. Any other value would be taken and ignored, so it is refused, naming the
-    settings ``algo`` has.
-    """
-    has = UPDATERS[algo].settings
-    if key in has or not any(key in cls.settings for cls in UPDATERS.values()):
-        return
-    if value != LEARNER_PARAMS[key].default:
-        raise ConfigError(f'parameter {label!r}: {value!r} is not allowed: algo {algo!r} has '
-                          f'no {key}; its settings: {", ".join(has)}')
-
-
-def check_settings(section: str, values: Dict[str, Any]) -> None:
-    """
-    Check every value of a configuration that names an ``algo`` (the learner's section).
-
-    The label of a refused key is ``section.key`` (``key`` alone for an empty ``section``).
-    Other sections pass: this is :func:`pg_node.common.config_files.load_config`'s ``check``.
-    """
-    if 'algo' not in values:
-        return
-    for key, value in values.items():
-        check_algo_setting(f'{section}.{key}' if section else key, values['algo'], key, value)
 
 
 def make_updater(policy: nn.Module, cfg: Dict) -> Updater:

@@ -48,7 +48,7 @@ from pg_node.common.paths import resolve_model
 from pg_node.rl.learner import EpisodeStats, Learner
 from pg_node.rl.learner_gate import LearnerGate, Verdict
 from pg_node.rl.logger import TensorBoardLog
-from pg_node.rl.updaters import check_algo_setting
+from pg_node.rl.update_settings import check_algo_setting
 from pg_node.ros import messages
 from pg_node.ros import table_msg
 from pg_node.ros.diagnostics import Diagnostics, RateCounter

@@ -103,7 +103,7 @@ def parse_args(argv):
 def resolve_config(args) -> dict:
     """Return the validated configuration of every node, overrides applied."""
     from pg_node.common.paths import config_file, default_config
-    from pg_node.rl.updaters import check_settings
+    from pg_node.rl.update_settings import check_settings
     overrides = list(args.overrides)
     if args.total_steps is not None:
         overrides.append(f'total_steps={args.total_steps}')
