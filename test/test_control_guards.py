@@ -15,7 +15,8 @@ import numpy as np
 from pg_node.control import status, watchdog
 from pg_node.control.guards import CommandGuard, GuardSettings, model_limits
 from pg_node.control.interfaces import INTERFACES
-from pg_node.control.status import diagnostic_level, Fault, GuardEvent, NodeState, Severity
+from pg_node.control.status import (diagnostic_level, Fault, GuardEvent, NodeState,
+                                    RepeatedWarnings, Severity)
 import pytest
 
 JOINTS = ['joint0', 'joint1']
@@ -295,3 +296,16 @@ def test_events_that_warn_and_the_diagnostics_level():
 def test_worked_examples(module):
     failures, tried = doctest.testmod(module)
     assert tried > 0 and failures == 0
+
+
+def test_a_repeated_warning_is_logged_once_then_once_a_period_with_its_count():
+    """A guard acting every tick: its first line at once, then one per period, counted."""
+    warnings = RepeatedWarnings(period=30.0)
+    ticks = np.arange(0.0, 95.0, 0.04)              # 25 Hz for 95 s
+    lines = [(t, line) for t in ticks
+             if (line := warnings.line(GuardEvent.JOINT_LIMIT, 'joint limit guard', t))]
+    assert [round(t, 2) for t, _ in lines] == [0.0, 30.0, 60.0, 90.0]
+    assert lines[0][1] == 'joint limit guard'
+    assert lines[1][1] == 'joint limit guard (750 times in the last 30 s)'
+    # another guard has its own first line and count
+    assert warnings.line(GuardEvent.OVER_SPEED, 'over-speed', 91.0) == 'over-speed'

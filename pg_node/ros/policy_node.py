@@ -136,7 +136,8 @@ from pg_node.control.deployment import Deployment, Event, JointSample, Status
 from pg_node.control.estop import EStop
 from pg_node.control.guards import CommandGuard, GuardSettings
 from pg_node.control.joint_map import arm_joint_names, controller_mismatch, joint_columns
-from pg_node.control.status import diagnostic_level, Fault, GuardEvent, NodeState, Severity
+from pg_node.control.status import (diagnostic_level, Fault, GuardEvent, NodeState,
+                                    RepeatedWarnings, Severity)
 from pg_node.control.targets import BASE, clamp_to_reach, frame_key, target_array, Twins
 from pg_node.control.watchdog import Watchdog
 from pg_node.rl.trained_policy import load_trained_policy, PolicySourceError
@@ -174,6 +175,8 @@ LEVELS = {Severity.OK: DiagnosticStatus.OK, Severity.WARN: DiagnosticStatus.WARN
           Severity.ERROR: DiagnosticStatus.ERROR}
 #: calls of the policy on configure before the first real one
 WARM_UP = 5
+#: seconds between two lines of the same guard's warning (the first comes at once)
+REPEAT_PERIOD = 30.0
 #: the record's topic: one message per control tick
 TICKS_TOPIC = '/policy_node/ticks'
 #: its table's columns, one row per arm
@@ -201,6 +204,8 @@ class PolicyNode(LifecycleNode):
                               'ckpt_*.pt file or an exported .onnx file (-p policy:=PATH)')
         self.exit_code = None               # set on a fatal input: run() ends the process
         self.told = set()                   # the warnings given (once each)
+        # a guard's warning: the first time, then with a count once in REPEAT_PERIOD s
+        self.repeated = RepeatedWarnings(REPEAT_PERIOD)
         self.refusal: Optional[ConfigError] = None     # why the last configure failed
         # what configure builds (cleanup drops it): the decisions of each tick, the policy
         # and what the node publishes, records and reports of it
@@ -723,8 +728,10 @@ class PolicyNode(LifecycleNode):
             self.log_event(event, tick)
         for event in tick.guard_events:
             self.counters[f'guard_{event.key}'] += 1
-            if event.severity >= Severity.WARN:
-                self.get_logger().warning(event.warning, throttle_duration_sec=1.0)
+            line = self.repeated.line(event, event.warning, time.monotonic()) \
+                if event.severity >= Severity.WARN else None
+            if line:
+                self.get_logger().warning(line)
         if tick.command is not None:
             self.record(tick.command, self.publish(tick.command, hold=tick.hold), tick.age,
                         tick.obs, tick.mean, tick.action, tick.acted)
