@@ -18,7 +18,7 @@ from pg_node.common.param_schema import ConfigError
 from pg_node.common.params import defaults, LEARNER_PARAMS
 from pg_node.common.paths import default_config
 from pg_node.rl import update_settings
-from pg_node.rl.a2c import A2CUpdate, PolicyBatch, PPOUpdate
+from pg_node.rl.a2c import PolicyBatch, PPOUpdate
 from pg_node.rl.learner import Learner
 from pg_node.rl.policy import GaussianPolicy
 from pg_node.rl.update_settings import check_algo_setting, check_settings
