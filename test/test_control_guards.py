@@ -309,3 +309,35 @@ def test_a_repeated_warning_is_logged_once_then_once_a_period_with_its_count():
     assert lines[1][1] == 'joint limit guard (750 times in the last 30 s)'
     # another guard has its own first line and count
     assert warnings.line(GuardEvent.OVER_SPEED, 'over-speed', 91.0) == 'over-speed'
+
+
+@pytest.mark.parametrize('lighter', [1.0, 5.0])
+def test_a_model_without_damping_still_brakes_a_moving_joint_to_rest(lighter):
+    """
+    No joint damping (a Franka recipe): the hold is the braking gain, never 0 N m.
+
+    A joint of the model's largest inertia, or one ``lighter`` times lighter (the Panda's
+    shoulder, folded), moving at 1 rad/s, under the hold command held a whole tick as a
+    controller holds it: at rest (below 1 mrad/s) within 30 ticks, after at most
+    ``BRAKE_TICKS`` ticks' worth of its first speed.
+    """
+    from pg_node.control.guards import BRAKE_TICKS
+    undamped = replace(REACHER2, damping=np.zeros(2))
+    period = 0.04
+    g = CommandGuard(undamped, undamped.joints, 'effort', GuardSettings(), period=period)
+    inertia = undamped.inertia / lighter
+    q, qdot = np.zeros((1, 2)), np.array([[1.0, -1.0]])
+    travelled = np.zeros(2)
+    for tick in range(30):
+        torque = to_si(g.hold_tick(q, qdot))[0]
+        if tick == 0:
+            assert np.all(np.abs(torque) > 0), torque                      # not 0 N m
+        for _ in range(40):                                  # the robot's 1 ms steps
+            qdot = qdot + torque / inertia * (period / 40)
+            q = q + qdot * (period / 40)
+            travelled += np.abs(qdot[0]) * (period / 40)
+    assert np.all(np.abs(qdot) < 1e-3), qdot
+    assert np.all(travelled < BRAKE_TICKS * period * 1.0 + 1e-9), travelled
+    # the model's damping, where it has some, stays the hold's gain
+    assert model_limits(REACHER2, INTERFACES['effort'], GuardSettings(), period).hold_damping \
+        .tolist() == [1.0, 1.0]
