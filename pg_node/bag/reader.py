@@ -25,6 +25,7 @@ from mcap.records import Channel, Chunk, DataEnd, Message, Metadata, Schema
 from mcap.stream_reader import breakup_chunk, CRCValidationError, StreamReader
 from mcap.writer import MCAP0_MAGIC
 from pg_node.bag import ros_types
+from pg_node.common.run_dir import RunDir
 import yaml
 
 
@@ -262,14 +263,8 @@ def _starts_as_mcap(path: Path) -> bool:
 
 
 def bag_dirs(run_dir) -> list:
-    """
-    Return a run directory's bags in the order its learners wrote them: ``bag``, ``bag_1``...
-
-    A learner that restarts, or a run resumed by a second ``train``, writes the next one.
-    """
-    found = [p for p in Path(run_dir).glob('bag*') if p.is_dir()
-             and (p.name == 'bag' or p.name[4:].isdigit() and p.name[3] == '_')]
-    return sorted(found, key=lambda p: int(p.name[4:] or 0))
+    """Return a run directory's bags in the order its learners wrote them (``RunDir.bags``)."""
+    return RunDir(run_dir).bags()
 
 
 def _split_index(path: Path):
