@@ -146,6 +146,13 @@ class RunDir:
 
     def __init__(self, path):
         self.path = Path(path)
+        self.params = self.path / 'params.yaml'         # every node's resolved parameters
+        self.progress = self.path / 'progress.csv'      # the learner's row per update
+        self.checkpoints = self.path / 'checkpoints'    # the learner's ckpt_<version>.pt
+        self.summary = self.path / 'summary.json'       # train's summary of the run
+        self.logs = self.path / 'logs'                  # the node processes' logs
+        self.tensorboard = self.path / 'tensorboard'    # the learner's event files
+        self.curve = self.path / 'learning_curve.png'   # the figure train draws at the end
 
     @classmethod
     def of_checkpoint(cls, path) -> 'RunDir':
@@ -165,44 +172,9 @@ class RunDir:
     def __repr__(self):
         return f'RunDir({str(self.path)!r})'
 
-    @property
-    def params(self) -> Path:
-        """Return the resolved parameters' file, ``params.yaml``."""
-        return self.path / 'params.yaml'
-
-    @property
-    def progress(self) -> Path:
-        """Return the learner's progress file, ``progress.csv``."""
-        return self.path / 'progress.csv'
-
-    @property
-    def checkpoints(self) -> Path:
-        """Return the learner's checkpoints' folder."""
-        return self.path / 'checkpoints'
-
-    @property
-    def summary(self) -> Path:
-        """Return ``train``'s summary, ``summary.json``."""
-        return self.path / 'summary.json'
-
-    @property
-    def logs(self) -> Path:
-        """Return the folder of the node processes' logs."""
-        return self.path / 'logs'
-
     def log(self, process: str) -> Path:
         """Return the log file of the node process named ``process``."""
         return self.logs / f'{process}.log'
-
-    @property
-    def tensorboard(self) -> Path:
-        """Return the learner's TensorBoard event files' folder."""
-        return self.path / 'tensorboard'
-
-    @property
-    def curve(self) -> Path:
-        """Return the learning-curve figure ``train`` draws at the end."""
-        return self.path / 'learning_curve.png'
 
     def make(self) -> 'RunDir':
         """Create the directory (and its parents) if it does not exist; return self."""
