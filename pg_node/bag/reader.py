@@ -25,7 +25,6 @@ from mcap.records import Channel, Chunk, DataEnd, Message, Metadata, Schema
 from mcap.stream_reader import breakup_chunk, CRCValidationError, StreamReader
 from mcap.writer import MCAP0_MAGIC
 from pg_node.bag import ros_types
-from pg_node.common.run_dir import RunDir
 import yaml
 
 
@@ -260,11 +259,6 @@ def _starts_as_mcap(path: Path) -> bool:
             return f.read(len(MCAP0_MAGIC)) == MCAP0_MAGIC
     except OSError:
         return False
-
-
-def bag_dirs(run_dir) -> list:
-    """Return a run directory's bags in the order its learners wrote them (``RunDir.bags``)."""
-    return RunDir(run_dir).bags()
 
 
 def _split_index(path: Path):

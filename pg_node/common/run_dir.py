@@ -147,6 +147,7 @@ class RunDir:
     def __init__(self, path):
         self.path = Path(path)
         self.params = self.path / 'params.yaml'         # every node's resolved parameters
+        self.bag = self.path / BAG                      # the first bag (then bag_1, ...)
         self.progress = self.path / 'progress.csv'      # the learner's row per update
         self.checkpoints = self.path / 'checkpoints'    # the learner's ckpt_<version>.pt
         self.summary = self.path / 'summary.json'       # train's summary of the run
@@ -183,7 +184,7 @@ class RunDir:
 
     def has_bag(self) -> bool:
         """Return whether the run has its first bag: whether ``path`` is a run directory."""
-        return (self.path / BAG).is_dir()
+        return self.bag.is_dir()
 
     def bags(self) -> List[Path]:
         """
@@ -197,8 +198,8 @@ class RunDir:
 
     def next_bag(self) -> Path:
         """Return the folder of the bag a learner starting now writes: the first free one."""
-        if not (self.path / BAG).exists():
-            return self.path / BAG
+        if not self.bag.exists():
+            return self.bag
         k = 1
         while (self.path / f'{BAG}_{k}').exists():
             k += 1
