@@ -34,7 +34,7 @@ def test_the_next_bag_is_the_first_free_one_and_bags_read_in_that_order(tmp_path
         (tmp_path / other).mkdir()
     (tmp_path / 'bag_12').write_text('a file, not a bag')
     assert [b.name for b in run.bags()] == names
-    # the learner's next bag fills no gap: it goes after the last, as a restart does
+    # a name that anything holds is not free
     assert run.next_bag().name == 'bag_13'
 
 
@@ -54,7 +54,7 @@ def test_the_writers_rows_read_back_with_nan_as_empty_cells(tmp_path):
     assert math.isnan(rows[0]['episode_return']) and rows[1]['episode_return'] == -3.5
     assert run.last_progress() == rows[-1] == last_progress(run.progress)
     # a second session appends without a second header, and reads from its own offset
-    size = run.progress_size()
+    size = run.progress.stat().st_size
     writer = run.progress_writer(FIELDS)
     writer.write(3.0, {'env_steps': 1536.0, 'episode_return': -2.0, 'policy_version': 3.0})
     writer.flush()
@@ -77,7 +77,7 @@ def test_a_torn_last_line_is_no_row_for_any_reader(tmp_path):
 def test_no_progress_file_reads_as_no_rows(tmp_path):
     run = RunDir(tmp_path / 'missing')
     assert run.read_progress() == [] and read_progress(run.progress, since=10) == []
-    assert run.last_progress() is None and run.progress_size() == 0
+    assert run.last_progress() is None
 
 
 def test_the_summary_is_strict_json_and_reads_back(tmp_path):
@@ -108,3 +108,12 @@ def test_checkpoints_are_seen_by_their_file_names(tmp_path):
 def test_a_checkpoint_names_its_run(tmp_path, inside):
     run = RunDir(tmp_path / 'exp1')
     assert RunDir.of_checkpoint(run.path / inside).path == run.path.resolve()
+
+
+def test_the_checkpoints_the_learner_writes_are_the_ones_the_run_sees(tmp_path):
+    from pg_node.rl.checkpoint import checkpoint_path, list_checkpoints
+    run = RunDir(tmp_path)
+    run.checkpoints.mkdir()
+    checkpoint_path(run.checkpoints, 7).write_text('')
+    assert run.has_checkpoint()
+    assert list_checkpoints(run.checkpoints) == [(run.checkpoints / 'ckpt_00000007.pt', 7)]

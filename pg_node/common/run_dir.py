@@ -32,6 +32,8 @@ CHECKPOINT_NAME = 'ckpt_{:08d}.pt'
 CHECKPOINT_PATTERN = re.compile(r'^ckpt_(\d{8})\.pt$')
 #: the first bag's folder; the next learner start writes ``bag_1``, then ``bag_2``...
 BAG = 'bag'
+#: the folder of the learner's checkpoints
+CHECKPOINTS = 'checkpoints'
 
 
 def progress_rows(lines: Sequence[str]) -> List[Dict[str, float]]:
@@ -149,7 +151,7 @@ class RunDir:
         self.params = self.path / 'params.yaml'         # every node's resolved parameters
         self.bag = self.path / BAG                      # the first bag (then bag_1, ...)
         self.progress = self.path / 'progress.csv'      # the learner's row per update
-        self.checkpoints = self.path / 'checkpoints'    # the learner's ckpt_<version>.pt
+        self.checkpoints = self.path / CHECKPOINTS      # the learner's ckpt_<version>.pt
         self.summary = self.path / 'summary.json'       # train's summary of the run
         self.logs = self.path / 'logs'                  # the node processes' logs
         self.tensorboard = self.path / 'tensorboard'    # the learner's event files
@@ -166,7 +168,7 @@ class RunDir:
         path = Path(path).resolve()
         if path.suffix == '.pt':
             path = path.parent.parent
-        elif path.name == cls(path.parent).checkpoints.name:
+        elif path.name == CHECKPOINTS:
             path = path.parent
         return cls(path)
 
@@ -197,7 +199,7 @@ class RunDir:
         return sorted(found, key=lambda p: _bag_index(p.name))
 
     def next_bag(self) -> Path:
-        """Return the folder of the bag a learner starting now writes: the first free one."""
+        """Return the folder of the bag a learner starting now writes: the first free name."""
         if not self.bag.exists():
             return self.bag
         k = 1
@@ -221,10 +223,6 @@ class RunDir:
     def last_progress(self, tail_bytes: int = 8192) -> Optional[Dict[str, float]]:
         """Return the newest finished row of ``progress.csv`` (None if none yet)."""
         return last_progress(self.progress, tail_bytes)
-
-    def progress_size(self) -> int:
-        """Return the size of ``progress.csv`` in bytes (0 when there is none yet)."""
-        return self.progress.stat().st_size if self.progress.exists() else 0
 
     def write_summary(self, summary: dict) -> None:
         """Write ``summary.json`` as strict JSON (no NaN: ``null``)."""
