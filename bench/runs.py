@@ -17,7 +17,6 @@ SIGKILL. Each run joins a domain of its own (:func:`domain_id`): ``ROS_DOMAIN_ID
 set, as the tests do, so that a bench inside an isolated run stays inside it.
 """
 import importlib.util
-import json
 import os
 from pathlib import Path
 import subprocess
@@ -27,6 +26,7 @@ import time
 from typing import Dict, List, Optional, Sequence
 
 import numpy as np
+from pg_node.common.run_dir import RunDir
 from pg_node.tools.processes import child_env, REPO, stop
 
 _domain_counter = [0]
@@ -160,11 +160,11 @@ def run_graph(run_dir: Path, steps: int, seed: int, overrides: Sequence[str] = (
         except KeyboardInterrupt:
             stop(proc)
             raise
-    summary = run_dir / 'summary.json'
-    if rc != 0 or not summary.is_file():
+    summary = RunDir(run_dir).read_summary()
+    if rc != 0 or summary is None:
         tail = (run_dir / 'bench_train.log').read_text(errors='replace')[-2000:]
         raise RuntimeError(f'{" ".join(cmd)} exited with {rc}:\n{tail}')
-    return json.loads(summary.read_text())
+    return summary
 
 
 # --- latency -------------------------------------------------------------------------------
@@ -487,19 +487,15 @@ def _children(pid: int) -> List[int]:
 
 def _signal_after(run_dir: Path, warmup: int, found: Dict, done) -> None:
     """Send SIGUSR1 to train's node processes once progress.csv passes ``warmup`` steps."""
-    import csv
     import signal
-    progress = Path(run_dir) / 'progress.csv'
+    run = RunDir(run_dir)
     while not done.wait(0.2):
-        try:
-            rows = list(csv.DictReader(progress.open()))
-        except OSError:
-            continue
-        if rows and float(rows[-1]['env_steps'] or 0) >= warmup:
+        row = run.last_progress()
+        if row and row['env_steps'] >= warmup:
             for train in _children(os.getpid()):
                 for pid in _children(train):
                     os.kill(pid, signal.SIGUSR1)
-            found['profiled_from_steps'] = int(float(rows[-1]['env_steps']))
+            found['profiled_from_steps'] = int(row['env_steps'])
             return
 
 

@@ -21,6 +21,7 @@ from domains import ros_domains
 import numpy as np
 from pg_node.bag.recorder import EpisodeRecorder, parse_episode
 from pg_node.common.params import defaults
+from pg_node.common.run_dir import last_progress, read_progress
 from pg_node.rl.learner import EpisodeStats, Learner, make_policy
 from pg_node.rl.weights import flatten_state
 from pg_node.ros import command
@@ -28,7 +29,6 @@ from pg_node.ros import messages
 from pg_node.ros import table_msg
 from pg_node.ros import transition
 from pg_node.tools import processes
-from pg_node.tools.train import last_progress, read_progress
 import pytest
 import rclpy
 from rclpy.executors import SingleThreadedExecutor

@@ -18,8 +18,8 @@ import time
 
 from bench.lan import dds_env, Lan, unavailable
 from domains import ros_domains
+from pg_node.common.run_dir import read_progress
 from pg_node.tools.processes import proc_stat
-from pg_node.tools.train import read_progress
 import pytest
 from rosbags.rosbag2 import Reader
 from rosbags.typesys import get_typestore, Stores

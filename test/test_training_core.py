@@ -4,6 +4,7 @@ import os
 import numpy as np
 from pg_node.common.config_files import load_config
 from pg_node.common.param_schema import ConfigError, Param
+from pg_node.common.run_dir import last_progress, read_progress
 from pg_node.rl.checkpoint import list_checkpoints, load_latest, save_checkpoint
 from pg_node.rl.critic import Critic
 from pg_node.rl.learner import EpisodeStats, Learner
@@ -13,7 +14,6 @@ from pg_node.rl.train_inprocess import train_inprocess
 from pg_node.rl.weights import flatten_state, load_flat_state
 from pg_node.ros import messages
 from pg_node.ros import table_msg
-from pg_node.tools.train import last_progress, read_progress
 import pytest
 import torch
 import yaml

@@ -33,6 +33,7 @@ import time
 from typing import Dict, Optional
 
 import numpy as np
+from pg_node.common.run_dir import RunDir
 
 DEFAULT_PORT = 8765
 LIVE_TOPICS = {
@@ -194,7 +195,7 @@ def serve_live(served: Served, ns: str, stop_after: Optional[float]) -> int:
 
 
 def _bag_path(run: Path) -> Path:
-    return run / 'bag' if (run / 'bag').is_dir() else run
+    return RunDir(run).bag if RunDir(run).has_bag() else run
 
 
 def serve_bag(served: Served, reader, model_path: str, view_arms, rate: float,
