@@ -21,8 +21,8 @@ import glob
 import hashlib
 import io
 import os
-import shutil
 from pathlib import Path
+import shutil
 import subprocess
 import sys
 import sysconfig
@@ -157,7 +157,8 @@ def _compile(root: Path, sources: dict) -> None:
     (root / 'lib').mkdir(exist_ok=True)
     for name, cxx, kind, libs in LIBRARIES:
         soname = f'lib{PACKAGE}__{name}.so'
-        files = [f for f in sources[kind] if f.endswith(('_s.c' if kind == 'py' else '.c', '.cpp'))]
+        ends = ('_s.c' if kind == 'py' else '.c', '.cpp')
+        files = [f for f in sources[kind] if f.endswith(ends)]
         subprocess.run(['g++' if cxx else 'gcc', *flags, *files, '-o', str(root / 'lib' / soname),
                         f'-Wl,-soname,{soname}', f'-Wl,-rpath,$ORIGIN:{prefix / "lib"}',
                         *_libraries(libs)], check=True, capture_output=True)

@@ -87,7 +87,7 @@ def test_a_forward_controller_of_another_interface_is_refused_even_opted_out():
                        {'interface_name': 'position'})
     assert 'interface_name position' in refusal(plain, 'velocity', 'forward', True)
     assert refusal(plain, 'position', 'forward', True) is None
-    assert set(FORWARD_TYPES) >= {group.type, plain.type}
+    assert set(FORWARD_TYPES) >= {group.controller_type, plain.controller_type}
 
 
 @pytest.mark.parametrize('ctrl, message, named', [

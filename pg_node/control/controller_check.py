@@ -64,7 +64,7 @@ class Controller:
     """
 
     name: str
-    type: str
+    controller_type: str
     state: str
     params: Mapping[str, object] = field(default_factory=dict)
     path: str = ''
@@ -95,8 +95,8 @@ velocity commands (a JTC writes only its command_interfaces, jtc.cpp:417-440); g
         return (f'{who} is {ctrl.state or "in no state"}, not active: it would drop every '
                 'command (activate it with the controller manager before configure)')
     what, types = NEEDS[command_message]
-    if ctrl.type not in types:
-        return (f'{who} is of type {ctrl.type}, not {what} as command_message '
+    if ctrl.controller_type not in types:
+        return (f'{who} is of type {ctrl.controller_type}, not {what} as command_message '
                 f'{command_message} needs ({", ".join(types)})')
     carry = (_jtc_cannot_carry if command_message == 'trajectory' else _forward_cannot_carry)
     reason = carry(ctrl, interface)
@@ -138,7 +138,7 @@ def _jtc_cannot_carry(ctrl: Controller, interface: str) -> Optional[str]:
 
 
 def _forward_cannot_carry(ctrl: Controller, interface: str) -> Optional[str]:
-    commanded = FORWARD_TYPES[ctrl.type] or ctrl.params.get('interface_name', '')
+    commanded = FORWARD_TYPES[ctrl.controller_type] or ctrl.params.get('interface_name', '')
     if commanded != interface:
         return (f'has interface_name {commanded or "(empty)"}: it cannot carry the card\'s '
                 f'{interface} commands (forward_command_controller_parameters.yaml:7-11)')
@@ -160,6 +160,6 @@ def _jtc_no_dead_man(ctrl: Controller) -> Optional[str]:
 
 
 def _forward_no_dead_man(ctrl: Controller) -> Optional[str]:
-    return (f'is a forward command controller ({ctrl.type}): no dead-man, it keeps the last '
-            'command forever when the commands stop (forward_controllers_base.cpp:151-185); '
+    return (f'is a forward command controller ({ctrl.controller_type}): no dead-man, it keeps '
+            'the last command forever when the commands stop (forward_controllers_base.cpp:151-185); '
             'drive a joint trajectory controller with cmd_timeout (command_message trajectory)')
