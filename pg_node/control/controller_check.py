@@ -161,5 +161,6 @@ def _jtc_no_dead_man(ctrl: Controller) -> Optional[str]:
 
 def _forward_no_dead_man(ctrl: Controller) -> Optional[str]:
     return (f'is a forward command controller ({ctrl.controller_type}): no dead-man, it keeps '
-            'the last command forever when the commands stop (forward_controllers_base.cpp:151-185); '
-            'drive a joint trajectory controller with cmd_timeout (command_message trajectory)')
+            'the last command forever when the commands stop (forward_controllers_base.cpp:'
+            '151-185); drive a joint trajectory controller with cmd_timeout (command_message '
+            'trajectory)')
