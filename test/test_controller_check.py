@@ -1,4 +1,7 @@
 """The rules configure applies to the arm controller: each rule refuses, naming its parameter."""
+import doctest
+
+from pg_node.control import controller_check
 from pg_node.control.controller_check import (Controller, FORWARD_TYPES, OPT_OUT, refusal,
                                               TRAJECTORY_TYPES)
 import pytest
@@ -105,3 +108,8 @@ def test_a_type_the_command_message_cannot_reach_is_refused(ctrl, message, named
 def test_a_controller_that_is_not_active_is_refused(state):
     line = refusal(jtc(['velocity'], state=state), 'velocity', 'trajectory')
     assert 'not active' in line, line
+
+
+def test_the_docstring_examples_hold():
+    failures, tried = doctest.testmod(controller_check)
+    assert tried and not failures

@@ -195,3 +195,15 @@ def test_without_controller_manager_msgs_the_client_says_where_it_comes_from(mon
                        match='installed with ros2_control'):
         controller_manager.messages()
     assert OPT_OUT == 'allow_no_dead_man'
+
+
+def test_the_client_gives_configure_one_line_or_none(graph):
+    g = graph({'arm_controller': (JTC, 'active', SHIPPED),
+               'fwd': ('effort_controllers/JointGroupEffortController', 'active',
+                       {'joints': JOINTS, 'interface_name': 'effort'})})
+    assert g.client.refusal('arm_controller', 'velocity', 'trajectory') is None
+    assert 'no dead-man' in g.client.refusal('fwd', 'effort', 'forward')
+    assert g.client.refusal('fwd', 'effort', 'forward', allow_no_dead_man=True) is None
+    line = g.client.refusal('right_arm', 'velocity', 'trajectory')
+    assert line.startswith('cannot check controller right_arm through /controller_manager: '
+                           '/controller_manager has no controller right_arm'), line

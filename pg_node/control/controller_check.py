@@ -31,8 +31,9 @@ OPT_OUT = 'allow_no_dead_man'
 
 #: joint trajectory controllers: Jazzy's, and the UR driver's scaled one, a subclass of it with
 #: the same parameters plus speed scaling (ur_controllers/src/
-#: scaled_joint_trajectory_controller.cpp; its shipped set-up has no cmd_timeout:
-#: ur_robot_driver/config/ur_controllers.yaml:117-143)
+#: scaled_joint_trajectory_controller_parameters.yaml:1-6), which honours cmd_timeout
+#: (scaled_joint_trajectory_controller.cpp:178) but is shipped without one
+#: (ur_robot_driver/config/ur_controllers.yaml:117-143)
 TRAJECTORY_TYPES = ('joint_trajectory_controller/JointTrajectoryController',
                     'ur_controllers/ScaledJointTrajectoryController')
 #: forward command controllers -> the interface they command (None: their ``interface_name``);

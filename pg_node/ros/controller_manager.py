@@ -1,6 +1,7 @@
 """
 policy_node's client of ros2_control's controller manager: the arm controller, and its stop.
 
+* :meth:`ControllerManagerClient.refusal`: configure's one line, or None;
 * :meth:`ControllerManagerClient.controller`: the arm controller as
   :func:`pg_node.control.controller_check.refusal` takes it: its type and state from the
   manager's ``list_controllers``, its parameters from its own ``get_parameters`` (a controller
@@ -19,7 +20,7 @@ controller manager runs. It is imported when a client is made, not when this mod
 """
 from typing import Dict, List, Optional, Sequence, Tuple
 
-from pg_node.control.controller_check import Controller, PARAMETERS
+from pg_node.control.controller_check import Controller, PARAMETERS, refusal
 from rcl_interfaces.msg import ParameterType
 from rcl_interfaces.srv import GetParameters, ListParameters
 import rclpy
@@ -128,6 +129,20 @@ class ControllerManagerClient:
         if gains:
             params.update(self.parameters(path, gains))
         return Controller(name, entry['type'], entry['state'], params, path)
+
+    def refusal(self, name: str, interface: str, command_message: str,
+                allow_no_dead_man: bool = False) -> Optional[str]:
+        """
+        Return why configure refuses controller ``name`` for the card's commands, or None.
+
+        A manager or controller that cannot be read is a refusal too: the supervision was
+        asked for, and nothing proves the set-up safe.
+        """
+        try:
+            ctrl = self.controller(name)
+        except ControllerManagerError as err:
+            return f'cannot check controller {name} through {self.manager}: {err}'
+        return refusal(ctrl, interface, command_message, allow_no_dead_man)
 
     def switch(self, activate: Sequence[str] = (), deactivate: Sequence[str] = (),
                strict: bool = False) -> Tuple[bool, str]:
