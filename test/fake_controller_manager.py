@@ -16,6 +16,9 @@ are all configured and chain nothing:
 * nothing left to switch: ok, "After checking the controllers, no controllers need to be
   activated or deactivated." (cm.cpp:2176-2182).
 
+Not modelled: unconfigured controllers, chains, a restart (one name in both lists), and the
+hardware interfaces' conflicts.
+
 Each controller is a node of its own name in the manager's namespace with its parameters
 declared under their real names (cm.cpp:2470-2482: ``node_namespace`` is the manager's).
 """
