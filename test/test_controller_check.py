@@ -51,7 +51,7 @@ def test_ff_velocity_scale_does_not_matter_open_loop_or_beside_position():
 
 
 @pytest.mark.parametrize('params, named', [
-    ({'cmd_timeout': 0.0}, 'cmd_timeout 0'),
+    ({'cmd_timeout': 0.0}, 'has cmd_timeout 0: no dead-man'),
     ({'cmd_timeout': 0.2, 'constraints.goal_time': 0.5},
      'cmd_timeout 0.2 not above constraints.goal_time 0.5'),
 ])
@@ -67,7 +67,7 @@ def test_the_ur_scaled_controller_as_the_driver_ships_it_has_no_dead_man():
     # so JTC's default 0 (params.yaml:134-141)
     shipped = jtc(['position'], type_=SCALED)
     del shipped.params['cmd_timeout']
-    assert 'cmd_timeout 0' in refusal(shipped, 'position', 'trajectory')
+    assert 'has cmd_timeout 0: no dead-man' in refusal(shipped, 'position', 'trajectory')
     assert refusal(jtc(['position'], type_=SCALED), 'position', 'trajectory') is None
 
 

@@ -116,7 +116,7 @@ def test_a_manager_in_a_namespace_is_found_beside_the_node(graph):
 
 
 @pytest.mark.parametrize('ctype, params, interface, message, named', [
-    (JTC, {**SHIPPED, 'cmd_timeout': 0.0}, 'velocity', 'trajectory', 'cmd_timeout 0'),
+    (JTC, {**SHIPPED, 'cmd_timeout': 0.0}, 'velocity', 'trajectory', 'has cmd_timeout 0:'),
     (JTC, {**SHIPPED, 'command_interfaces': ['position']}, 'velocity', 'trajectory',
      'command_interfaces [position]'),
     (JTC, {**SHIPPED, 'command_interfaces': ['position', 'velocity']}, 'effort', 'trajectory',
@@ -128,7 +128,7 @@ def test_a_manager_in_a_namespace_is_found_beside_the_node(graph):
     ('ur_controllers/ScaledJointTrajectoryController',
      {'joints': JOINTS, 'command_interfaces': ['position'],
       'state_interfaces': ['position', 'velocity'], 'constraints.goal_time': 0.0},
-     'position', 'trajectory', 'cmd_timeout 0'),
+     'position', 'trajectory', 'has cmd_timeout 0:'),
     ('velocity_controllers/JointGroupVelocityController',
      {'joints': JOINTS, 'interface_name': 'velocity'}, 'velocity', 'forward', 'no dead-man'),
 ])
