@@ -163,3 +163,14 @@ def test_resume_names_its_bag_in_the_summary_and_replay_info(runs, capsys):
     named = [ln.split()[1] for ln in capsys.readouterr().out.splitlines()
              if ln.startswith('bag: ')]
     assert named == [str(run_dir / 'bag'), str(run_dir / 'bag_1')]
+
+
+def test_a_finished_run_is_left_as_it_is(runs):
+    """Training a run that learned its total_steps: one line, exit 0, not a file touched."""
+    run_dir, _, _, _, summary = runs
+    files = {p: p.stat().st_mtime_ns for p in run_dir.rglob('*') if p.is_file()}
+    out, again = train(run_dir, 6144)
+    assert out.strip() == (f"{run_dir}: already learned {summary['total_steps']} steps "
+                           '(total_steps 6144); raise --total-steps to go on'), out
+    assert again == summary
+    assert {p: p.stat().st_mtime_ns for p in run_dir.rglob('*') if p.is_file()} == files

@@ -12,7 +12,11 @@ import time
 from typing import Optional
 
 from pg_node.common.run_dir import last_progress, read_progress
+from pg_node.tools.stall import idle_processes, last_complaint, stall_cause, StallWatch
 from pg_node.tools.supervisor import Supervisor
+
+#: seconds without a new learned step before the progress line says so, and why
+STALL_NOTICE = 30.0
 
 
 def format_return(value: float) -> str:
@@ -52,6 +56,8 @@ class ProgressView:
         self.first = None
         self.last = None
         self._next_line = 0.0
+        self._quiet = None          # what the line says while nothing is learned
+        self._next_quiet = 0.0
         self.bar = None
         if bar:
             from tqdm import tqdm
@@ -102,6 +108,23 @@ class ProgressView:
                 f"since 1st update, training return {'n/a' if ret != ret else f'{ret:.2f}'}, "
                 f"policy v{int(row['policy_version'])}")
 
+    def quiet(self, text: Optional[str]):
+        """
+        Say that nothing is being learned, and why (None: learning again).
+
+        On the bar its description; in plain lines one line every ``every`` s.
+        """
+        if text == self._quiet:
+            return
+        shown, self._quiet = self._quiet, text
+        if self.bar is not None:
+            self.bar.set_description_str(f'{text} ' if text else '')
+        elif self.text and text is not None:
+            now = time.monotonic()
+            if shown is None or now >= self._next_quiet:
+                self._next_quiet = now + self.every
+                print(text, flush=True)
+
     def stopping(self):
         """Say that the nodes are being stopped (the bar's clock goes on meanwhile)."""
         if self.bar is not None:
@@ -144,16 +167,51 @@ class ProgressView:
             self.bar.close()
 
 
-def supervise(sup: Supervisor, view: ProgressView) -> str:
-    """Start the nodes and watch them until done or failed; return the final state."""
+def supervise(sup: Supervisor, view: ProgressView, stall_timeout: float = 0.0,
+              notice: float = STALL_NOTICE, period: float = 0.5) -> str:
+    """
+    Start the nodes and watch them until done, failed or stalled; return the final state.
+
+    A run that learns no new step for ``notice`` s says so on the progress line, with the
+    cause (:func:`pg_node.tools.stall.stall_cause`); after ``stall_timeout`` s (0: never) it
+    is ``'stalled'``, and ``sup.failed`` holds the one line that says why.
+    """
     state = 'running'
     sup.start_all()
+    watch = StallWatch(notice, stall_timeout, time.monotonic())
+    logs = {name: sup.run.log(name) for name in sup.commands}
+    mark = _mark(sup, logs)         # the logs' sizes and the CPU at the newest step
+    cause, cause_at = '', -1e9
     while state == 'running':
-        time.sleep(0.5)
+        time.sleep(period)
         state = sup.check()
         view.poll()
         if sup.cpu_at_first_update is None and view.first is not None:
             sup.cpu_at_first_update = sup.cpu_seconds()
+        now = time.monotonic()
+        verdict = watch.update(now, int(view.last['env_steps']) if view.last else None)
+        if verdict == 'ok':
+            if watch.since == now:
+                mark, cause_at = _mark(sup, logs), -1e9
+                view.quiet(None)
+            continue
+        if now - cause_at >= 5.0 or verdict == 'stop':     # the logs are read now and then
+            cause_at = now
+            idle = idle_processes(sup.cpu_seconds(), mark[1], sup.procs)
+            cause = stall_cause(sup.next_start, idle, last_complaint(logs, mark[0]))
+        quiet = watch.quiet(now)
+        if verdict == 'stop':
+            sup.failed = (f'no step learned for {quiet:.0f} s: {cause} (logs in '
+                          f'{sup.run.logs}; --stall-timeout S waits longer, 0 never stops)')
+            state = 'stalled'
+            break
+        view.quiet(f'no step learned for {quiet:.0f} s: {cause}')
     view.poll()
     view.stopping()
     return state
+
+
+def _mark(sup: Supervisor, logs: dict) -> tuple:
+    """Return the logs' sizes and the nodes' CPU seconds now: a stall is what comes after."""
+    sizes = {name: path.stat().st_size if path.exists() else 0 for name, path in logs.items()}
+    return sizes, sup.cpu_seconds()

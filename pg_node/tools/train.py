@@ -38,7 +38,8 @@ from pg_node.common.paths import preset_names
 from pg_node.common.run import run_id_for_dir, run_namespace
 from pg_node.common.run_dir import RunDir
 from pg_node.tools.args import non_negative_float, run_id_arg
-from pg_node.tools.processes import Interrupts, shutting_down, terminate_as_interrupt
+from pg_node.tools.processes import (EXIT_INTERRUPTED, Interrupts, shutting_down,
+                                     terminate_as_interrupt)
 from pg_node.tools.progress_view import format_rate, format_return, ProgressView, supervise
 from pg_node.tools.supervisor import make_bags_whole, Supervisor
 import yaml
@@ -70,6 +71,11 @@ def parse_args(argv):
                         help='seconds before a dead node is first restarted, doubling at each '
                              'further restart (default: %(default)s)')
     parser.add_argument('--no-progress', action='store_true', help='no progress bar')
+    parser.add_argument('--stall-timeout', type=non_negative_float, default=300.0,
+                        metavar='SECONDS',
+                        help='stop, saying why, once no step has been learned for this long '
+                             '(the progress line says so after 30 s); 0: never '
+                             '(default: %(default)s)')
     parser.add_argument('--run-id', type=run_id_arg,
                         help="the run's name on the ROS network: its nodes and topics live "
                              'under /<run id>, and messages of other runs are dropped '
@@ -302,10 +308,16 @@ def main(argv=None) -> int:
         return 2
     run = RunDir(cfg[SHARED]['run_dir'])
     run_dir, params = run.path, run.params
+    total = cfg['learner_node']['total_steps']
+    start = resume_point(run_dir) if args.part != 'workers' else None
+    if start is not None and start['env_steps'] >= total:
+        # a finished run is left as it is: no new bag, no summary written over
+        print(f"{run_dir}: already learned {start['env_steps']} steps (total_steps {total}); "
+              'raise --total-steps to go on', flush=True)
+        return 0
     if args.part != 'workers':      # a worker host writes its run folder once it has joined
         run.make()
         write_params(cfg, params)
-    total = cfg['learner_node']['total_steps']
     n_act = cfg[SHARED]['num_actors']
     algo = f"{cfg['learner_node']['algo']} (phi = {cfg['critic_node']['estimator']})"
     part = {'all': '', 'learner': ' (this host: the critic and the learner)',
@@ -328,7 +340,6 @@ def main(argv=None) -> int:
     if args.part == 'learner':
         from pg_node.tools.hosts import Announcer
         announcer = Announcer(cfg)
-    start = resume_point(run_dir)
     if start is not None:
         print(f"resumed from policy version {start['version']} ({start['env_steps']} steps "
               f"learned, {start['checkpoint']})", flush=True)
@@ -359,6 +370,8 @@ def supervise_and_report(args, cfg: dict, sup: Supervisor, view: ProgressView,
     state, interrupted = run_until_stopped(args, sup, view, announcer, interrupts)
     if state == 'failed':
         print(f'training failed: {sup.failed}; logs in {run.logs}', file=sys.stderr)
+    elif state == 'stalled':
+        print(f'training stopped: {sup.failed}', file=sys.stderr)
     for line in make_bags_whole(sup.unfinished_bags):
         print(line)
     rows = run.read_progress()
@@ -374,7 +387,9 @@ def supervise_and_report(args, cfg: dict, sup: Supervisor, view: ProgressView,
         from pg_node.tools.plot import plot_run, RunData
         plot_run(RunData(run.path), run.curve)
     print_report(run, summary, view, bags_before)
-    return 1 if state == 'failed' else 0
+    if state in ('failed', 'stalled'):
+        return 1
+    return EXIT_INTERRUPTED if interrupted else 0
 
 
 def run_until_stopped(args, sup: Supervisor, view: ProgressView, announcer,
@@ -389,7 +404,7 @@ def run_until_stopped(args, sup: Supervisor, view: ProgressView, announcer,
     interrupted = False
     try:
         with interrupts.raising():
-            state = supervise(sup, view)
+            state = supervise(sup, view, args.stall_timeout)
     except KeyboardInterrupt as exc:
         interrupted = True
         skip = (f'; Ctrl-C again skips the evaluation that follows ({args.eval_episodes} '
@@ -418,7 +433,8 @@ def session_summary(sup: Supervisor, view: ProgressView, start: Optional[dict], 
     resumed from (None: a fresh run).
     """
     last = view.last  # the newest row of this session (None: it learned nothing)
-    summary = {'interrupted': interrupted, 'failed': state == 'failed',
+    summary = {'interrupted': interrupted, 'failed': state in ('failed', 'stalled'),
+               'stalled': sup.failed if state == 'stalled' else None,
                'total_steps': int(rows[-1]['env_steps']) if rows else 0,
                'resumed_from_version': start['version'] if start else None,
                # the learner's clock, which goes on across resumes
@@ -451,6 +467,10 @@ def evaluate_unless_skipped(run: RunDir, episodes: int, interrupts: Interrupts,
     summary['evaluation'] = 'no checkpoint'
     if not run.has_checkpoint():
         return
+    if not summary['total_steps']:
+        # only the initial policy's checkpoint: nothing to evaluate but an untrained policy
+        summary['evaluation'] = 'nothing learned'
+        return
     summary['evaluation'] = 'skipped'
     if interrupts.count < 2:
         print(f'evaluating the deterministic policy over {episodes} episodes '
@@ -472,6 +492,8 @@ def print_report(run: RunDir, summary: dict, view: ProgressView, bags_before: li
               f"final distance {100 * summary['eval_final_distance']:.2f} cm, "
               f"{100 * summary['eval_reached']:.0f}% within 2 cm, "
               f"policy version {summary['policy_version']}")
+    elif summary['evaluation'] == 'nothing learned':
+        print('nothing learned yet (stopped before the first update): no evaluation')
     elif summary['evaluation'] == 'skipped':
         print(f'evaluation skipped (Ctrl-C): python -m pg_node eval {run.path} evaluates the '
               'run')
@@ -480,7 +502,7 @@ def print_report(run: RunDir, summary: dict, view: ProgressView, bags_before: li
     if view.last is not None:
         print("training episodes' mean return (last update): "
               f"{format_return(view.last['episode_return'])}")
-    bringup = ('no progress row' if view.bringup_seconds is None
+    bringup = ('not over: no update yet' if view.bringup_seconds is None
                else f'{view.bringup_seconds:.1f} s')
     print(f"{summary['session_steps']} steps learned in this session "
           f"({summary['total_steps']} in all): {format_rate(summary['steps_per_second'])} "
