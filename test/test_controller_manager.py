@@ -207,3 +207,105 @@ def test_the_client_gives_configure_one_line_or_none(graph):
     line = g.client.refusal('right_arm', 'velocity', 'trajectory')
     assert line.startswith('cannot check controller right_arm through /controller_manager: '
                            '/controller_manager has no controller right_arm'), line
+
+
+# -- policy_node supervised through the manager (issue 54, items 1 and 2) --------------------
+
+#: a Jazzy JTC on the effort interface with a dead-man (config/controllers/jtc_effort.yaml)
+EFFORT_JTC = {'joints': JOINTS, 'command_interfaces': ['effort'],
+              'state_interfaces': ['position', 'velocity'], 'cmd_timeout': 0.2,
+              'constraints.goal_time': 0.0}
+
+
+def start_policy_node(tmp_path, types, policy, *params):
+    """Start policy_node (autostart) with the built types importable, in this file's domain."""
+    import os
+    import sys
+    from pathlib import Path
+    from pg_node.tools import processes
+    repo = Path(__file__).resolve().parent.parent
+    env = dict(processes.child_env(DOMAIN_ID), PYTHONPATH=os.pathsep.join(
+        [str(types / 'python'), str(repo)]))
+    cmd = [sys.executable, '-m', 'pg_node.ros.policy_node', '--ros-args', '--params-file',
+           str(repo / 'config' / 'policy_node.yaml'), '-p', f'policy:={policy}',
+           '-p', 'controller_manager:=controller_manager', '-p', 'autostart:=true',
+           '-p', 'configure_timeout:=30.0', '-p', 'controller_timeout:=5.0',
+           *[a for p in params for a in ('-p', p)]]
+    return processes.start_logged(cmd, tmp_path / f'policy_node_{time.monotonic_ns()}.log', env)
+
+
+@pytest.fixture(scope='module')
+def policy(tmp_path_factory):
+    """Return an untrained reacher2 policy exported as ONNX (policy_node loads it in ms)."""
+    from test_lifecycle_cli import policy as made
+    return made.__wrapped__(tmp_path_factory)
+
+
+def joint_states(g):
+    """Publish reacher2's joint states at rest from the graph's context, as a robot would."""
+    from sensor_msgs.msg import JointState
+    node = rclpy.create_node('robot_joint_states', context=g.context)
+    pub = node.create_publisher(JointState, '/joint_states', 10)
+    node.create_timer(0.05, lambda: pub.publish(JointState(
+        name=JOINTS, position=[0.0, 0.0], velocity=[0.0, 0.0])))
+    g.executor.add_node(node)
+    return node
+
+
+@pytest.mark.e2e
+def test_policy_node_refuses_a_forward_controller_in_one_line(graph, types, policy, tmp_path):
+    """No dead-man: a forward controller keeps the last torque when policy_node dies."""
+    from pg_node.tools import processes
+    g = graph({'arm_controller': ('forward_command_controller/ForwardCommandController',
+                                  'active', {'joints': JOINTS, 'interface_name': 'effort'})})
+    joint_states(g)
+    proc = start_policy_node(tmp_path, types, policy, 'command_message:=forward')
+    proc.wait(timeout=90)               # autostart: a refused configure ends the node
+    code, log = processes.stop_logged(proc)
+    assert code == 2, log[-3000:]
+    refused = [ln for ln in log.splitlines() if 'no dead-man' in ln]
+    assert refused and "parameter 'policy_node.controller_manager': controller " \
+        '/arm_controller is a forward command controller' in refused[0], log[-3000:]
+    assert 'allow_no_dead_man true' in refused[0]
+
+
+@pytest.mark.e2e
+def test_an_estop_deactivates_the_arm_controller_and_only_a_reset_activates_it(
+        graph, types, policy, tmp_path):
+    """controller_stop deactivate: the robot's own stop acts; ~/reset_estop brings it back."""
+    from lifecycle_msgs.srv import GetState
+    from pg_node.tools import processes
+    from std_msgs.msg import Bool
+    from std_srvs.srv import Trigger
+    g = graph({'arm_controller': (JTC, 'active', EFFORT_JTC)})
+    node = joint_states(g)
+    estop = node.create_publisher(Bool, '/estop', 10)
+    get_state = node.create_client(GetState, '/policy_node/get_state')
+    proc = start_policy_node(tmp_path, types, policy, 'controller_stop:=deactivate')
+    try:
+        deadline = time.monotonic() + 90
+
+        def call(client, request):
+            assert client.wait_for_service(timeout_sec=30)
+            answer = client.call_async(request)
+            while not answer.done():
+                assert time.monotonic() < deadline and proc.poll() is None, 'no answer'
+                time.sleep(0.05)
+            return answer.result()
+        # autostart configures (reading the controller), then activates
+        while call(get_state, GetState.Request()).current_state.label != 'active' \
+                or not estop.get_subscription_count():
+            time.sleep(0.1)
+        estop.publish(Bool(data=True))
+        while g.cm.states['arm_controller'] != 'inactive':
+            assert time.monotonic() < deadline, 'not deactivated'
+            time.sleep(0.1)
+        answer = call(node.create_client(Trigger, '/policy_node/reset_estop'), Trigger.Request())
+        assert answer.success, answer.message
+        assert g.cm.states['arm_controller'] == 'active'
+    finally:
+        code, log = processes.stop_logged(proc)
+    assert code == 0, log[-3000:]
+    assert 'e-stop: arm controller arm_controller deactivated' in log, log[-3000:]
+    # the shutdown that followed deactivated it again (the stop's default for this set-up)
+    assert g.cm.states['arm_controller'] == 'inactive'

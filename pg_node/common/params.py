@@ -320,6 +320,24 @@ POLICY_PARAMS: Dict[str, Param] = {
     'controller_timeout': Param(2.0, "seconds configure waits for the controller's parameter "
                                      'service; then it warns once that the joint order was '
                                      'not checked (0: do not check)', low=0.0),
+    'controller_manager': Param('', "ros2_control's controller manager (controller_manager, "
+                                    'or /controller_manager at the root); set, configure '
+                                    "reads the controller's type, state and parameters from "
+                                    'it and refuses one that cannot carry the commands or has '
+                                    'no dead-man, and the stops can deactivate it '
+                                    '(controller_stop); empty: none (a stand-in)'),
+    'allow_no_dead_man': Param(False, 'with controller_manager: drive a controller that keeps '
+                                      'the last command when policy_node dies (a forward '
+                                      'controller, a JTC without cmd_timeout) all the same'),
+    'controller_stop': Param('auto', 'with controller_manager, what an e-stop, a deactivate '
+                                     'and a shutdown do besides the hold command: deactivate '
+                                     "the arm controller (the robot's own stop acts; it is "
+                                     'activated again only by ~/reset_estop or activate), hold '
+                                     '(the hold command alone), auto (deactivate on the '
+                                     'position and velocity interfaces, hold on effort: JTC '
+                                     'deactivated writes 0 N m, which lets an arm whose weight '
+                                     'the robot compensates coast)',
+                             choices=('auto', 'deactivate', 'hold')),
     'gravity_compensation': Param('', "who carries the arm's weight on this robot: robot (its "
                                       'driver compensates gravity, as a Franka in torque mode '
                                       'does) or policy (nothing does); empty: not stated. '

@@ -238,7 +238,12 @@ class PolicyNode(LifecycleNode):
         self.counters = {'commands': 0, 'hold_commands': 0, 'stale_events': 0, 'estops': 0,
                          'states_received': 0, 'states_dropped_nonfinite': 0,
                          'targets_ignored': 0, 'targets_out_of_reach': 0,
+                         'controller_deactivations': 0,
                          **{f'guard_{e.key}': 0 for e in GuardEvent}}
+        # ros2_control's controller manager (controller_manager): its client, and whether
+        # a stop deactivated the arm controller (only a reset or activate undoes it)
+        self.cm = None
+        self.controller_stopped = False
         self.ages = deque(maxlen=AGE_WINDOW)
         self.rate = RateCounter()
         self._cpu = (time.process_time(), time.monotonic())
@@ -364,6 +369,7 @@ class PolicyNode(LifecycleNode):
         commanded = arm_joint_names([joints[c] for c in guard.cols], len(index),
                                     joints[0] in self._names)
         self._check_controller(commanded)
+        self._check_with_controller_manager()
         load_seconds = time.perf_counter() - t0
         t0 = time.perf_counter()
         for _ in range(WARM_UP):                # the first calls allocate; not on the robot
@@ -516,8 +522,78 @@ class PolicyNode(LifecycleNode):
                                     ordered=p['command_message'] == 'forward'))
         self.controller_joints = f'match {controller}'
 
+    def _check_with_controller_manager(self):
+        """
+        Refuse a controller that cannot carry the card's commands or has no dead-man.
+
+        Read from ros2_control's controller manager (:mod:`pg_node.ros.controller_manager`,
+        the rules in :mod:`pg_node.control.controller_check`); the client stays for the
+        stops that deactivate the controller (``controller_stop``).
+        """
+        p = self.params
+        self._close_controller_manager()
+        if not p['controller_manager']:
+            return
+        from pg_node.ros.controller_manager import ControllerManagerClient, \
+            ControllerManagerError
+        try:
+            self.cm = ControllerManagerClient(
+                self.context, p['controller_manager'], max(p['controller_timeout'], 1.0),
+                namespace=self.get_namespace(), name=f'{self.get_name()}_controller_manager')
+        except ControllerManagerError as exc:
+            _refuse(f"parameter 'policy_node.controller_manager': {exc}")
+        reason = self.cm.refusal(self.controller_bare_name(), p['command_interface'],
+                                 p['command_message'], p['allow_no_dead_man'])
+        if reason:
+            self._close_controller_manager()
+            _refuse(f"parameter 'policy_node.controller_manager': {reason}")
+
+    def controller_bare_name(self) -> str:
+        """Return the arm controller's name as list_controllers gives it (no namespace)."""
+        return self.params['controller_name'].rstrip('/').rsplit('/', 1)[-1]
+
+    def stops_controller(self) -> bool:
+        """Whether a stop deactivates the arm controller (``controller_stop``)."""
+        how = self.params['controller_stop']
+        if how == 'auto':
+            how = 'hold' if self.params['command_interface'] == 'effort' else 'deactivate'
+        return self.cm is not None and how == 'deactivate'
+
+    def stop_controller(self, why: str):
+        """Deactivate the arm controller through the controller manager, when asked to."""
+        if not self.stops_controller() or self.controller_stopped:
+            return
+        failed = self.cm.deactivate(self.controller_bare_name())
+        if failed:
+            self.get_logger().error(f'{why}: could not deactivate the arm controller: '
+                                    f'{failed}; the hold command is all that stops the arm')
+            return
+        self.controller_stopped = True
+        self.counters['controller_deactivations'] += 1
+        self.get_logger().warning(f'{why}: arm controller {self.controller_bare_name()} '
+                                  "deactivated (the robot's own stop acts); activate or "
+                                  '~/reset_estop activates it again')
+
+    def restart_controller(self) -> Optional[str]:
+        """Activate the arm controller a stop deactivated (an explicit reset); None if done."""
+        if not self.controller_stopped:
+            return None
+        failed = self.cm.activate(self.controller_bare_name())
+        if failed is None:
+            self.controller_stopped = False
+        return failed
+
+    def _close_controller_manager(self):
+        if self.cm is not None:
+            self.cm.close()
+        self.cm, self.controller_stopped = None, False
+
     def on_activate(self, state) -> TransitionCallbackReturn:
         """Start commanding, ramping in from hold over ``ramp_time``."""
+        failed = self.restart_controller()
+        if failed:
+            self.get_logger().error(f'activate failed: the arm controller stays stopped: {failed}')
+            return TransitionCallbackReturn.FAILURE
         self.status = self.core.activate(time.monotonic())
         self.get_logger().info(f'active: commanding, ramping in from hold over '
                                f'{self.settings.ramp_time:g} s')
@@ -527,12 +603,14 @@ class PolicyNode(LifecycleNode):
         """Send one hold command and stop publishing."""
         self.set_status(NodeState.INACTIVE, 'inactive: deactivated, one hold command sent')
         self._hold_once()
+        self.stop_controller('deactivate')
         self.get_logger().info(self.status.text)
         return TransitionCallbackReturn.SUCCESS
 
     def on_cleanup(self, state) -> TransitionCallbackReturn:
         """Unload the policy and close the record."""
         self._close_record()
+        self._close_controller_manager()
         self.core = self.policy = self.builder = None
         self.targets.clear()
         self.joints_unchecked, self.controller_joints = False, 'not checked'
@@ -559,6 +637,7 @@ class PolicyNode(LifecycleNode):
         if self.status.lifecycle == 'active':
             self.set_status(NodeState.INACTIVE, 'inactive: stopped, one hold command sent')
             self._hold_once()
+            self.stop_controller('shutdown')
         self._close_record()
 
     def _hold_once(self):
@@ -629,11 +708,17 @@ class PolicyNode(LifecycleNode):
             self.get_logger().error('e-stop: latched; hold command at every tick until '
                                     '~/reset_estop')
             self.on_tick()          # at once, not at the next tick
+            self.stop_controller('e-stop')
 
     def on_reset_estop(self, request, response):
         """Clear a latched e-stop; commanding resumes at the next tick."""
         response.success = True
-        if self.estop.reset():
+        failed = self.restart_controller() if self.estop.latched else None
+        if failed:
+            response.success = False
+            response.message = f'e-stop kept: the arm controller stays stopped: {failed}'
+            self.get_logger().error(response.message)
+        elif self.estop.reset():
             response.message = 'e-stop cleared: commanding resumes'
             self.get_logger().warning(response.message)
         else:
