@@ -50,19 +50,23 @@ def wait_for(path: Path, text: str, proc, timeout: float) -> str:
     raise AssertionError(f'no {text!r} within {timeout} s:\n{path.read_text()}')
 
 
+def start_train(run_dir: Path, log: Path, *args) -> subprocess.Popen:
+    """Start ``python -m pg_node train --run-dir RUN ARGS`` in its own session, into ``log``."""
+    env = dict(processes.child_env(DOMAIN_ID), AMENT_PREFIX_PATH=os.environ.get(
+        'AMENT_PREFIX_PATH', sys.prefix))
+    with open(log, 'w') as out:
+        return subprocess.Popen([sys.executable, '-m', 'pg_node', 'train', '--run-dir',
+                                 str(run_dir), *args], env=env, cwd=REPO, stdout=out,
+                                stderr=subprocess.STDOUT, start_new_session=True)
+
+
 @pytest.mark.e2e
 def test_train_the_first_ctrl_c_says_how_to_skip_the_evaluation_the_second_skips_it(
         tmp_path):
     run_dir, log = tmp_path / 'run', tmp_path / 'out.txt'
-    env = dict(processes.child_env(DOMAIN_ID), AMENT_PREFIX_PATH=os.environ.get(
-        'AMENT_PREFIX_PATH', sys.prefix))
     # an evaluation that would take minutes: only a skip ends the command in time
-    with open(log, 'w') as out:
-        proc = subprocess.Popen([sys.executable, '-m', 'pg_node', 'train', '--run-dir',
-                                 str(run_dir), '--total-steps', '10000000',
-                                 '--eval-episodes', '5000', 'checkpoint_every=2'],
-                                env=env, cwd=REPO, stdout=out, stderr=subprocess.STDOUT,
-                                start_new_session=True)
+    proc = start_train(run_dir, log, '--total-steps', '10000000', '--eval-episodes', '5000',
+                       'checkpoint_every=2')
     try:
         wait_for(log, '; learning', proc, 240)   # no terminal: lines
         deadline = time.monotonic() + 120       # until the first checkpoint: then it evaluates
@@ -95,14 +99,8 @@ def test_train_interrupted_before_it_learned_anything_says_so_and_evaluates_noth
         tmp_path):
     """Ctrl-C during the bring-up: exit 130, no evaluation of the untrained policy."""
     run_dir, log = tmp_path / 'run', tmp_path / 'out.txt'
-    env = dict(processes.child_env(DOMAIN_ID), AMENT_PREFIX_PATH=os.environ.get(
-        'AMENT_PREFIX_PATH', sys.prefix))
-    with open(log, 'w') as out:
-        # a rollout of 640k steps: the first update is far off when the signal comes
-        proc = subprocess.Popen([sys.executable, '-m', 'pg_node', 'train', '--run-dir',
-                                 str(run_dir), 'n_steps=10000'],
-                                env=env, cwd=REPO, stdout=out, stderr=subprocess.STDOUT,
-                                start_new_session=True)
+    # a rollout of 640k steps: the first update is far off when the signal comes
+    proc = start_train(run_dir, log, 'n_steps=10000')
     try:
         wait_for(log, 'starting nodes...', proc, 120)
         # the learner (policy version 0) and the actor are up: the rollout has begun
