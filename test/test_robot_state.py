@@ -13,13 +13,13 @@ The test plays that driver: no message yet, the program running, a protective st
 scaling 0), the program stopped and started again; policy_node holds across each stop, says
 why in /diagnostics and once in its log, and commands again after ramping in from the hold.
 """
+from pg_node.tools import processes
+import pytest
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from repeating import repeating
 from std_msgs.msg import Bool, Float64
 from test_lifecycle_cli import policy  # noqa: F401 - the fixture: an untrained ONNX policy
 from test_policy_node import Client, PLAIN, start_policy
-from pg_node.tools import processes
-import pytest
 
 pytestmark = pytest.mark.e2e
 PROGRAM = '/io_and_status_controller/robot_program_running'

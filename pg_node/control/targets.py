@@ -14,9 +14,9 @@ one never does; a volatile one matches the volatile publishers of ``ros2 topic p
 RViz's Publish Point, which a transient-local one does not (DDS refuses the pair: durability
 incompatible). A latched publisher's messages reach both; :class:`Twins` drops the second copy.
 """
+from dataclasses import dataclass
 import re
 import time
-from dataclasses import dataclass
 from typing import Dict, Hashable, List, Optional, Tuple, Union
 
 import numpy as np
