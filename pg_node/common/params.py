@@ -293,8 +293,17 @@ POLICY_PARAMS: Dict[str, Param] = {
                              choices=('trajectory', 'forward')),
     'base_frame': Param('base_link', "frame_id of targets in the arm's base frame (an empty "
                                      'frame_id is taken as this one too)'),
-    'marker_rate': Param(10.0, '~/markers (the goal the policy acts on, the fingertip coloured '
-                               'by the state: commanding, hold, e-stop, waiting) rate in Hz of '
+    'robot_program_running_topic': Param(
+        '', "the robot's program state (std_msgs/Bool, transient local): false holds until "
+            'it is true again, then ramps in; a UR: '
+            '/io_and_status_controller/robot_program_running; empty: not followed'),
+    'speed_scaling_topic': Param(
+        '', "the robot's speed scaling in percent (std_msgs/Float64): 0 (a protective stop, "
+            'a pause) holds until it rises again, then ramps in; a UR: '
+            '/speed_scaling_state_broadcaster/speed_scaling; empty: not followed'),
+    'marker_rate': Param(10.0, '~/markers (the goal the policy acts on and, when clamped, the '
+                               'one requested; the fingertip coloured by the state: '
+                               'commanding, hold, e-stop, waiting) rate in Hz of '
                                'wall time while it has a subscriber; 0 turns it off', low=0.0,
                          live=True),
     'marker_frame': Param('', 'frame of ~/markers; empty: base_frame for one arm (plain joint '

@@ -61,6 +61,8 @@ class NodeState(Enum):
     COMMANDING = ('commanding', Severity.OK)
     STALE = ('stale', Severity.WARN)
     ESTOP = ('estop', Severity.WARN)
+    #: the robot stopped itself (its program not running, speed scaling 0): hold command
+    ROBOT_STOPPED = ('robot_stopped', Severity.WARN)
     FINALIZED = ('finalized', Severity.WARN)
 
     def __init__(self, key: str, severity: Severity):
