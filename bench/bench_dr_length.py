@@ -28,7 +28,7 @@ def main() -> int:
     parser.add_argument('--steps', type=int, nargs='+', default=[1_000_000, 3_000_000])
     parser.add_argument('--seed', type=int, default=0)
     args = parser.parse_args()
-    from pg_node.common.params import load_config
+    from pg_node.common.config_files import load_config
     from pg_node.common.paths import config_file
     from pg_node.common.perturbations import parse_perturbation
     from pg_node.rl.evaluate import evaluate_policy

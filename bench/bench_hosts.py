@@ -24,7 +24,6 @@ The virtual network is this machine's memory: it shows the cost of UDP and of th
 separate DDS participants, not a real LAN's latency. Nothing is asserted.
 """
 import argparse
-import json
 import os
 from pathlib import Path
 import subprocess
@@ -38,7 +37,9 @@ sys.path.insert(0, str(REPO))
 from bench.lan import dds_env, Lan, unavailable  # noqa: E402
 from bench.tax import split_round_trips  # noqa: E402
 import numpy as np  # noqa: E402
-from pg_node.common.params import defaults, load_config, SHARED  # noqa: E402
+from pg_node.common.config_files import load_config  # noqa: E402
+from pg_node.common.params import defaults, SHARED  # noqa: E402
+from pg_node.common.run_dir import RunDir  # noqa: E402
 from pg_node.tools import processes  # noqa: E402
 
 
@@ -80,7 +81,7 @@ def one_host(tmp, steps, mode, shm):
                           env=env, cwd=REPO, capture_output=True, text=True, timeout=1800)
     if done.returncode != 0:
         raise RuntimeError(done.stdout[-2000:] + done.stderr[-2000:])
-    summary = json.loads((tmp / 'run' / 'summary.json').read_text())
+    summary = RunDir(tmp / 'run').read_summary()
     return summary['steps_per_second'], trips([log])
 
 
@@ -104,7 +105,7 @@ def several_hosts(tmp, steps, mode, workers):
             proc.wait(120)                 # the worker hosts end by themselves
         if learner.returncode != 0:
             raise RuntimeError((tmp / 'learner.out').read_text()[-3000:])
-    summary = json.loads((tmp / 'learner' / 'summary.json').read_text())
+    summary = RunDir(tmp / 'learner').read_summary()
     return summary['steps_per_second'], trips([tmp / f'trips{i}.npy' for i in range(workers)])
 
 

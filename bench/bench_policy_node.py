@@ -56,14 +56,15 @@ def rss_mb(pid: int) -> float:
 
 def make_policy(workdir: Path, given):
     """Return ``(run or checkpoint, onnx file)``: given, or trained briefly and exported."""
+    from pg_node.common.run_dir import RunDir
     from pg_node.rl.onnx_export import export_policy
     from pg_node.rl.trained_policy import find_checkpoint, TorchPolicy
     if given is None:
-        from pg_node.common.params import load_config
+        from pg_node.common.config_files import load_config
         from pg_node.rl.train_inprocess import train_inprocess
         summary = train_inprocess(load_config(None, ['num_envs=8']), 4096, eval_episodes=1)
         given = workdir / 'run'
-        summary['learner'].save(given / 'checkpoints')
+        summary['learner'].save(RunDir(given).checkpoints)
     trained = TorchPolicy(*find_checkpoint(given))
     onnx = workdir / 'policy.onnx'
     export_policy(trained.policy, trained.card, onnx)

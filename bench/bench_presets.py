@@ -20,9 +20,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # the repositor
 
 from bench.runs import run_graph  # noqa: E402
 import numpy as np  # noqa: E402
-from pg_node.common.params import load_config  # noqa: E402
+from pg_node.common.config_files import load_config  # noqa: E402
 from pg_node.common.paths import config_file  # noqa: E402
-from pg_node.tools.train import read_progress  # noqa: E402
+from pg_node.common.run_dir import RunDir  # noqa: E402
 
 
 def one_preset(preset: str, seeds, steps: int, root: Path) -> dict:
@@ -31,7 +31,7 @@ def one_preset(preset: str, seeds, steps: int, root: Path) -> dict:
     for seed in seeds:
         run_dir = root / f'{preset}_s{seed}'
         summary = run_graph(run_dir, steps, seed, ['--config', preset])
-        kls = [r['approx_kl'] for r in read_progress(run_dir / 'progress.csv')
+        kls = [r['approx_kl'] for r in RunDir(run_dir).read_progress()
                if np.isfinite(r['approx_kl'])]
         runs.append({'eval': summary['eval_return'],
                      'seconds': summary['session_training_seconds'],

@@ -69,6 +69,7 @@ def iiwa_urdf() -> Path:
 
 def train_iiwa(out: Path, steps: int, seed: int) -> list:
     """Import the iiwa into ``out``, train what is not there yet; return the policies."""
+    from pg_node.common.run_dir import RunDir
     out.mkdir(parents=True, exist_ok=True)
     model = (out / 'iiwa.xml').resolve()
     if not model.exists():
@@ -77,7 +78,7 @@ def train_iiwa(out: Path, steps: int, seed: int) -> list:
     policies = []
     for label, terms in (('nominal', {}), ('randomized', IIWA_TERMS)):
         run = (out / label).resolve()
-        if not (run / 'checkpoints').is_dir():
+        if not RunDir(run).checkpoints.is_dir():
             subprocess.run([sys.executable, str(REPO / 'bench' / 'train_inprocess.py'), 'arm7',
                             str(steps), f'model={model}', f'frame_skip={IIWA_FRAME_SKIP}',
                             f'seed={seed}',

@@ -59,7 +59,6 @@ attempt used. Not a test: nothing is asserted. Run nothing else meanwhile (2 cor
 """
 import argparse
 from importlib.metadata import distribution
-import json
 import os
 from pathlib import Path
 import subprocess
@@ -175,7 +174,8 @@ def main() -> int:
     subprocess.run([*run, 'train', '--config', 'arm7', f'model:={model}',
                     f'total_steps:={args.steps}', '--seed', str(args.seed), '--run-dir',
                     str(run_dir), *train_extra], check=True, env=os.environ)
-    summary = json.loads((run_dir / 'summary.json').read_text())
+    from pg_node.common.run_dir import RunDir
+    summary = RunDir(run_dir).read_summary()
     print('| arm | interface | targets | steps | steps/s | return | final distance (cm) '
           '| within 2 cm |')
     print('|---|---|---|---:|---:|---:|---:|---:|')

@@ -97,7 +97,7 @@ def curve_run(preset: Optional[str], overrides: Sequence[str], steps: int, seed:
 
     Returns the evaluations, the training seconds (evaluations excluded) and steps/s.
     """
-    from pg_node.common.params import load_config
+    from pg_node.common.config_files import load_config
     from pg_node.common.paths import config_file
     from pg_node.rl.evaluate import evaluate_policy
     from pg_node.rl.train_inprocess import train_inprocess

@@ -103,7 +103,7 @@ def main(argv=None) -> int:
                         help='rollouts left out at the start (at least 1: the first holds '
                              'the initial weights load)')
     args = parser.parse_intermixed_args(argv)
-    from pg_node.common.params import load_config
+    from pg_node.common.config_files import load_config
     from pg_node.common.paths import config_file
     from pg_node.rl.train_inprocess import train_inprocess
     cfg = load_config(config_file(args.config) if args.config else None, args.overrides)

@@ -39,7 +39,6 @@ meanwhile (PROFILE.md's figures were taken at nice 19 beside a benchmark, so inf
 """
 import argparse
 import collections
-import csv
 import math
 from pathlib import Path
 import statistics
@@ -117,6 +116,7 @@ def batch_messages(cfg, count: int):
 def per_batch(cfg, msgs, obs_dim, act_dim, model, skip, tmp: Path, add_scalar, publish):
     """Run the learner's per-batch work on each message; return the Costs."""
     from pg_node.bag.recorder import EpisodeRecorder
+    from pg_node.common.run_dir import RunDir
     from pg_node.rl.learner import EpisodeStats, Learner
     from pg_node.rl.logger import TAGS, TensorBoardLog
     from pg_node.ros import messages, table_msg
@@ -125,16 +125,15 @@ def per_batch(cfg, msgs, obs_dim, act_dim, model, skip, tmp: Path, add_scalar, p
     l_cfg = {**cfg['learner_node'], **cfg['actor_node']}
     learner = Learner(obs_dim, act_dim, l_cfg)
     stats = EpisodeStats()
-    recorder = EpisodeRecorder(tmp / 'bag', model, record_arms=l_cfg['record_arms'],
+    run = RunDir(tmp)                       # laid out as the learner's run directory
+    recorder = EpisodeRecorder(run.next_bag(), model, record_arms=l_cfg['record_arms'],
                                split_max_episodes=l_cfg['bag_split_episodes'])
-    tensorboard = TensorBoardLog(tmp / 'tensorboard')
+    tensorboard = TensorBoardLog(run.tensorboard)
     writer = None
     if add_scalar:
         from torch.utils.tensorboard import SummaryWriter
         writer = SummaryWriter(str(tmp / 'tensorboard_add_scalar'), flush_secs=10)
-    progress_file = open(tmp / 'progress.csv', 'w', newline='')
-    progress = csv.DictWriter(progress_file, PROGRESS_FIELDS)
-    progress.writeheader()
+    progress = run.progress_writer(PROGRESS_FIELDS)
     node = pubs = None
     if publish:
         import rclpy
@@ -185,16 +184,13 @@ def per_batch(cfg, msgs, obs_dim, act_dim, model, skip, tmp: Path, add_scalar, p
                             tag, sign = TAGS.get(name, (f'pg_node/{name}', 1.0))
                             writer.add_scalar(tag, sign * value, learner.env_steps)
                 cost(f'TensorBoard, add_scalar x {len(logged)} (before 56f1df1)', scalars)
-            cost('progress.csv row', progress.writerow, {
-                'wall_seconds': round(time.monotonic() - t0, 3),
-                **{n: ('' if isinstance(v, float) and math.isnan(v) else v)
-                   for n, v in metrics.items()}})
+            cost('progress.csv row', progress.write, time.monotonic() - t0, metrics)
     finally:
         recorder.close()
         tensorboard.close()
         if writer is not None:
             writer.close()
-        progress_file.close()
+        progress.close()
         if node is not None:
             import rclpy
             node.destroy_node()
@@ -236,7 +232,7 @@ def main(argv=None) -> int:
     parser.add_argument('--publish', action='store_true',
                         help='also time publishing the metric messages (rclpy)')
     args = parser.parse_intermixed_args(argv)
-    from pg_node.common.params import load_config
+    from pg_node.common.config_files import load_config
     import torch
     torch.set_num_threads(1)                        # as the nodes and train_inprocess
     cfg = load_config(None, args.overrides)

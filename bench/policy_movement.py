@@ -54,7 +54,7 @@ ALGORITHM_ROWS = ('A2C (defaults)', 'plain REINFORCE', 'A2C (before issue 48)',
 def measure(preset, overrides, steps: int, seed: int):
     """Train one row; return the per-update KLs, explained variances and the evaluation."""
     import torch
-    from pg_node.common.params import load_config
+    from pg_node.common.config_files import load_config
     from pg_node.common.paths import config_file
     from pg_node.rl.train_inprocess import train_inprocess
     from pg_node.rl.updaters import UPDATERS

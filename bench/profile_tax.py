@@ -62,7 +62,7 @@ def main(argv=None) -> int:
         settings.append(('graph over DDS', br.profile_graph, ['sim_node.in_process_hop=false']))
     settings.append(('in-process', br.profile_inprocess, []))
     columns, rates = {}, {}
-    from pg_node.common.params import load_config
+    from pg_node.common.config_files import load_config
     arms = load_config(None, args.overrides)['sim_node']['num_envs']
     per_step = {}
     for name, profile, extra in settings:

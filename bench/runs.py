@@ -17,7 +17,6 @@ SIGKILL. Each run joins a domain of its own (:func:`domain_id`): ``ROS_DOMAIN_ID
 set, as the tests do, so that a bench inside an isolated run stays inside it.
 """
 import importlib.util
-import json
 import os
 from pathlib import Path
 import subprocess
@@ -27,6 +26,7 @@ import time
 from typing import Dict, List, Optional, Sequence
 
 import numpy as np
+from pg_node.common.run_dir import RunDir
 from pg_node.tools.processes import child_env, REPO, stop
 
 _domain_counter = [0]
@@ -83,7 +83,7 @@ def sim_node_lock_step(n: int, seconds: float) -> float:
 
 def a2c_in_process(steps: int, seed: int = 0) -> Dict:
     """Train pg_node A2C in-process for ``steps``; return its summary (numbers only)."""
-    from pg_node.common.params import load_config
+    from pg_node.common.config_files import load_config
     from pg_node.rl.train_inprocess import train_inprocess
     summary = train_inprocess(load_config(None, [f'seed={seed}']), steps, eval_episodes=10)
     return {k: summary[k] for k in ('total_steps', 'wall_seconds', 'steps_per_second')}
@@ -160,11 +160,11 @@ def run_graph(run_dir: Path, steps: int, seed: int, overrides: Sequence[str] = (
         except KeyboardInterrupt:
             stop(proc)
             raise
-    summary = run_dir / 'summary.json'
-    if rc != 0 or not summary.is_file():
+    summary = RunDir(run_dir).read_summary()
+    if rc != 0 or summary is None:
         tail = (run_dir / 'bench_train.log').read_text(errors='replace')[-2000:]
         raise RuntimeError(f'{" ".join(cmd)} exited with {rc}:\n{tail}')
-    return json.loads(summary.read_text())
+    return summary
 
 
 # --- latency -------------------------------------------------------------------------------
@@ -328,7 +328,7 @@ def sb3_learning(algo: str, env_id: str, steps: int, seed: int, eval_points: Seq
 def inprocess_learning(steps: int, seed: int, eval_points: Sequence[int],
                        eval_episodes: int = 100) -> Dict:
     """Train pg_node A2C in-process; deterministic evaluations at ``eval_points``."""
-    from pg_node.common.params import load_config
+    from pg_node.common.config_files import load_config
     from pg_node.rl import train_inprocess as tip
     from pg_node.rl.evaluate import evaluate_policy
     points = sorted({int(p) for p in eval_points})
@@ -450,7 +450,7 @@ def profile_inprocess(steps: int, seed: int = 0, overrides: Sequence[str] = (),
     """
     import cProfile
     import pstats
-    from pg_node.common.params import load_config
+    from pg_node.common.config_files import load_config
     from pg_node.rl.train_inprocess import train_inprocess
     cfg = load_config(None, [f'seed={seed}', *overrides])
     prof = cProfile.Profile()
@@ -487,19 +487,15 @@ def _children(pid: int) -> List[int]:
 
 def _signal_after(run_dir: Path, warmup: int, found: Dict, done) -> None:
     """Send SIGUSR1 to train's node processes once progress.csv passes ``warmup`` steps."""
-    import csv
     import signal
-    progress = Path(run_dir) / 'progress.csv'
+    run = RunDir(run_dir)
     while not done.wait(0.2):
-        try:
-            rows = list(csv.DictReader(progress.open()))
-        except OSError:
-            continue
-        if rows and float(rows[-1]['env_steps'] or 0) >= warmup:
+        row = run.last_progress()
+        if row and row['env_steps'] >= warmup:
             for train in _children(os.getpid()):
                 for pid in _children(train):
                     os.kill(pid, signal.SIGUSR1)
-            found['profiled_from_steps'] = int(float(rows[-1]['env_steps']))
+            found['profiled_from_steps'] = int(row['env_steps'])
             return
 
 

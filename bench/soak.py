@@ -2,9 +2,9 @@
 ``python -m bench.soak --minutes N``: training with faults injected on a schedule, and a report.
 
 The graph is started and supervised as ``python -m pg_node train`` does it (the same
-:class:`pg_node.tools.train.Supervisor`, with a large restart budget), with ``total_steps`` out of
-reach, so the run lasts as long as asked. After ``--warmup`` seconds one fault is injected
-every ``--interval`` seconds, cycling through :data:`FAULTS`:
+:class:`pg_node.tools.supervisor.Supervisor`, with a large restart budget), with
+``total_steps`` out of reach, so the run lasts as long as asked. After ``--warmup`` seconds
+one fault is injected every ``--interval`` seconds, cycling through :data:`FAULTS`:
 
 * ``kill <node>``: SIGKILL of ``sim_node``, ``actor_node``, ``critic_node``, ``learner_node``
   in turn; the supervisor restarts the node;
@@ -41,7 +41,9 @@ import signal
 import sys
 import time
 
-from pg_node.common.params import ConfigError, load_config, SHARED
+from pg_node.common.config_files import load_config
+from pg_node.common.param_schema import ConfigError
+from pg_node.common.params import SHARED
 from pg_node.common.run import COMMANDS, pair_namespace, run_id_for_dir, run_topic
 from pg_node.tools.processes import terminate_as_interrupt
 
@@ -90,23 +92,22 @@ def rss_bytes(pid: int):
     return None
 
 
-def steps_lost_by_learner(path: Path, batch_steps: int) -> int:
+def steps_lost_by_learner(rows, batch_steps: int) -> int:
     """
     Return the environment steps the learner lost with its restarts, from ``progress.csv``.
 
     A restarted learner resumes from its newest checkpoint: ``env_steps`` goes back, and the
-    steps learned between that checkpoint and the crash are lost.
+    steps learned between that checkpoint and the crash are lost. ``rows``: the file's rows
+    (:meth:`pg_node.common.run_dir.RunDir.read_progress`).
     """
-    import csv
     lost, prev = 0, None
     try:
-        with open(path, newline='') as f:
-            for row in csv.DictReader(f):
-                steps = int(float(row['env_steps']))
-                if prev is not None and steps <= prev:
-                    lost += prev - (steps - batch_steps)
-                prev = steps
-    except (OSError, KeyError, ValueError):
+        for row in rows:
+            steps = int(row['env_steps'])
+            if prev is not None and steps <= prev:
+                lost += prev - (steps - batch_steps)
+            prev = steps
+    except (KeyError, ValueError):
         pass
     return lost
 
@@ -354,15 +355,16 @@ class MemoryLog:
 def run_soak(args) -> dict:
     """Run the soak; return the report."""
     from pg_node.common.paths import default_config
-    from pg_node.tools.train import (discovery_env, last_progress, node_commands, sim_seeds,
-                                     Supervisor, write_params)
+    from pg_node.common.run_dir import RunDir
+    from pg_node.tools.supervisor import Supervisor
+    from pg_node.tools.train import discovery_env, node_commands, sim_seeds, write_params
     run_dir = Path(os.path.abspath(args.run_dir or os.path.join(
         'runs', 'soak-' + datetime.now().strftime('%Y%m%d-%H%M%S'))))
     cfg = load_config(args.config or default_config(),
                       [f'run_id={run_id_for_dir(str(run_dir))}'] + list(args.overrides)
                       + ['total_steps=1000000000000', f'run_dir={run_dir}'])
-    run_dir.mkdir(parents=True, exist_ok=True)
-    params = run_dir / 'params.yaml'
+    run = RunDir(run_dir).make()
+    params = run.params
     write_params(cfg, params)
     total = args.minutes * 60.0
     interval = args.interval or min(60.0, max(10.0, (total - args.warmup) / (len(FAULTS) + 1)))
@@ -376,7 +378,6 @@ def run_soak(args) -> dict:
     sup = Supervisor(run_dir, commands, max_restarts=1000, seeds=sim_seeds(cfg), env=env)
     injector = Injector(cfg)
     memory = MemoryLog(args.warmup)
-    progress = run_dir / 'progress.csv'
     faults, stalled = [], []       # stalled: (pid, resume at)
     garbage_sent = {}
     t0 = time.monotonic()
@@ -396,7 +397,7 @@ def run_soak(args) -> dict:
             if now - last_sample >= 1.0:
                 memory.sample(sup)
                 last_sample = now
-            row = last_progress(progress)
+            row = run.last_progress()
             version = int(row['policy_version']) if row else -1
             steps = int(row['env_steps']) if row else 0
             for f in faults:
@@ -437,15 +438,16 @@ def run_soak(args) -> dict:
         sup.stop_all()
         injector.close()
     wall = time.monotonic() - t0
-    row = last_progress(progress) or {}
-    bags = [check_bag(d) for d in sorted(run_dir.glob('bag*'))
-            if d.is_dir() and ((d / 'metadata.yaml').exists() or any(d.glob('*.mcap')))]
+    row = run.last_progress() or {}
+    bags = [check_bag(d) for d in run.bags()
+            if (d / 'metadata.yaml').exists() or any(d.glob('*.mcap'))]
     mem = memory.report(t0, min_window=min(30.0, max(10.0, wall / 4)),
                         max_growth=args.max_growth)
     dropped = {k: int(injector.total(k)) for k in DROP_COUNTERS}
     discarded = int(injector.total('rollouts_discarded'))
     # the metric stream sees what progress.csv may not have flushed before a SIGKILL
-    learner_lost = max(injector.learner_lost, steps_lost_by_learner(progress, batch_steps))
+    learner_lost = max(injector.learner_lost,
+                       steps_lost_by_learner(run.read_progress(), batch_steps))
     per_node = {}
     for name in commands:
         recs = [m for m in mem if m['node'] == name]

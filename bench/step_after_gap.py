@@ -37,7 +37,7 @@ DESCRIBE = {'spin': 'the caller spinning through the gap',
 
 def make_task(arms: int, threads: int):
     """Return an ArmTask of the default parameters with ``threads`` stepping threads."""
-    from pg_node.common.params import load_config
+    from pg_node.common.config_files import load_config
     from pg_node.common.paths import resolve_model
     from pg_node.sim.arm_task import ArmTask
     cfg = load_config()

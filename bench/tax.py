@@ -100,7 +100,7 @@ class LoadWatch:
 
 def inprocess_rate(steps: int, overrides: Sequence[str] = ()) -> float:
     """Return env steps/s of in-process training (clock from the first update, as the graph)."""
-    from pg_node.common.params import load_config
+    from pg_node.common.config_files import load_config
     from pg_node.rl.train_inprocess import train_inprocess
     first = []
 
@@ -251,18 +251,18 @@ def _train_until(done: threading.Event, learning: threading.Event):
     import sys
     from bench import runs as br
     from pg_node.tools.processes import child_env, REPO, stop
-    from pg_node.tools.train import last_progress
+    from pg_node.common.run_dir import RunDir
     with tempfile.TemporaryDirectory() as tmp:
-        run_dir = Path(tmp) / 'run'
+        run = RunDir(Path(tmp) / 'run')
         proc = subprocess.Popen(
-            [sys.executable, '-m', 'pg_node', 'train', '--run-dir', str(run_dir),
+            [sys.executable, '-m', 'pg_node', 'train', '--run-dir', str(run.path),
              '--total-steps', '100000000', '--no-progress', '--eval-episodes', '1'],
             cwd=REPO, env=child_env(br.domain_id(background=True)),
             stdout=subprocess.DEVNULL,
             stderr=subprocess.DEVNULL, stdin=subprocess.DEVNULL, start_new_session=True)
         try:
             while not done.is_set() and proc.poll() is None:
-                if not learning.is_set() and last_progress(run_dir / 'progress.csv'):
+                if not learning.is_set() and run.last_progress():
                     learning.set()
                 done.wait(0.2)
         finally:

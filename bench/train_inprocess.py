@@ -31,7 +31,7 @@ def main() -> int:
     parser.add_argument('--eval-episodes', type=int, default=100)
     parser.add_argument('--save', type=Path, help='keep the checkpoint in DIR/checkpoints')
     args = parser.parse_args()
-    from pg_node.common.params import load_config
+    from pg_node.common.config_files import load_config
     from pg_node.common.paths import config_file
     from pg_node.rl.train_inprocess import train_inprocess
     cfg = load_config(config_file(args.config), args.overrides)
@@ -48,11 +48,13 @@ def main() -> int:
     summary = train_inprocess(cfg, int(args.steps), callback=progress,
                               eval_episodes=args.eval_episodes)
     if args.save:
-        summary['learner'].save(args.save / 'checkpoints')
+        from pg_node.common.run_dir import RunDir
+        run = RunDir(args.save)
+        summary['learner'].save(run.checkpoints)
         # the run's parameters, as train writes them: eval and the card read its frame_skip,
         # randomization and position_delta there
         from pg_node.tools.train import write_params
-        write_params(cfg, args.save / 'params.yaml')
+        write_params(cfg, run.params)
     print(f"{summary['total_steps']:,} steps in {time.perf_counter() - t0:.0f} s "
           f"({summary['steps_per_second']:,.0f} steps/s); deterministic evaluation over "
           f"{args.eval_episodes} episodes: return {summary['eval_return']:.3f}, final distance "

@@ -44,7 +44,7 @@ REMAPS = {'commands_topic': 'arm_controller/commands',
           'trajectory_topic': 'arm_controller/joint_trajectory',
           'joint_states_topic': 'joint_states'}
 #: launch arguments that override the parameter file's value when given
-OVERRIDES = ('command_interface', 'command_message', 'controller_name')
+OVERRIDES = ('command_interface', 'command_message', 'controller_name', 'controller_manager')
 #: launch arguments always given to the node as parameters (booleans)
 SWITCHES = ('autostart', 'use_sim_time')
 
@@ -105,6 +105,10 @@ def generate_launch_description():
         ('controller_name', '', 'the controller whose joints parameter configure checks, '
                                 'e.g. /scaled_joint_trajectory_controller (empty: from '
                                 'params_file)'),
+        ('controller_manager', '', "ros2_control's controller manager, e.g. "
+                                   'controller_manager: configure checks the arm controller '
+                                   'through it and the stops can deactivate it (empty: from '
+                                   'params_file, none)'),
         ('commands_topic', REMAPS['commands_topic'],
          "the forward command controller's commands topic, e.g. "
          '/forward_position_controller/commands'),

@@ -21,7 +21,7 @@ import time
 
 import numpy as np
 from pg_node.bag.recorder import EpisodeRecorder
-from pg_node.common.params import load_config
+from pg_node.common.config_files import load_config
 from pg_node.common.paths import resolve_model
 from pg_node.rl.rollout_buffer import RolloutBuffer
 from pg_node.rl.train_inprocess import train_inprocess

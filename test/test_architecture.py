@@ -181,3 +181,29 @@ def test_nothing_stray_is_tracked_at_the_root():
     assert stray_at_root(listed.stdout.splitlines()) == []
     assert stray_at_root(['MUJOCO_LOG.TXT', 'hat | x', 'pg_node/a.py', 'tmp/x']) == [
         'MUJOCO_LOG.TXT', 'hat | x', 'tmp/x']
+
+
+#: the decisions issue 53 moved to one place each: (what, the pattern that writes it, the one
+#: module allowed to) — a second writer found anywhere in the package, bench/ or launch/ fails
+SINGLE_SOURCES = [
+    ("a run's file names", r"""['"](progress\.csv|summary\.json|params\.yaml)['"]""",
+     'pg_node/common/run_dir.py'),
+    ('the checkpoints folder', r"""= ['"]checkpoints['"]""", 'pg_node/common/run_dir.py'),
+    ("a simulator's seed from its pair", r'seed \+ i \* ', 'pg_node/common/graph_plan.py'),
+    ("each update's settings", r"""^\s*(SETTINGS|ALGO_SETTINGS)\b.*=""",
+     'pg_node/rl/update_settings.py'),
+    ('the largest value on the wire', r'^MAX_ABS = ', 'pg_node/common/bounds.py'),
+]
+
+
+@pytest.mark.parametrize('what, pattern, home', SINGLE_SOURCES,
+                         ids=[w for w, _, _ in SINGLE_SOURCES])
+def test_each_decision_is_written_in_one_module(what, pattern, home):
+    import re
+    root = PACKAGE.parent
+    found = sorted(str(path.relative_to(root))
+                   for folder in ('pg_node', 'bench', 'launch')
+                   for path in (root / folder).rglob('*.py')
+                   if any(re.search(pattern, line) for line in path.read_text().splitlines()
+                          if not line.lstrip().startswith('#')))
+    assert found == [home], (what, found)

@@ -19,7 +19,7 @@ import sys
 import gymnasium as gym
 import mujoco
 import numpy as np
-from pg_node.common.params import load_config
+from pg_node.common.config_files import load_config
 from pg_node.common.paths import resolve_model
 from pg_node.control.interfaces import card
 from pg_node.sim import urdf_import

@@ -316,3 +316,32 @@ def test_arm_groups_cover_every_arm_once():
             assert [s.start for s in arm_groups(n, g)][0] == 0
     with pytest.raises(ValueError, match='groups'):
         arm_groups(3, 4)
+
+
+def test_an_arm_whose_physics_blew_up_ends_its_episode_bounded_and_is_counted():
+    """Huge or non-finite states end that arm's episode alone, reset it, and count it."""
+    from pg_node.common.bounds import MAX_ABS
+    task = ArmTask(resolve_model('reacher2'), num_envs=3, seed=0)
+    task.step(np.zeros((3, task.act_dim)))          # mid-episode
+    task.datas[1].qvel[:] = 1e9                     # a velocity past any real arm's
+    task.datas[2].qpos[0] = np.nan                  # and a state that is no number
+    obs, reward, terminated, truncated, info = task.step(np.zeros((3, task.act_dim)))
+    assert terminated.tolist() == [False, True, True] and not truncated.any()
+    assert info['blown_up'].tolist() == [False, True, True]
+    assert task.blow_ups.tolist() == [0, 1, 1]
+    assert np.isfinite(info['final_obs']).all() and np.abs(info['final_obs']).max() <= MAX_ABS
+    assert np.isfinite(reward).all()
+    # the two start new episodes from a drawn state; arm 0 goes on
+    assert info['episode_step'].tolist() == [2, 0, 0]
+    assert np.abs(obs).max() < 100
+    obs, reward, terminated, truncated, info = task.step(np.zeros((3, task.act_dim)))
+    assert not terminated.any() and task.blow_ups.tolist() == [0, 1, 1]
+
+
+def test_an_observation_past_the_bound_ends_the_episode_where_mujoco_does_not_reset():
+    """A velocity MuJoCo still steps (below its own 1e10) but past the wire's 1e6."""
+    task = ArmTask(resolve_model('reacher2'), num_envs=2, seed=0)
+    task.step(np.zeros((2, task.act_dim)))
+    task.datas[0].qvel[0] = 5e6
+    obs, reward, terminated, truncated, info = task.step(np.zeros((2, task.act_dim)))
+    assert info['blown_up'].tolist() == [True, False] and task.blow_ups.tolist() == [1, 0]

@@ -15,7 +15,8 @@ import numpy as np
 from pg_node.control import status, watchdog
 from pg_node.control.guards import CommandGuard, GuardSettings, model_limits
 from pg_node.control.interfaces import INTERFACES
-from pg_node.control.status import diagnostic_level, Fault, GuardEvent, NodeState, Severity
+from pg_node.control.status import (diagnostic_level, Fault, GuardEvent, NodeState,
+                                    RepeatedWarnings, Severity)
 import pytest
 
 JOINTS = ['joint0', 'joint1']
@@ -295,3 +296,48 @@ def test_events_that_warn_and_the_diagnostics_level():
 def test_worked_examples(module):
     failures, tried = doctest.testmod(module)
     assert tried > 0 and failures == 0
+
+
+def test_a_repeated_warning_is_logged_once_then_once_a_period_with_its_count():
+    """A guard acting every tick: its first line at once, then one per period, counted."""
+    warnings = RepeatedWarnings(period=30.0)
+    ticks = np.arange(0.0, 95.0, 0.04)              # 25 Hz for 95 s
+    lines = [(t, line) for t in ticks
+             if (line := warnings.line(GuardEvent.JOINT_LIMIT, 'joint limit guard', t))]
+    assert [round(t, 2) for t, _ in lines] == [0.0, 30.0, 60.0, 90.0]
+    assert lines[0][1] == 'joint limit guard'
+    assert lines[1][1] == 'joint limit guard (750 times in the last 30 s)'
+    # another guard has its own first line and count
+    assert warnings.line(GuardEvent.OVER_SPEED, 'over-speed', 91.0) == 'over-speed'
+
+
+@pytest.mark.parametrize('lighter', [1.0, 5.0])
+def test_a_model_without_damping_still_brakes_a_moving_joint_to_rest(lighter):
+    """
+    No joint damping (a Franka recipe): the hold is the braking gain, never 0 N m.
+
+    A joint of the model's largest inertia, or one ``lighter`` times lighter (the Panda's
+    shoulder, folded), moving at 1 rad/s, under the hold command held a whole tick as a
+    controller holds it: at rest (below 1 mrad/s) within 30 ticks, after at most
+    ``BRAKE_TICKS`` ticks' worth of its first speed.
+    """
+    from pg_node.control.guards import BRAKE_TICKS
+    undamped = replace(REACHER2, damping=np.zeros(2))
+    period = 0.04
+    g = CommandGuard(undamped, undamped.joints, 'effort', GuardSettings(), period=period)
+    inertia = undamped.inertia / lighter
+    q, qdot = np.zeros((1, 2)), np.array([[1.0, -1.0]])
+    travelled = np.zeros(2)
+    for tick in range(30):
+        torque = to_si(g.hold_tick(q, qdot))[0]
+        if tick == 0:
+            assert np.all(np.abs(torque) > 0), torque                      # not 0 N m
+        for _ in range(40):                                  # the robot's 1 ms steps
+            qdot = qdot + torque / inertia * (period / 40)
+            q = q + qdot * (period / 40)
+            travelled += np.abs(qdot[0]) * (period / 40)
+    assert np.all(np.abs(qdot) < 1e-3), qdot
+    assert np.all(travelled < BRAKE_TICKS * period * 1.0 + 1e-9), travelled
+    # the model's damping, where it has some, stays the hold's gain
+    assert model_limits(REACHER2, INTERFACES['effort'], GuardSettings(), period).hold_damping \
+        .tolist() == [1.0, 1.0]

@@ -2,19 +2,21 @@
 What policy_node makes of its inputs, without a live node: joints, targets, watchdog, e-stop.
 
 :mod:`pg_node.control.joint_map` (one arm by plain names or several prefixed, the one-line
-refusal), :mod:`pg_node.control.targets` (frames, the reach clamp, goals per arm),
+refusal), :mod:`pg_node.control.targets` (frames, the reach clamp, the clamp to the trained goals,
+goals per arm),
 :mod:`pg_node.control.watchdog` (state age by arrival or stamp, stale spells) and
 :mod:`pg_node.control.estop` (the latch).
 """
 import doctest
+from types import SimpleNamespace
 
 import numpy as np
-from pg_node.common.params import ConfigError
+from pg_node.common.param_schema import ConfigError
 from pg_node.control import joint_map, targets, watchdog
 from pg_node.control.estop import EStop
 from pg_node.control.joint_map import arm_joint_names, controller_mismatch, joint_columns
-from pg_node.control.targets import (clamp_to_reach, frame_key, REACH_MARGIN, target_array,
-                                     TWIN_WINDOW, Twins)
+from pg_node.control.targets import (clamp_to_reach, frame_key, GoalSet, REACH_MARGIN,
+                                     target_array, TWIN_WINDOW, Twins)
 from pg_node.control.watchdog import state_age, Watchdog
 import pytest
 
@@ -86,6 +88,51 @@ def test_frames_and_the_reach_clamp():
     point, distance = clamp_to_reach(np.array([1.0, 0.0, 0.4]), base, reach)
     np.testing.assert_allclose(point, [1.0, 0.0, 0.2])
     assert distance == pytest.approx(0.4)
+
+
+def spec(center=(0.0, 0.0), radius=0.2, dim=2, points=None):
+    """Return the goal fields of an ArmSpec (pg_node.sim.arm_task), as GoalSet.of reads them."""
+    return SimpleNamespace(target_center=np.array(center), target_radius=radius,
+                           target_dim=dim, target_points=points)
+
+
+def test_a_goal_outside_the_trained_region_is_moved_onto_its_edge():
+    # reacher2's disc: radius 0.2 about the origin in x, y; z is not observed and passes
+    disc = GoalSet.of(spec())
+    for point in ([0.1, 0.1, 0.01], [0.0, -0.2, 3.0], [0.0, 0.0, -1.0]):
+        goal, moved = disc.clamp(np.array(point))
+        assert not moved and goal.tolist() == point
+    goal, moved = disc.clamp(np.array([5.0, 5.0, 0.01]))
+    assert moved
+    np.testing.assert_allclose(goal, [0.2 / np.sqrt(2), 0.2 / np.sqrt(2), 0.01])
+    # a ball off the origin: along the line from its centre
+    ball = GoalSet.of(spec(center=(0.5, 0.0, 0.3), radius=0.1, dim=3))
+    goal, moved = ball.clamp(np.array([0.5, 0.0, -0.2]))     # under the table
+    assert moved and np.allclose(goal, [0.5, 0.0, 0.2])
+    assert ball.describe() == 'the ball of radius 0.1 m about (0.5, 0, 0.3)'
+
+
+def test_a_goal_away_from_the_trained_points_is_moved_onto_the_nearest():
+    # a grid of goals 0.1 m apart, from z 0.05 up: the tolerance is twice the spacing
+    grid = np.array([[x, y, z] for x in (0.3, 0.4, 0.5) for y in (-0.1, 0.0, 0.1)
+                     for z in (0.05, 0.15)])
+    cloud = GoalSet.of(spec(center=(0, 0, 0), dim=3, points=grid))
+    assert cloud.tolerance == pytest.approx(0.2) and cloud.floor == pytest.approx(0.05)
+    goal, moved = cloud.clamp(np.array([0.43, 0.02, 0.1]))      # among them: as it is
+    assert not moved and goal.tolist() == [0.43, 0.02, 0.1]
+    goal, moved = cloud.clamp(np.array([0.69, 0.0, 0.15]))      # 0.19 m out: as it is
+    assert not moved
+    goal, moved = cloud.clamp(np.array([0.9, 0.0, 0.15]))       # beyond: the nearest
+    assert moved and goal.tolist() == [0.5, 0.0, 0.15]
+    goal, moved = cloud.clamp(np.array([0.4, 0.0, 0.0]))        # below the lowest goal
+    assert moved and goal.tolist() == [0.4, 0.0, 0.05]
+    assert cloud.describe() == ('its 18 goal points (within 0.2 m of one, none below z '
+                                '0.05 m)')
+    # one point alone: that goal, exactly
+    one = GoalSet.of(spec(points=grid[:1]))
+    assert one.clamp(grid[0] + 0.01)[1] and one.clamp(grid[0] + 0.01)[0].tolist() == [
+        0.3, -0.1, 0.05]
+    assert not one.clamp(grid[0])[1]
 
 
 def test_goals_per_arm():

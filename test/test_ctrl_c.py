@@ -42,7 +42,7 @@ def wait_for(path: Path, text: str, proc, timeout: float) -> str:
     """Return the output so far once it holds ``text``."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
-        out = path.read_text()
+        out = path.read_text() if path.exists() else ''     # a node's log comes at its start
         if text in out:
             return out
         assert proc.poll() is None, out
@@ -50,19 +50,23 @@ def wait_for(path: Path, text: str, proc, timeout: float) -> str:
     raise AssertionError(f'no {text!r} within {timeout} s:\n{path.read_text()}')
 
 
+def start_train(run_dir: Path, log: Path, *args) -> subprocess.Popen:
+    """Start ``python -m pg_node train --run-dir RUN ARGS`` in its own session, into ``log``."""
+    env = dict(processes.child_env(DOMAIN_ID), AMENT_PREFIX_PATH=os.environ.get(
+        'AMENT_PREFIX_PATH', sys.prefix))
+    with open(log, 'w') as out:
+        return subprocess.Popen([sys.executable, '-m', 'pg_node', 'train', '--run-dir',
+                                 str(run_dir), *args], env=env, cwd=REPO, stdout=out,
+                                stderr=subprocess.STDOUT, start_new_session=True)
+
+
 @pytest.mark.e2e
 def test_train_the_first_ctrl_c_says_how_to_skip_the_evaluation_the_second_skips_it(
         tmp_path):
     run_dir, log = tmp_path / 'run', tmp_path / 'out.txt'
-    env = dict(processes.child_env(DOMAIN_ID), AMENT_PREFIX_PATH=os.environ.get(
-        'AMENT_PREFIX_PATH', sys.prefix))
     # an evaluation that would take minutes: only a skip ends the command in time
-    with open(log, 'w') as out:
-        proc = subprocess.Popen([sys.executable, '-m', 'pg_node', 'train', '--run-dir',
-                                 str(run_dir), '--total-steps', '10000000',
-                                 '--eval-episodes', '5000', 'checkpoint_every=2'],
-                                env=env, cwd=REPO, stdout=out, stderr=subprocess.STDOUT,
-                                start_new_session=True)
+    proc = start_train(run_dir, log, '--total-steps', '10000000', '--eval-episodes', '5000',
+                       'checkpoint_every=2')
     try:
         wait_for(log, '; learning', proc, 240)   # no terminal: lines
         deadline = time.monotonic() + 120       # until the first checkpoint: then it evaluates
@@ -79,7 +83,7 @@ def test_train_the_first_ctrl_c_says_how_to_skip_the_evaluation_the_second_skips
     finally:
         processes.stop(proc)
     text = log.read_text()
-    assert proc.returncode == 0, text
+    assert proc.returncode == 130, text             # interrupted: a shell's 128 + SIGINT
     assert 'Traceback' not in text, text
     assert f'evaluation skipped (Ctrl-C): python -m pg_node eval {run_dir} evaluates the run' \
         in text, text
@@ -88,3 +92,28 @@ def test_train_the_first_ctrl_c_says_how_to_skip_the_evaluation_the_second_skips
     assert summary['interrupted'] and summary['evaluation'] == 'skipped', summary
     assert 'eval_return' not in summary
     assert (run_dir / 'learning_curve.png').exists()
+
+
+@pytest.mark.e2e
+def test_train_interrupted_before_it_learned_anything_says_so_and_evaluates_nothing(
+        tmp_path):
+    """Ctrl-C during the bring-up: exit 130, no evaluation of the untrained policy."""
+    run_dir, log = tmp_path / 'run', tmp_path / 'out.txt'
+    # a rollout of 640k steps: the first update is far off when the signal comes
+    proc = start_train(run_dir, log, 'n_steps=10000')
+    try:
+        wait_for(log, 'starting nodes...', proc, 120)
+        # the learner (policy version 0) and the actor are up: the rollout has begun
+        wait_for(run_dir / 'logs' / 'critic_and_learner.log', 'learner: a2c, version 0', proc,
+                 120)
+        wait_for(run_dir / 'logs' / 'sim_and_actor.log', 'actor 0: 64 arms', proc, 120)
+        proc.send_signal(signal.SIGINT)
+        proc.wait(timeout=120)
+    finally:
+        processes.stop(proc)
+    text = log.read_text()
+    assert proc.returncode == 130, text
+    assert 'nothing learned yet (stopped before the first update): no evaluation' in text
+    assert 'evaluating' not in text and 'bring-up not over: no update yet' in text, text
+    summary = json.loads((run_dir / 'summary.json').read_text())
+    assert summary['evaluation'] == 'nothing learned' and summary['total_steps'] == 0

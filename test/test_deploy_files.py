@@ -1,11 +1,12 @@
 """
 The deployment files: ``config/policy_node.yaml`` and ``launch/deploy.launch.py``.
 
-The parameter file is generated from :data:`pg_node.common.params.POLICY_PARAMS` by the
-command written in its header, and must equal what that command writes today. The launch
-file runs against the recording stand-ins of ``launch``/``launch_ros`` that
-test_package_layout.py's train.launch.py tests use (``launch`` is not on PyPI), with
-``LifecycleNode`` added; test_lifecycle_cli.py starts a real policy_node from the file.
+The parameter file is generated from :data:`pg_node.common.params.POLICY_PARAMS` (by
+:mod:`pg_node.tools.param_docs`) with the command written in its header, and must equal what
+that command writes today. The launch file runs against the recording stand-ins of
+``launch``/``launch_ros`` that test_package_layout.py's train.launch.py tests use (``launch``
+is not on PyPI), with ``LifecycleNode`` added; test_lifecycle_cli.py starts a real policy_node
+from the file.
 """
 from pathlib import Path
 import re
@@ -24,7 +25,7 @@ SHIPPED = REPO / 'config' / 'policy_node.yaml'
 
 def test_shipped_policy_node_yaml_is_what_its_command_writes():
     """One source: the file equals the renderer's output and the header's command makes it."""
-    from pg_node.common.params import POLICY_FILE_COMMAND, policy_node_file
+    from pg_node.tools.param_docs import POLICY_FILE_COMMAND, policy_node_file
     text = SHIPPED.read_text()
     assert text == policy_node_file(), f'regenerate it: {POLICY_FILE_COMMAND}'
     assert f'#   {POLICY_FILE_COMMAND}\n' in text
@@ -38,7 +39,9 @@ def test_shipped_policy_node_yaml_is_what_its_command_writes():
 
 def test_policy_node_yaml_holds_every_parameter_at_its_default_explained():
     """Every POLICY_PARAMS entry, in order, at its default, valid, under its meaning."""
-    from pg_node.common.params import _read_sections, POLICY_FILE_NOTES, POLICY_PARAMS
+    from pg_node.common.config_files import read_sections
+    from pg_node.common.params import POLICY_PARAMS
+    from pg_node.tools.param_docs import POLICY_FILE_NOTES
     raw = yaml.safe_load(SHIPPED.read_text())
     # /**/policy_node: the section reaches policy_node in any namespace (a plain
     # policy_node: key reaches /policy_node only)
@@ -46,7 +49,7 @@ def test_policy_node_yaml_holds_every_parameter_at_its_default_explained():
     values = raw['/**/policy_node']['ros__parameters']
     assert list(values) == list(POLICY_PARAMS)
     assert values == {k: p.default for k, p in POLICY_PARAMS.items()}
-    assert _read_sections(SHIPPED) == {'policy_node': values}
+    assert read_sections(SHIPPED) == {'policy_node': values}
     for key, param in POLICY_PARAMS.items():
         assert param.check(key, values[key]) == param.default
     comments = ' '.join(line.strip()[2:] for line in SHIPPED.read_text().splitlines()
@@ -61,9 +64,9 @@ def test_policy_node_yaml_holds_every_parameter_at_its_default_explained():
 
 def test_the_modules_worked_examples_hold():
     import doctest
-    from pg_node.common import params
-    from pg_node.tools import lifecycle
-    for module in (params, lifecycle):
+    from pg_node.common import config_files, param_schema
+    from pg_node.tools import lifecycle, param_docs
+    for module in (param_schema, config_files, param_docs, lifecycle):
         failures, tried = doctest.testmod(module)
         assert tried > 0 and failures == 0, module.__name__
 

@@ -4,7 +4,8 @@ Every stop path of the deployment's decisions, without rclpy (:mod:`pg_node.cont
 A :class:`Deployment` over reacher2's hand-made motors (200 N m per unit of control, damping
 1 N m s/rad) with a policy that answers a fixed mean: an e-stop holds, no joint state waits,
 a stale one holds with a fading damping and its spell ends with one FRESH event, a missing
-goal waits naming the arm, commanding runs the guards, and a hold is ramped out of.
+goal waits naming the arm, the robot's own stop (a UR's program, its speed scaling) holds
+and is ramped out of, commanding runs the guards, and a hold is ramped out of.
 """
 import doctest
 
@@ -12,7 +13,7 @@ from control_records import REACHER2
 import numpy as np
 from pg_node.control import deployment
 from pg_node.control.deployment import (Deployment, Event, JointSample, LIFECYCLE, NO_STATE,
-                                        Status)
+                                        RobotState, Status)
 from pg_node.control.guards import CommandGuard, GuardSettings
 from pg_node.control.status import GuardEvent, NodeState
 from pg_node.control.watchdog import Watchdog
@@ -44,8 +45,8 @@ def joints(now, age=0.0, qdot=(0.0, 0.0)):
     return JointSample(np.zeros((1, 2)), np.array([qdot], dtype=float), now - age)
 
 
-def tick(d, state, now, goals=GOALS, estop=False):
-    return d.tick(state, goals, now, 0.0, estop)
+def tick(d, state, now, goals=GOALS, estop=False, robot_stop=''):
+    return d.tick(state, goals, now, 0.0, estop, robot_stop)
 
 
 def test_an_estop_holds_with_the_damping_torque_and_never_asks_the_policy():
@@ -184,3 +185,50 @@ def test_a_given_watchdog_keeps_the_spell_and_every_state_has_a_lifecycle():
     assert Status(NodeState.INACTIVE, '').lifecycle == 'inactive'
     failures, tried = doctest.testmod(deployment)
     assert tried > 0 and failures == 0
+
+
+def test_the_robots_own_stop_holds_with_the_reason_then_ramps_in_with_one_event():
+    d = core(ramp_time=1.0)
+    d.activate(0.0)
+    assert tick(d, joints(1.0), 1.0).command[0, 0] == pytest.approx(MEAN[0, 0])  # ramped in
+    why = RobotState('/io/robot_program_running', program_running=False).stop_reason()
+    held = [tick(d, joints(now, qdot=(2.0, 0.0)), now, robot_stop=why) for now in (2.0, 2.1)]
+    assert [t.status.state for t in held] == [NodeState.ROBOT_STOPPED] * 2
+    assert held[0].status.text == ('robot stopped: its program is not running '
+                                   '(/io/robot_program_running false): hold command, waiting '
+                                   'for it to run again')
+    assert held[0].status.lifecycle == 'active'
+    assert [t.events for t in held] == [(Event.ROBOT_STOPPED,), ()]   # one spell, one event
+    # the active hold from the fresh state: the full damping, -1 N m s/rad x 2 rad/s
+    assert all(t.hold for t in held) and held[0].obs is None
+    np.testing.assert_allclose(held[0].command, [[-2.0 / 200, 0.0]])
+    calls = len(d.calls)
+    # running again: commanding, ramping in from the hold over ramp_time, one READY event
+    ramp = [tick(d, joints(now), now) for now in (3.0, 3.5, 4.0, 4.5)]
+    assert [t.events for t in ramp] == [(Event.ROBOT_READY,), (), (), ()]
+    assert [t.status.state for t in ramp] == [NodeState.COMMANDING] * 4
+    np.testing.assert_allclose([t.command[0, 0] / MEAN[0, 0] for t in ramp], [0, 0.5, 1, 1])
+    assert len(d.calls) == calls + 4 and not ramp[0].hold
+    # an e-stop and stale states win over it; a missing goal too (nothing sent before one)
+    assert tick(d, joints(5.0), 5.0, estop=True, robot_stop=why).status.state is NodeState.ESTOP
+    t = tick(d, joints(6.0, age=1.0), 6.0, robot_stop=why)
+    assert t.status.state is NodeState.STALE
+    t = tick(d, joints(7.0), 7.0, goals='arm0', robot_stop=why)
+    assert t.status.state is NodeState.WAITING and t.command is None
+
+
+@pytest.mark.parametrize('state,words', [
+    (RobotState(), ''),
+    (RobotState(program_topic='/p', program_running=True), ''),
+    (RobotState(program_topic='/p', program_running=False, speed_topic='/s',
+                speed_scaling=0.0), 'its program is not running (/p false)'),
+    (RobotState(speed_topic='/s'), 'no message yet on /s (speed_scaling_topic)'),
+    (RobotState(speed_topic='/s', speed_scaling=-1.0), 'speed scaling -1 % on /s'),
+    (RobotState(speed_topic='/s', speed_scaling=float('nan')), 'speed scaling nan % on /s'),
+    (RobotState(speed_topic='/s', speed_scaling=12.5), ''),
+    # a topic not followed says nothing, whatever came on it
+    (RobotState(program_running=False, speed_scaling=0.0), ''),
+])
+def test_the_robot_state_says_why_it_stopped(state, words):
+    reason = state.stop_reason()
+    assert (words in reason and reason.startswith('robot stopped: ')) if words else not reason

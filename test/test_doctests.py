@@ -9,7 +9,8 @@ MODULES = ['pg_node.rl.rollout', 'pg_node.rl.returns', 'pg_node.rl.baselines', '
            'pg_node.ros.policy_node', 'bench.tax', 'pg_node.tools.hosts',
            'pg_node.tools.train', 'pg_node.tools.play', 'pg_node.rl.actor_sync',
            'pg_node.rl.critic_batching', 'pg_node.rl.learner_gate', 'pg_node.ros.replay_node',
-           'bench.bench_reach', 'pg_node.sim.actuation']
+           'bench.bench_reach', 'pg_node.sim.actuation', 'pg_node.control.status',
+           'pg_node.common.run_dir', 'pg_node.tools.stall']
 
 
 @pytest.mark.parametrize('name', MODULES)

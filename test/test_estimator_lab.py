@@ -121,7 +121,7 @@ def test_cli_rejects_bad_options():
 
 @pytest.fixture(scope='module')
 def arm_lab():
-    from pg_node.common.params import load_config
+    from pg_node.common.config_files import load_config
     from pg_node.lab.arm import ArmLab
     from pg_node.rl.learner import make_policy
     cfg = load_config(None, [])

@@ -11,7 +11,7 @@ import sys
 
 import mujoco
 import numpy as np
-from pg_node.common.params import load_config
+from pg_node.common.config_files import load_config
 from pg_node.common.paths import resolve_model
 from pg_node.rl.onnx_export import export_policy
 from pg_node.rl.train_inprocess import train_inprocess

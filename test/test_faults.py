@@ -21,6 +21,7 @@ from domains import ros_domains
 import numpy as np
 from pg_node.bag.recorder import EpisodeRecorder, parse_episode
 from pg_node.common.params import defaults
+from pg_node.common.run_dir import last_progress, read_progress
 from pg_node.rl.learner import EpisodeStats, Learner, make_policy
 from pg_node.rl.weights import flatten_state
 from pg_node.ros import command
@@ -28,7 +29,6 @@ from pg_node.ros import messages
 from pg_node.ros import table_msg
 from pg_node.ros import transition
 from pg_node.tools import processes
-from pg_node.tools.train import last_progress, read_progress
 import pytest
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
@@ -863,7 +863,7 @@ def test_signal_to_train_alone_stops_every_node(tmp_path, sig):
         text = proc.communicate(timeout=120)[0]
     finally:
         kill_run(proc, run_dir)
-    assert proc.returncode == 0, text[-3000:]
+    assert proc.returncode == 130, text[-3000:]         # interrupted, whatever the signal
     said = 'interrupted' if sig == signal.SIGINT else f'interrupted by signal {sig.name}'
     assert f'{said}: stopping the nodes' in text
     assert node_pids(run_dir) == []

@@ -117,7 +117,7 @@ def _effective(files, namespace, node):
 
 def _train_graph(tmp_path, settings, overrides, compose, part, actors):
     """Return ``{(executable, namespace): {node: values}}`` of what train starts."""
-    from pg_node.common.params import load_config
+    from pg_node.common.config_files import load_config
     from pg_node.tools.train import node_commands, sim_seeds, write_params
     cfg = load_config(settings, overrides + ['run_id=exp1', 'run_dir=runs/x'])
     params = tmp_path / 'params.yaml'

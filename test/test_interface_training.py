@@ -10,7 +10,7 @@ Whether such a training learns is a benchmark, not a test.
 from pathlib import Path
 
 import numpy as np
-from pg_node.common.params import load_config
+from pg_node.common.config_files import load_config
 from pg_node.common.paths import resolve_model
 from pg_node.rl.train_inprocess import train_inprocess
 from pg_node.rl.trained_policy import load_trained_policy

@@ -24,7 +24,7 @@ DOMAIN_ID = ros_domain(base=100, spread=10)
 @pytest.fixture(scope='module')
 def policy(tmp_path_factory):
     """Return an untrained reacher2 policy exported as ONNX (policy_node loads it in ms)."""
-    from pg_node.common.params import load_config
+    from pg_node.common.config_files import load_config
     from pg_node.common.paths import default_config
     from pg_node.rl.learner import Learner
     from pg_node.rl.onnx_export import export_policy

@@ -7,13 +7,13 @@ import sys
 
 from domains import ros_domain
 import numpy as np
-from pg_node.common.params import load_config
+from pg_node.common.config_files import load_config
+from pg_node.common.run_dir import read_progress
 from pg_node.rl.a2c import PolicyBatch
 from pg_node.rl.learner import Learner
 from pg_node.rl.natural_gradient import (conjugate_gradient, fisher_vector_product, flat,
                                          NPGUpdate, TRPOUpdate)
 from pg_node.rl.policy import GaussianPolicy
-from pg_node.tools.train import read_progress
 import pytest
 import torch
 from torch.distributions import kl_divergence, Normal

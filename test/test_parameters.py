@@ -181,7 +181,7 @@ def test_learner_and_critic_apply_live_hyperparameters(client, tmp_path):
 
 def test_every_parameter_is_live_or_read_only_with_its_range():
     """The descriptor of every table entry carries the range that the table checks."""
-    from pg_node.common.params import ConfigError
+    from pg_node.common.param_schema import ConfigError
     from pg_node.ros.parameters import descriptor
     for node in ('sim_node', 'actor_node', 'critic_node', 'learner_node'):
         for name, param in params_for(node).items():

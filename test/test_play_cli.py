@@ -16,7 +16,7 @@ import sys
 import time
 
 from domains import ros_domain
-from pg_node.common.params import load_config
+from pg_node.common.config_files import load_config
 from pg_node.tools import processes
 import pytest
 

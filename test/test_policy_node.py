@@ -22,7 +22,7 @@ from geometry_msgs.msg import PointStamped
 import mujoco
 from node_procs import start_node
 import numpy as np
-from pg_node.common.params import load_config
+from pg_node.common.config_files import load_config
 from pg_node.common.paths import resolve_model
 from pg_node.common.run import COMMANDS, CONTROLLER_COMMANDS
 from pg_node.ros import transition
@@ -533,23 +533,28 @@ def test_a_missing_joint_stops_the_node_with_one_line(tmp_path, client, trained,
 def test_targets_out_of_reach_are_clamped_and_other_frames_refused(
         tmp_path, client, trained):
     """
-    Clamp targets out of reach, refuse other frames, ignore non-finite ones: warned once.
+    Clamp targets out of reach and out of the trained goals, refuse other frames: warned once.
 
-    (5, 5) is far out of reacher2's 0.21 m: clamped onto its reach, and the command is the
-    policy's for the clamped goal; NaN was ignored without a word (issue 33); a frame that
-    is not the base frame is refused without tf2_ros, naming it; each warned about once.
+    (5, 5) is far out of reacher2's 0.21 m: clamped onto its reach, then into the disc of
+    radius 0.2 m its goals were drawn from (issue 54), and the command is the policy's for
+    the clamped goal; (0, 0.205) is within the reach but not the disc: clamped, one warning
+    for the spell; NaN was ignored without a word (issue 33); a frame that is not the base
+    frame is refused without tf2_ros, naming it; each warned about once.
     """
     pol = start_policy(tmp_path, f'policy:={trained["onnx"]}', 'state_timeout:=5.0')
     q, qd = np.array([0.3, -1.2]), np.array([0.5, -0.25])
     try:
         client.feed_while_loading(q=q, qd=qd)
+        for _ in range(2):                  # a spell of two clamped targets: one warning
+            client.send_target('base_link', [0.0, 0.205, 0.01])
         for _ in range(3):
             client.send_target('odom', [0.1, 0.1, 0.01])
             client.send_target('base_link', [float('nan'), 0.1, 0.01])
             client.send_target('base_link', [0.1, 0.1, 0.01])        # within reach: no word
             client.send_target('base_link', [5.0, 5.0, 0.01])
         client.wait(lambda: client.diagnostics[-1][1]['targets_out_of_reach'] == '3'
-                    and client.diagnostics[-1][1]['targets_ignored'] == '6',
+                    and client.diagnostics[-1][1]['targets_ignored'] == '6'
+                    and client.diagnostics[-1][1]['targets_clamped_to_trained'] == '5',
                     what='the targets counted in /diagnostics')
         with client.lock:
             client.commands.clear()         # those for the goals before the last
@@ -558,22 +563,34 @@ def test_targets_out_of_reach_are_clamped_and_other_frames_refused(
         code, log = processes.stop_logged(pol)
     assert code == 0, log[-2000:]
     warnings = [line for line in log.splitlines() if '[WARN]' in line]
-    assert len(warnings) == 3, log
+    assert len(warnings) == 4, log
     assert ('ignored a target with a non-finite coordinate for base_link: (nan, 0.1, 0.01)'
             in log)
     assert ("target (5, 5, 0.01) in base_link is 7.07 m from the arm's base, beyond its reach "
             'of 0.21 m: clamped to (0.148, 0.148, 0.01)') in log
+    assert ('(counted in /diagnostics as targets_out_of_reach); outside the goals the policy '
+            'trained on (the disc of radius 0.2 m about (0, 0)): taken as (0.141, 0.141, '
+            '0.01)') in log
+    assert ('target (0, 0.205, 0.01) in base_link is outside the goals the policy trained on '
+            '(the disc of radius 0.2 m about (0, 0)): taken as (0, 0.2, 0.01)') in log
     assert "ignored targets in frame 'odom': only the base frame 'base_link'" in log
     model = mujoco.MjModel.from_xml_string(trained['policy'].card['model_xml'])
     builder = ObservationBuilder(model)
-    base, reach = builder.reach()
-    goal = base + (np.array([5.0, 5.0, 0.01]) - base) * reach / np.linalg.norm(
-        np.array([5.0, 5.0, 0.01]) - base)
+    goal = trained_clamp(builder, [5.0, 5.0, 0.01])
     want = GEAR * np.clip(trained['policy'].mean(builder(q[None], qd[None], goal[None])),
                           -1, 1)[0]
     # float32 all through the policy: at 15 N m its last bit is 1e-6 N m (this machine's CPU
     # differed from the test's own arithmetic by 1.5e-6); a wrong clamp is off by newtons
     np.testing.assert_allclose(cmd, want, rtol=1e-6, atol=1e-5)
+
+
+def trained_clamp(builder, point):
+    """Return ``point`` clamped onto reacher2's reach, then into its goals' disc (r 0.2)."""
+    base, reach = builder.reach()
+    point = np.asarray(point, dtype=float)
+    goal = base + (point - base) * reach / np.linalg.norm(point - base)
+    goal[:2] *= 0.2 / np.linalg.norm(goal[:2])
+    return goal
 
 
 def feed_until_commanded(client, q, qd, timeout=30.0):
@@ -1422,7 +1439,9 @@ def test_configure_warns_in_one_line_when_the_settings_contradict_the_cards_phys
 def test_markers_show_the_clamped_goal_and_the_fingertip_coloured_by_the_hold(
         tmp_path, client, trained):
     """
-    ``~/markers``: the goal the policy acts on, clamped onto the reach, and the fingertip.
+    ``~/markers``: the goal acted on (clamped), the goal as requested, and the fingertip.
+
+    The goal is clamped onto the reach and into the goals the policy trained on (issue 54).
 
     The fingertip sits where the policy's model puts it for the joint state sent, green
     while the node commands; with no fresh joint state it holds, and the fingertip turns
@@ -1458,7 +1477,8 @@ def test_markers_show_the_clamped_goal_and_the_fingertip_coloured_by_the_hold(
             client.send_state(PLAIN, q, qd)
             time.sleep(0.02)
         with client.lock:
-            goal, tip = sorted(markers[-1].markers, key=lambda m: m.id)
+            goal, tip, requested = (next(m for m in markers[-1].markers if m.id == i)
+                                    for i in range(3))
         client.wait(lambda: tip_colour() == COLOURS[NodeState.STALE], timeout=10.0,
                     what='an orange fingertip (hold on stale joint states)')
     finally:
@@ -1466,10 +1486,11 @@ def test_markers_show_the_clamped_goal_and_the_fingertip_coloured_by_the_hold(
     assert code == 0, log[-2000:]
     builder = ObservationBuilder(mujoco.MjModel.from_xml_string(
         trained['policy'].card['model_xml']))
-    base, reach = builder.reach()
     far = np.array([5.0, 5.0, 0.01])
-    want_goal = base + (far - base) * reach / np.linalg.norm(far - base)
-    for marker, want in ((goal, want_goal), (tip, builder.fingertips(q[None])[0])):
+    want_goal = trained_clamp(builder, far)
+    assert requested.action == requested.ADD and requested.color.a < 1
+    for marker, want in ((goal, want_goal), (tip, builder.fingertips(q[None])[0]),
+                         (requested, far)):
         assert marker.header.frame_id == 'base_link' and marker.ns == 'arm0'
         np.testing.assert_allclose([marker.pose.position.x, marker.pose.position.y,
                                     marker.pose.position.z], want, atol=1e-9)

@@ -140,7 +140,7 @@ def test_policy_node_commands_changes_around_the_measured_angle(tmp_path):
     import time
     from domains import ros_domain
     from mcap_ros2.reader import read_ros2_messages
-    from pg_node.common.params import load_config
+    from pg_node.common.config_files import load_config
     from pg_node.rl.train_inprocess import train_inprocess
     from pg_node.ros.policy_node import tick_from_msg
     from pg_node.tools import processes
@@ -196,7 +196,7 @@ def test_policy_node_commands_changes_around_the_measured_angle(tmp_path):
 
 def test_a_run_sets_the_delta_without_importing_again(tmp_path, capsys):
     """``sim_node.position_delta`` makes an absolute import's actions bounded changes."""
-    from pg_node.common.params import ConfigError
+    from pg_node.common.param_schema import ConfigError
     code, out, _, _ = import_arm(tmp_path, capsys)
     assert code == 0
     task = ArmTask(out, seed=0, position_delta=0.05)
@@ -235,7 +235,7 @@ def test_train_refuses_a_delta_for_torque_arms_in_one_line(tmp_path, capsys):
 def trained(tmp_path, model, delta, steps, seed=0):
     """Train ``model`` in-process ``steps`` steps with ``position_delta``; save it as a run."""
     import yaml
-    from pg_node.common.params import load_config
+    from pg_node.common.config_files import load_config
     from pg_node.rl.train_inprocess import train_inprocess
     # a small control cost: at the default 1, a full change (|a| = 1 per joint) costs 2 a
     # step against a distance of about 0.2 m, and the policy learns to stay still
@@ -273,3 +273,27 @@ def test_a_run_with_a_delta_is_carded_evaluated_and_learns(tmp_path, capsys):
     assert got['eval_final_distances'] == summary['eval_final_distances']
     _, untrained = trained(tmp_path, out, 0.1, 0)
     assert untrained['eval_final_distance'] > 0.2 > summary['eval_final_distance']
+
+
+def test_a_ur_takes_every_target_at_the_bound_policy_node_keeps_for_it():
+    """
+    The rule of URCL's servoj thread, against the changes a position-delta policy commands.
+
+    A UR ignores a target more than 20 rad/s x 2 ms = 0.04 rad from the last one and from the
+    measured angles (external_control.urscript:96, 143-170, 199-210). The recipe's delta is
+    that 0.04 rad, and a full change computed as ``q + 0.04`` lands a rounding above it: the
+    robot would ignore nearly every saturated command. The deploy bound (0.036 rad) leaves
+    10% and is taken every time, from any angle.
+    """
+    from pg_node.control.position_delta import UR_POSITION_DELTA, urcl_accepts
+    rng = np.random.default_rng(0)
+    q = rng.uniform(-2 * np.pi, 2 * np.pi, (2000, 6))
+    full = np.sign(rng.standard_normal(q.shape))          # saturated actions, either way
+
+    def taken(delta):
+        tgt = bound_change(targets(full, q, np.full(6, delta), -2 * np.pi, 2 * np.pi), q,
+                           np.full(6, delta))
+        return np.mean([urcl_accepts(t, t + 1.0, m) for t, m in zip(tgt, q)])
+    assert taken(UR_POSITION_DELTA) == 1.0
+    assert taken(0.04) < 0.5                # at the limit itself, rounding loses most
+    assert UR_POSITION_DELTA < 0.04 * 0.95

@@ -12,7 +12,8 @@ import re
 import subprocess
 import sys
 
-from pg_node.common.params import defaults, load_config, SCHEMA, SHARED, SHARED_PARAMS
+from pg_node.common.config_files import load_config
+from pg_node.common.params import defaults, SCHEMA, SHARED, SHARED_PARAMS
 from pg_node.common.paths import config_file, default_config, presets
 import pytest
 import yaml

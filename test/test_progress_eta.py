@@ -1,5 +1,5 @@
 """``train``'s progress shows the time left, at the speed it shows (since the first update)."""
-from pg_node.tools.train import ProgressView
+from pg_node.tools.progress_view import ProgressView
 
 HEADER = 'env_steps,wall_seconds,episode_return,policy_version\n'
 

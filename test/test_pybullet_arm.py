@@ -14,7 +14,7 @@ import sys
 
 import mujoco
 import numpy as np
-from pg_node.common.params import load_config
+from pg_node.common.config_files import load_config
 from pg_node.common.paths import default_config
 from pg_node.rl.evaluate import evaluate_in_pybullet, evaluate_policy
 from pg_node.rl.learner import Learner

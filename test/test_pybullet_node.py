@@ -216,7 +216,7 @@ def test_a_short_policy_reaches_its_goal_through_policy_node_in_pybullet(tmp_pat
     episodes, the starts' noise only): every played episode ends within its mean + 4
     standard deviations. Seen: 1.58 +/- 0.21 cm lock-step, 1.19-1.83 cm played (5 episodes).
     """
-    from pg_node.common.params import load_config
+    from pg_node.common.config_files import load_config
     from pg_node.rl.evaluate import evaluate_in_pybullet
     from pg_node.rl.onnx_export import export_policy
     from pg_node.rl.train_inprocess import train_inprocess

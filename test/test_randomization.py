@@ -10,7 +10,8 @@ import math
 import gymnasium as gym
 import mujoco
 import numpy as np
-from pg_node.common.params import ConfigError, load_config
+from pg_node.common.config_files import load_config
+from pg_node.common.param_schema import ConfigError
 from pg_node.common.paths import resolve_model
 from pg_node.common.perturbations import BadTerm, parse_perturbation, parse_term
 from pg_node.sim.arm_task import ArmSpec, ArmTask

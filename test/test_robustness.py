@@ -7,7 +7,7 @@ import subprocess
 import sys
 
 import numpy as np
-from pg_node.common.params import load_config
+from pg_node.common.config_files import load_config
 from pg_node.common.paths import default_config
 from pg_node.rl.learner import Learner
 from pg_node.tools import robustness

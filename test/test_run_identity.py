@@ -12,7 +12,8 @@ import os
 
 import numpy as np
 from pg_node.common import run
-from pg_node.common.params import ConfigError, load_config
+from pg_node.common.config_files import load_config
+from pg_node.common.param_schema import ConfigError
 from pg_node.ros import command, messages, table_msg, transition
 import pytest
 from sample_messages import make_rollout

@@ -714,3 +714,35 @@ def test_sim_and_actor_refuses_a_bad_actor_parameter_in_one_line(tmp_path):
     assert text.strip().splitlines()[-1].startswith(
         "configuration error: parameter 'actor_node.n_steps': 0 is not allowed"), text
     assert 'Traceback' not in text
+
+
+@pytest.mark.e2e
+def test_an_arm_whose_physics_blows_up_is_reset_counted_and_the_steps_go_on(tmp_path, client):
+    """
+    Torques far too strong: the arm's episode ends and it starts a new one, counted.
+
+    The count is in /diagnostics and a WARN in the log; every transition stays on the wire.
+
+    Before, the observation left the wire's bound and the actor dropped each re-sent
+    transition: the run stalled in silence.
+    """
+    from pg_node.common.bounds import MAX_ABS
+    model = tmp_path / 'strong.xml'
+    strong = resolve_model('reacher2').read_text().replace('gear="200.0"', 'gear="2e12"')
+    model.write_text(strong)
+    proc = start_node(tmp_path, f'model:={model}', 'diagnostics_rate:=5.0')
+    try:
+        client.wait_ready()
+        ended = 0
+        for _ in range(6):
+            tr = client.step([1.0, -1.0])
+            assert np.abs(tr.obs).max() <= MAX_ABS
+            ended += int(tr.terminated[0])
+        assert ended >= 1
+        client.spin_until(lambda: client.diagnostics
+                          and int(client.counters().get('physics_resets', 0)) >= ended)
+        assert client.diagnostics[-1].status[0].level == DiagnosticStatus.WARN
+    finally:
+        rc, log = stop_node(proc)
+    assert rc == 0, log
+    assert 'the physics of arm 0 blew up' in log, log[-2000:]

@@ -127,7 +127,7 @@ def test_resume_says_so_and_counts_this_session_only(runs):
 @pytest.mark.parametrize('pairs', [1, 2])
 def test_compose_runs_each_simulator_and_its_actor_as_one_process(tmp_path, pairs):
     """By default one process per pair and one for the critic and the learner."""
-    from pg_node.common.params import load_config
+    from pg_node.common.config_files import load_config
     from pg_node.tools.train import learner_process, node_commands, sim_seeds
     cfg = load_config(None, [f'num_actors={pairs}', 'seed=5', 'num_envs=16'])
     params = tmp_path / 'params.yaml'
@@ -163,3 +163,14 @@ def test_resume_names_its_bag_in_the_summary_and_replay_info(runs, capsys):
     named = [ln.split()[1] for ln in capsys.readouterr().out.splitlines()
              if ln.startswith('bag: ')]
     assert named == [str(run_dir / 'bag'), str(run_dir / 'bag_1')]
+
+
+def test_a_finished_run_is_left_as_it_is(runs):
+    """Training a run that learned its total_steps: one line, exit 0, not a file touched."""
+    run_dir, _, _, _, summary = runs
+    files = {p: p.stat().st_mtime_ns for p in run_dir.rglob('*') if p.is_file()}
+    out, again = train(run_dir, 6144)
+    assert out.strip() == (f"{run_dir}: already learned {summary['total_steps']} steps "
+                           '(total_steps 6144); raise --total-steps to go on'), out
+    assert again == summary
+    assert {p: p.stat().st_mtime_ns for p in run_dir.rglob('*') if p.is_file()} == files

@@ -5,7 +5,7 @@ A run trained at ``frame_skip:=20`` (an arm imported at 0.002 s) evaluated at th
 would act ten times as often in episodes a tenth as long: its summary's final distance then
 said 17 cm where ``python -m pg_node eval`` of the same checkpoint said 2.9 cm.
 """
-from pg_node.common.params import load_config
+from pg_node.common.config_files import load_config
 from pg_node.rl.checkpoint import load_latest
 from pg_node.rl.evaluate import evaluate_policy
 from pg_node.rl.learner import policy_from_checkpoint

@@ -2,7 +2,9 @@
 import os
 
 import numpy as np
-from pg_node.common.params import ConfigError, load_config, Param
+from pg_node.common.config_files import load_config
+from pg_node.common.param_schema import ConfigError, Param
+from pg_node.common.run_dir import last_progress, read_progress
 from pg_node.rl.checkpoint import list_checkpoints, load_latest, save_checkpoint
 from pg_node.rl.critic import Critic
 from pg_node.rl.learner import EpisodeStats, Learner
@@ -12,7 +14,6 @@ from pg_node.rl.train_inprocess import train_inprocess
 from pg_node.rl.weights import flatten_state, load_flat_state
 from pg_node.ros import messages
 from pg_node.ros import table_msg
-from pg_node.tools.train import last_progress, read_progress
 import pytest
 import torch
 import yaml
@@ -403,7 +404,7 @@ def test_last_progress_reads_the_newest_finished_row_from_the_tail(tmp_path):
 def test_docs_parameter_table_is_the_parameter_table():
     """docs/ros_graph.md's table is generated from the table the nodes declare (no drift)."""
     from pathlib import Path
-    from pg_node.common.params import markdown_table
+    from pg_node.tools.param_docs import markdown_table
     page = (Path(__file__).resolve().parent.parent / 'docs' / 'ros_graph.md').read_text()
     start = page.index('<!-- parameter table:')
     end = page.index('<!-- end of parameter table -->')

@@ -21,14 +21,14 @@ import time
 
 from domains import ros_domain
 import numpy as np
-from pg_node.common.params import load_config
+from pg_node.common.config_files import load_config
 from pg_node.common.paths import default_config
+from pg_node.common.run_dir import read_progress
 from pg_node.rl.evaluate import evaluate_policy
 from pg_node.rl.learner import make_policy
 from pg_node.rl.train_inprocess import train_inprocess
 from pg_node.ros import messages
 from pg_node.ros import table_msg
-from pg_node.tools.train import read_progress
 import pytest
 from rosbags.rosbag2 import Reader
 from rosbags.typesys import get_typestore, Stores

@@ -109,7 +109,7 @@ def test_play_and_trains_final_evaluation_step_as_the_card_says(tmp_path):
     (and ``pybullet``) took the default, 2, a control step the policy never learned.
     """
     from argparse import Namespace
-    from pg_node.common.params import load_config
+    from pg_node.common.config_files import load_config
     from pg_node.rl.evaluate import evaluate_policy
     from pg_node.rl.learner import policy_from_checkpoint
     from pg_node.rl.train_inprocess import train_inprocess

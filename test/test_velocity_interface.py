@@ -20,7 +20,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from domains import ros_domain
 from node_procs import start_node
 import numpy as np
-from pg_node.common.params import load_config
+from pg_node.common.config_files import load_config
 from pg_node.common.paths import resolve_model
 from pg_node.common.run import COMMANDS, CONTROLLER_COMMANDS
 from pg_node.tools import processes

@@ -261,17 +261,6 @@ def _starts_as_mcap(path: Path) -> bool:
         return False
 
 
-def bag_dirs(run_dir) -> list:
-    """
-    Return a run directory's bags in the order its learners wrote them: ``bag``, ``bag_1``...
-
-    A learner that restarts, or a run resumed by a second ``train``, writes the next one.
-    """
-    found = [p for p in Path(run_dir).glob('bag*') if p.is_dir()
-             and (p.name == 'bag' or p.name[4:].isdigit() and p.name[3] == '_')]
-    return sorted(found, key=lambda p: int(p.name[4:] or 0))
-
-
 def _split_index(path: Path):
     stem = path.stem
     tail = stem.rsplit('_', 1)[-1]

@@ -1,132 +1,27 @@
 """
-Every training parameter: default, meaning, and what values are allowed.
+Every node's parameters: default, meaning, and what values are allowed.
 
 One table serves three readers: the nodes declare their ROS parameters from it (with the
 description as ``ParameterDescriptor``, so ``ros2 param describe`` explains each), the
 ``python -m pg_node train`` bring-up validates the YAML file and ``key=value`` overrides
-against it before starting anything, and the parameter table of docs/ros_graph.md is taken from it.
-Validation refuses an unknown key, a value of the wrong type and a value out of range, with
-a message that names the key, the value and what is allowed.
+against it before starting anything (:mod:`pg_node.common.config_files`), and the parameter
+table of docs/ros_graph.md and config/policy_node.yaml are generated from it
+(:mod:`pg_node.tools.param_docs`). What a row is and how a value is checked is
+:mod:`pg_node.common.param_schema`.
 
 The YAML file (``config/pg_node.yaml``) follows ROS 2's parameter-file format: a section
 ``<node_name>: ros__parameters:`` per node, and ``/**: ros__parameters:`` for the values every
 node shares (the arm model, the number of arms, the seed, the network shape).
 """
-from dataclasses import dataclass
-import difflib
-import math
-from pathlib import Path
-import re
-import shlex
-from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple
+from typing import Any, Dict
 
+from pg_node.common.param_schema import arm_indices, Param, POSITIVE, writable_file
 from pg_node.common.paths import check_model
 from pg_node.common.perturbations import PARAM_PREFIX, parse_term, TERMS
 from pg_node.common.run import check_run_id
-import yaml
 
+#: the parameter-file section of the values every node reads (:data:`SHARED_PARAMS`)
 SHARED = '/**'
-
-
-class ConfigError(ValueError):
-    """A parameter file or override that cannot be used; the message says why."""
-
-
-@dataclass(frozen=True)
-class Param:
-    """One parameter: its default (whose type is the parameter's type) and its limits."""
-
-    default: Any
-    description: str
-    choices: Optional[Sequence[Any]] = None
-    low: Optional[float] = None
-    high: Optional[float] = None
-    low_inclusive: bool = True
-    #: extra check: called with the value, raises ValueError/OSError with the reason
-    validate: Optional[Callable[[Any], Any]] = None
-    #: True: may change while the node runs (``ros2 param set``); False: read-only
-    live: bool = False
-    #: a str parameter that also takes a bare number (YAML ``0.01``, ``key:=2``) as its text
-    numbers_as_text: bool = False
-
-    def allowed(self) -> str:
-        """Describe the allowed values in words."""
-        kind = type(self.default).__name__
-        if isinstance(self.default, list):
-            kind = 'non-empty list of positive integers'
-        if self.choices is not None:
-            return 'one of ' + ', '.join(repr(c) for c in self.choices)
-        if self.low is not None or self.high is not None:
-            lo = '' if self.low is None else (
-                f'{self.low} <= ' if self.low_inclusive else f'{self.low} < ')
-            hi = '' if self.high is None else f' <= {self.high}'
-            return f'{_article(kind)} {kind} with {lo}value{hi}'
-        return f'{_article(kind)} {kind}'
-
-    def check(self, key: str, value):
-        """Return ``value`` converted to the parameter's type, or raise ConfigError."""
-        want = type(self.default)
-        bad = ConfigError(f'parameter {key!r}: {value!r} is not allowed; '
-                          f'expected {self.allowed()}')
-        if want is bool:
-            if not isinstance(value, bool):
-                raise bad
-        elif want is int:
-            if isinstance(value, bool) or not isinstance(value, int):
-                raise bad
-        elif want is float:
-            if isinstance(value, str):
-                # YAML 1.1 reads 3e-4 (no dot) as a string; accept any float literal.
-                try:
-                    value = float(value)
-                except ValueError:
-                    raise bad from None
-            if isinstance(value, bool) or not isinstance(value, (int, float)):
-                raise bad
-            value = float(value)
-            if not math.isfinite(value):
-                raise bad
-        elif want is str:
-            if (self.numbers_as_text and isinstance(value, (int, float))
-                    and not isinstance(value, bool)):
-                value = repr(value)
-            if not isinstance(value, str):
-                raise bad
-        elif want is list:
-            if not isinstance(value, (list, tuple)):
-                raise bad
-            if not value:
-                # a ROS 2 parameter cannot hold an empty list: it has no type, and the node
-                # that declares it fails (ParameterUninitializedException)
-                raise ConfigError(f'parameter {key!r}: [] is not allowed; expected '
-                                  f'{self.allowed()} (a ROS 2 parameter cannot hold an empty '
-                                  'list)')
-            for v in value:
-                if isinstance(v, bool) or not isinstance(v, int) or v <= 0:
-                    raise ConfigError(f'parameter {key!r}: {list(value)!r} is not allowed: '
-                                      f'{v!r} is not a positive integer; expected '
-                                      f'{self.allowed()}')
-            value = list(value)
-        if self.choices is not None and value not in self.choices:
-            raise bad
-        if self.low is not None and (value < self.low or (value == self.low
-                                                          and not self.low_inclusive)):
-            raise bad
-        if self.high is not None and value > self.high:
-            raise bad
-        if self.validate is not None:
-            try:
-                self.validate(value)
-            except (ValueError, OSError) as exc:
-                raise ConfigError(f'parameter {key!r}: {value!r} is not allowed: {exc}') from None
-        return value
-
-
-def _article(word: str) -> str:
-    return 'an' if word[0] in 'aeiou' else 'a'
-
-
-POSITIVE = {'low': 0.0, 'low_inclusive': False}
 
 #: Values every node reads (the ``/**`` section).
 SHARED_PARAMS: Dict[str, Param] = {
@@ -208,22 +103,15 @@ CRITIC_PARAMS: Dict[str, Param] = {
     'sched_idle': SCHED_IDLE,
 }
 
-#: the policy updates ``algo`` names and the learner settings each has (the classes are
-#: pg_node.rl.updaters.UPDATERS; this layer cannot import them, and train validates here)
-ALGO_SETTINGS: Dict[str, Tuple[str, ...]] = {
-    'a2c': ('learning_rate', 'optimizer', 'ent_coef', 'max_grad_norm', 'normalize_advantage'),
-    'ppo': ('learning_rate', 'optimizer', 'ent_coef', 'max_grad_norm', 'normalize_advantage',
-            'n_epochs', 'batch_size', 'clip_range'),
-    'npg': ('ent_coef', 'normalize_advantage', 'max_kl', 'cg_iters', 'cg_damping'),
-    'trpo': ('ent_coef', 'normalize_advantage', 'max_kl', 'cg_iters', 'cg_damping',
-             'line_search_steps'),
-}
+#: the policy updates ``algo`` names: pg_node.rl.updaters.UPDATERS, which this layer cannot
+#: import (a test keeps the two equal); which settings each has, its class says
+ALGOS = ('a2c', 'ppo', 'npg', 'trpo')
 
 LEARNER_PARAMS: Dict[str, Param] = {
     'algo': Param('a2c', 'a2c: one gradient step per batch; ppo: clipped surrogate, epochs; '
                          'npg: natural gradient step of KL max_kl; trpo: npg with a line '
                          'search that keeps the KL within max_kl and improves the surrogate',
-                  choices=tuple(ALGO_SETTINGS)),
+                  choices=ALGOS),
     'learning_rate': Param(1e-3, 'learning rate of the policy', **POSITIVE, live=True),
     'optimizer': Param('adam', 'optimiser of the policy', choices=('rmsprop', 'adam')),
     'ent_coef': Param(0.0, 'entropy bonus weight', low=0.0, live=True),
@@ -232,6 +120,8 @@ LEARNER_PARAMS: Dict[str, Param] = {
     'n_epochs': Param(10, 'ppo: passes over each batch', low=1, live=True),
     'batch_size': Param(64, 'ppo: minibatch size', low=1, live=True),
     'clip_range': Param(0.2, 'ppo: clip range of the probability ratio', **POSITIVE, live=True),
+    'target_kl': Param(0.0, "ppo: end a batch's epochs early once the approximate KL after an "
+                            'epoch exceeds 1.5 x this (0: never)', low=0.0, live=True),
     'max_kl': Param(0.01, 'npg/trpo: KL divergence of one policy step', **POSITIVE, live=True),
     'cg_iters': Param(10, 'npg/trpo: conjugate gradient iterations for F^-1 g', low=1),
     'cg_damping': Param(0.1, 'npg/trpo: damping added to the Fisher matrix in F v', low=0.0),
@@ -248,46 +138,6 @@ LEARNER_PARAMS: Dict[str, Param] = {
     'nice': NICE,
     'sched_idle': SCHED_IDLE,
 }
-
-
-def check_algo_setting(label: str, algo: str, key: str, value) -> None:
-    """
-    Raise ConfigError if ``key`` is a setting ``algo``'s update lacks, set off its default.
-
-    A value equal to the default passes: the shipped parameter file and ``ros2 param dump``
-    list every parameter, every update's settings included, and giving those back changes
-    nothing. Any other value would be taken and ignored, so it is refused, naming the
-    settings ``algo`` has.
-    """
-    has = ALGO_SETTINGS[algo]
-    if key in has or not any(key in s for s in ALGO_SETTINGS.values()):
-        return
-    if value != LEARNER_PARAMS[key].default:
-        raise ConfigError(f'parameter {label!r}: {value!r} is not allowed: algo {algo!r} has '
-                          f'no {key}; its settings: {", ".join(has)}')
-
-
-def _writable_file(path: str) -> None:
-    """Refuse a file name whose directory does not exist (the file is written at the end)."""
-    if path and not Path(path).expanduser().parent.is_dir():
-        raise ValueError(f'no directory {str(Path(path).expanduser().parent)!r} to write it in')
-
-
-def arm_indices(text: str) -> List[int]:
-    """
-    Return the arm indices in ``text`` (``'0, 3'``; empty: none); ValueError if not.
-
-    >>> arm_indices('0, 3'), arm_indices('')
-    ([0, 3], [])
-    """
-    try:
-        arms = [int(a) for a in text.replace(',', ' ').split()]
-    except ValueError:
-        raise ValueError(f'{text!r} is not arm indices separated by commas') from None
-    if any(a < 0 for a in arms):
-        raise ValueError(f'{text!r}: an arm index is 0 or more')
-    return arms
-
 
 SIM_PARAMS: Dict[str, Param] = {
     'frame_skip': Param(2, 'physics steps per control step', low=1),
@@ -344,7 +194,7 @@ SIM_PARAMS: Dict[str, Param] = {
     'round_trip_log': Param('', 'lock_step: a .npy file to write every round trip to when the '
                                 'node stops (ns from just before a transition is published to '
                                 'the arrival of the command that answers it); empty: the round '
-                                'trips show only in the diagnostics', validate=_writable_file),
+                                'trips show only in the diagnostics', validate=writable_file),
 }
 # domain randomization: one string per term, off when empty (pg_node.common.perturbations)
 for _term, _info in TERMS.items():
@@ -403,8 +253,10 @@ POLICY_PARAMS: Dict[str, Param] = {
     'hold_damping': Param(0.0, 'N m s/rad: the effort hold is the torque -hold_damping x qdot '
                                '(- hold_stiffness x (q - q_hold)), from the newest state at '
                                "every tick; 0: each joint's damping in the model, the damping "
-                               'the policy trained with and a torque-mode robot lacks. The '
-                               'value taken is in /diagnostics (hold_damping_taken)', low=0.0,
+                               'the policy trained with and a torque-mode robot lacks, or '
+                               'where the model has none a braking gain, its largest inertia '
+                               'over 4 control periods (never 0 N m). The value taken is in '
+                               '/diagnostics (hold_damping_taken)', low=0.0,
                           live=True),
     'hold_stiffness': Param(0.0, 'N m/rad: the effort hold also pulls each joint back to the '
                                  'angle where the hold began (0: damping alone; a robot whose '
@@ -441,8 +293,17 @@ POLICY_PARAMS: Dict[str, Param] = {
                              choices=('trajectory', 'forward')),
     'base_frame': Param('base_link', "frame_id of targets in the arm's base frame (an empty "
                                      'frame_id is taken as this one too)'),
-    'marker_rate': Param(10.0, '~/markers (the goal the policy acts on, the fingertip coloured '
-                               'by the state: commanding, hold, e-stop, waiting) rate in Hz of '
+    'robot_program_running_topic': Param(
+        '', "the robot's program state (std_msgs/Bool, transient local): false holds until "
+            'it is true again, then ramps in; a UR: '
+            '/io_and_status_controller/robot_program_running; empty: not followed'),
+    'speed_scaling_topic': Param(
+        '', "the robot's speed scaling in percent (std_msgs/Float64): 0 (a protective stop, "
+            'a pause) holds until it rises again, then ramps in; a UR: '
+            '/speed_scaling_state_broadcaster/speed_scaling; empty: not followed'),
+    'marker_rate': Param(10.0, '~/markers (the goal the policy acts on and, when clamped, the '
+                               'one requested; the fingertip coloured by the state: '
+                               'commanding, hold, e-stop, waiting) rate in Hz of '
                                'wall time while it has a subscriber; 0 turns it off', low=0.0,
                          live=True),
     'marker_frame': Param('', 'frame of ~/markers; empty: base_frame for one arm (plain joint '
@@ -468,6 +329,24 @@ POLICY_PARAMS: Dict[str, Param] = {
     'controller_timeout': Param(2.0, "seconds configure waits for the controller's parameter "
                                      'service; then it warns once that the joint order was '
                                      'not checked (0: do not check)', low=0.0),
+    'controller_manager': Param('', "ros2_control's controller manager (controller_manager, "
+                                    'or /controller_manager at the root); set, configure '
+                                    "reads the controller's type, state and parameters from "
+                                    'it and refuses one that cannot carry the commands or has '
+                                    'no dead-man, and the stops can deactivate it '
+                                    '(controller_stop); empty: none (a stand-in)'),
+    'allow_no_dead_man': Param(False, 'with controller_manager: drive a controller that keeps '
+                                      'the last command when policy_node dies (a forward '
+                                      'controller, a JTC without cmd_timeout) all the same'),
+    'controller_stop': Param('auto', 'with controller_manager, what an e-stop, a deactivate '
+                                     'and a shutdown do besides the hold command: deactivate '
+                                     "the arm controller (the robot's own stop acts; it is "
+                                     'activated again only by ~/reset_estop or activate), hold '
+                                     '(the hold command alone), auto (deactivate on the '
+                                     'position and velocity interfaces, hold on effort: JTC '
+                                     'deactivated writes 0 N m, which lets an arm whose weight '
+                                     'the robot compensates coast)',
+                             choices=('auto', 'deactivate', 'hold')),
     'gravity_compensation': Param('', "who carries the arm's weight on this robot: robot (its "
                                       'driver compensates gravity, as a Franka in torque mode '
                                       'does) or policy (nothing does); empty: not stated. '
@@ -525,243 +404,3 @@ def params_for(section: str) -> Dict[str, Param]:
 def known_keys() -> set:
     """Return every parameter name some pg_node node reads."""
     return set(SHARED_PARAMS).union(*(set(t) for t in SCHEMA.values()))
-
-
-_OVERRIDE = re.compile(r'([^=:]+)(:?=)(.*)', re.S)
-
-
-def check_unquoted(overrides: Sequence[str]) -> None:
-    """
-    Raise ConfigError for a word after ``key=value`` that is no override: unquoted spaces.
-
-    >>> try:
-    ...     check_unquoted(['randomize_latency=uniform', '0', '2', 'seed=1'])
-    ... except ConfigError as exc:
-    ...     print(str(exc).split(': ')[-1])
-    'randomize_latency=uniform 0 2'
-    """
-    texts = list(overrides)
-    for i, text in enumerate(texts):
-        if i == 0 or _OVERRIDE.fullmatch(text) is not None:
-            continue
-        if _OVERRIDE.fullmatch(texts[i - 1]) is None:
-            return                  # a bare word first: parse_override says what is wrong
-        end = i
-        while end < len(texts) and _OVERRIDE.fullmatch(texts[end]) is None:
-            end += 1
-        whole = shlex.quote(' '.join(texts[i - 1:end]))
-        raise ConfigError(f'override {text!r} looks like the rest of an override with spaces: '
-                          f'quote it: {whole}')
-
-
-def parse_override(text: str):
-    """
-    Split ``key=value`` or ``key:=value`` (value parsed as YAML: ``3``, ``0.5``, ``[64, 64]``).
-
-    ``:=`` is how ROS users write a value (``-p key:=value``, launch arguments), so it is
-    taken too.
-
-    >>> parse_override('model:=my_arm.xml'), parse_override('actor_node.n_steps=16')
-    (('model', 'my_arm.xml'), ('actor_node.n_steps', 16))
-    """
-    match = _OVERRIDE.fullmatch(text)
-    if match is None:
-        raise ConfigError(f'override {text!r} is not of the form key=value (or key:=value)')
-    key, raw = match.group(1), match.group(3)
-    try:
-        value = yaml.safe_load(raw)
-    except yaml.YAMLError as exc:
-        raise ConfigError(f'override {text!r}: value is not valid YAML ({exc})') from None
-    return key.strip(), value
-
-
-def _did_you_mean(key: str, known) -> str:
-    """
-    Return ``" (did you mean 'x'?)"`` for the known names closest to ``key``, or nothing.
-
-    >>> _did_you_mean('learning_rte', ['learning_rate', 'gamma'])
-    " (did you mean 'learning_rate'?)"
-    """
-    close = difflib.get_close_matches(key, list(known), n=3, cutoff=0.7)
-    return f' (did you mean {" or ".join(repr(c) for c in close)}?)' if close else ''
-
-
-def load_config(path=None, overrides: Sequence[str] = (), extra_sections=None
-                ) -> Dict[str, Dict[str, Any]]:
-    """
-    Read a parameter file, apply ``key=value`` overrides, validate, fill in defaults.
-
-    Returns ``{section: {key: value}}`` for ``'/**'``, every node in :data:`SCHEMA` and every
-    node in ``extra_sections`` (a map of node name to its own table, e.g. ``sim_node``'s).
-    A node's value comes from its own section, else from ``/**`` if it is a shared key, else
-    from the default; a node of :data:`SCHEMA` also receives every shared key. An override
-    ``key=value`` goes to ``/**`` for a shared key, else to every node that has the key;
-    ``node.key=value`` sets it in one node only.
-    """
-    extra = dict(extra_sections or {})
-    tables = {SHARED: SHARED_PARAMS}
-    tables.update({name: params_for(name) for name in SCHEMA})
-    tables.update(extra)
-    given = {name: {} for name in tables}
-    check_unquoted(overrides)
-    if path is not None:
-        for name, params in _read_sections(path).items():
-            if name not in tables:
-                raise ConfigError(f'unknown section {name!r} in {path}; known: '
-                                  f'{", ".join(tables)}')
-            given[name].update(params)
-    for text in overrides:
-        key, value = parse_override(text)
-        if '.' in key:
-            name, _, key = key.partition('.')
-            if name not in tables:
-                raise ConfigError(f'override {text!r}: unknown node {name!r}; known: '
-                                  f'{", ".join(tables)}')
-            given[name][key] = value
-        elif key in SHARED_PARAMS:
-            given[SHARED][key] = value
-        else:
-            homes = [n for n, t in tables.items() if key in t]
-            if not homes:
-                known = sorted(set().union(*tables.values()))
-                raise ConfigError(f'override {text!r}: unknown parameter {key!r}'
-                                  f'{_did_you_mean(key, known)}; known: {", ".join(known)} '
-                                  '(node.key=value sets one node only)')
-            for name in homes:
-                given[name][key] = value
-    out = {}
-    for name, table in tables.items():
-        for key in given[name]:
-            if key not in table:
-                raise ConfigError(f'unknown parameter {key!r} in section {name!r}'
-                                  f'{_did_you_mean(key, table)}; allowed: {", ".join(table)}')
-        values = {}
-        for key, param in table.items():
-            if key in given[name]:
-                value = given[name][key]
-            elif key in SHARED_PARAMS and key in given[SHARED]:
-                value = given[SHARED][key]
-            elif key in SHARED_PARAMS:
-                value = SHARED_PARAMS[key].default
-            else:
-                value = param.default
-            label = key if name == SHARED else f'{name}.{key}'
-            values[key] = param.check(label, value)
-        if 'algo' in values:                     # the learner's section
-            for key, value in values.items():
-                check_algo_setting(f'{name}.{key}', values['algo'], key, value)
-        out[name] = values
-    return out
-
-
-def _read_sections(path) -> Dict[str, Dict[str, Any]]:
-    """Return ``{section: ros__parameters}`` of a ROS 2 parameter file, checking its shape."""
-    try:
-        with open(path) as f:
-            raw = yaml.safe_load(f) or {}
-    except OSError as exc:
-        raise ConfigError(f'cannot read config file {path}: {exc.strerror}') from None
-    except yaml.YAMLError as exc:
-        raise ConfigError(f'config file {path} is not valid YAML: {exc}') from None
-    if not isinstance(raw, dict):
-        raise ConfigError(f'config file {path} must map node names to sections')
-    out = {}
-    for name, section in raw.items():
-        params = section.get('ros__parameters') if isinstance(section, dict) else None
-        if not isinstance(params, dict):
-            raise ConfigError(f'section {name!r} in {path} must hold a ros__parameters: map')
-        out[node_key(str(name))] = params
-    return out
-
-
-def node_key(name: str) -> str:
-    """
-    Return the section a parameter-file key addresses: ``/**/sim_node`` and ``sim_node``.
-
-    ``/**`` stays itself; ``/**/x``, ``/x`` and ``x`` all mean node ``x`` (pg_node's files use
-    ``/**/x``, which reaches node ``x`` in any namespace).
-    """
-    if name == SHARED:
-        return name
-    for prefix in ('/**/', '/'):
-        if name.startswith(prefix):
-            return name[len(prefix):]
-    return name
-
-
-def markdown_table() -> str:
-    """
-    Return every node's parameters as a Markdown table (docs/ros_graph.md's, kept equal by a test).
-
-    Columns: node (``/**`` for the shared ones), name, default, allowed values, and whether
-    ``ros2 param set`` can change it while the node runs (live) or is refused (read-only).
-    """
-    rows = ['| node | parameter | default | allowed | at run time | meaning |',
-            '|---|---|---|---|---|---|']
-    for section, table in [(SHARED, SHARED_PARAMS), *SCHEMA.items()]:
-        for name, p in table.items():
-            rows.append(f'| `{section}` | `{name}` | `{p.default!r}` | {p.allowed()} | '
-                        f'{"live" if p.live else "read-only"} | {p.description} |')
-    return '\n'.join(rows)
-
-
-#: the one-line command that writes config/policy_node.yaml from :data:`POLICY_PARAMS`
-POLICY_FILE_COMMAND = 'python -m pg_node.common.params > config/policy_node.yaml'
-#: what the shipped file says beside a parameter that has no useful default
-POLICY_FILE_NOTES = {
-    'policy': "REQUIRED: policy_node refuses to start with it empty. Put your policy's path "
-              'here, or give it at start: policy:=PATH (ros2 launch pg_node '
-              'deploy.launch.py), -p policy:=PATH (ros2 run pg_node policy_node --ros-args)',
-}
-
-
-def yaml_value(value) -> str:
-    """
-    Return ``value`` as a YAML flow scalar or list, quoted only where YAML needs it.
-
-    >>> [yaml_value(v) for v in ('', 'effort', '0.01', True, 0.2, 3, [64, 64])]
-    ["''", 'effort', "'0.01'", 'true', '0.2', '3', '[64, 64]']
-    """
-    text = yaml.safe_dump(value, default_flow_style=True, width=1000)
-    return text.removesuffix('\n...\n').strip()
-
-
-def parameter_file(node: str, table: Dict[str, Param], header: str, notes=None,
-                   width: int = 99) -> str:
-    """
-    Return a ROS 2 parameter file of one node: every parameter at its default, explained.
-
-    The section is ``/**/<node>``, which reaches the node in any namespace. Above each key,
-    as comments: its meaning, its allowed values and whether ``ros2 param set`` may change it
-    while the node runs (live) or not (read-only); then ``notes[key]``, if any.
-    """
-    import textwrap
-    notes = notes or {}
-    lines = [f'# {line}' if line else '#' for line in header.splitlines()]
-    lines += [f'/**/{node}:', '  ros__parameters:']
-    for key, p in table.items():
-        at_run_time = 'live (ros2 param set)' if p.live else 'read-only'
-        text = f'{p.description}. Allowed: {p.allowed()}; {at_run_time}.'
-        for part in (text, notes.get(key)):
-            if part:
-                lines += textwrap.wrap(part, width, initial_indent='    # ',
-                                       subsequent_indent='    # ', break_on_hyphens=False)
-        lines.append(f'    {key}: {yaml_value(p.default)}')
-    return '\n'.join(lines) + '\n'
-
-
-def policy_node_file() -> str:
-    """Return config/policy_node.yaml: :data:`POLICY_PARAMS` at their defaults, explained."""
-    header = (
-        "policy_node's parameters in ROS 2's parameter-file format, each at its default "
-        'with its\nmeaning, allowed values and whether it may change while the node runs. '
-        'The key\n/**/policy_node reaches policy_node in any namespace (namespace:= of '
-        'deploy.launch.py,\n-r __ns:=). Copy this file, edit it and give it to '
-        'launch/deploy.launch.py\n(params_file:=) or to ros2 run pg_node policy_node '
-        '--ros-args --params-file FILE.\n\nGenerated from pg_node/common/params.py '
-        '(POLICY_PARAMS); a test keeps it equal. Regenerate:\n  ' + POLICY_FILE_COMMAND)
-    return parameter_file('policy_node', POLICY_PARAMS, header, POLICY_FILE_NOTES)
-
-
-if __name__ == '__main__':
-    print(policy_node_file(), end='')

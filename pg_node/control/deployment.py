@@ -19,9 +19,12 @@ stop; its damping fades with a stale state's age, :func:`pg_node.control.watchdo
    last command it got); a spell begins with one :attr:`Event.STALE`;
 4. no goal for an arm: nothing sent, waiting, naming the arm (one :attr:`Event.NO_TARGET`
    while the same arm is waited for);
-5. else commanding: the policy's mean action (or a sample) through the guards, which ramp in
+5. the robot stopped itself (``robot_stop``, :class:`RobotState`: a UR's program not
+   running, its speed scaling 0 in a protective stop or a pause): the hold at every tick,
+   the text saying why; a spell begins with one :attr:`Event.ROBOT_STOPPED`;
+6. else commanding: the policy's mean action (or a sample) through the guards, which ramp in
    from the last hold; the first command after a stale spell comes with one
-   :attr:`Event.FRESH`.
+   :attr:`Event.FRESH`, after the robot's own stop with one :attr:`Event.ROBOT_READY`.
 """
 from dataclasses import dataclass
 from enum import Enum
@@ -36,6 +39,7 @@ from pg_node.control.watchdog import hold_decay, state_age, Watchdog
 LIFECYCLE = {NodeState.UNCONFIGURED: 'unconfigured', NodeState.INACTIVE: 'inactive',
              NodeState.WAITING: 'active', NodeState.COMMANDING: 'active',
              NodeState.STALE: 'active', NodeState.ESTOP: 'active',
+             NodeState.ROBOT_STOPPED: 'active',
              NodeState.FINALIZED: 'finalized'}
 
 
@@ -84,6 +88,49 @@ class Event(Enum):
     STALE = 'stale'             # a spell of stale joint states began
     FRESH = 'fresh'             # it ended: commanding again
     NO_TARGET = 'no_target'     # waiting for a goal for an arm not waited for at the last tick
+    ROBOT_STOPPED = 'robot_stopped'     # a spell of the robot's own stop began
+    ROBOT_READY = 'robot_ready'         # it ended: commanding again, ramping in from the hold
+
+
+@dataclass
+class RobotState:
+    """
+    The robot's own state, as its driver publishes it; '' as a topic: not followed.
+
+    A UR's (Universal_Robots_ROS2_Driver): ``program_running`` the ``std_msgs/Bool`` of
+    ``io_and_status_controller``'s ``~/robot_program_running``; ``speed_scaling`` the
+    ``std_msgs/Float64`` of ``speed_scaling_state_broadcaster``'s ``~/speed_scaling``, in
+    percent (0 in a protective stop or a pause). None: no message yet.
+
+    >>> RobotState().stop_reason()
+    ''
+    >>> RobotState(program_topic='/p').stop_reason()
+    'robot stopped: no message yet on /p (robot_program_running_topic)'
+    >>> RobotState(program_topic='/p', program_running=True, speed_topic='/s',
+    ...            speed_scaling=0.0).stop_reason()
+    'robot stopped: speed scaling 0 % on /s (a protective stop or a pause)'
+    """
+
+    program_topic: str = ''
+    speed_topic: str = ''
+    program_running: Optional[bool] = None
+    speed_scaling: Optional[float] = None
+
+    def stop_reason(self) -> str:
+        """Return why the robot does not move (commands would not act), or '' if it does."""
+        if self.program_topic:
+            if self.program_running is None:
+                return (f'robot stopped: no message yet on {self.program_topic} '
+                        '(robot_program_running_topic)')
+            if not self.program_running:
+                return f'robot stopped: its program is not running ({self.program_topic} false)'
+        if self.speed_topic:
+            if self.speed_scaling is None:
+                return f'robot stopped: no message yet on {self.speed_topic} (speed_scaling_topic)'
+            if not self.speed_scaling > 0:
+                return (f'robot stopped: speed scaling {self.speed_scaling:g} % on '
+                        f'{self.speed_topic} (a protective stop or a pause)')
+        return ''
 
 
 @dataclass(frozen=True)
@@ -138,11 +185,13 @@ class Deployment:
         self.rng = rng if rng is not None else np.random.default_rng()
         self.watchdog = watchdog if watchdog is not None else Watchdog()
         self.waiting_for: Optional[str] = None      # the arm the last tick had no goal for
+        self.robot_stopped = False                  # a spell of the robot's own stop
 
     def activate(self, now: float) -> Status:
         """Start commanding at steady time ``now`` (s): ramp in from the hold."""
         self.guard.start_ramp(now)
         self.waiting_for = None
+        self.robot_stopped = False
         return NO_STATE
 
     def hold(self, joints: Optional[JointSample], decay: float = 0.0) -> Optional[np.ndarray]:
@@ -158,14 +207,15 @@ class Deployment:
         return self.guard.hold_tick(joints.q, joints.qdot, decay)
 
     def tick(self, joints: Optional[JointSample], goals: Union[np.ndarray, str], now: float,
-             clock_now: float, estop: bool) -> Tick:
+             clock_now: float, estop: bool, robot_stop: str = '') -> Tick:
         """
         Decide this tick: the guarded command, the hold, or nothing, and the state.
 
         ``joints``: the newest joint state (None: none yet); ``goals``: ``(arms, 3)``, or the
         name of an arm without one (:func:`pg_node.control.targets.target_array`); ``now``:
         steady time in s; ``clock_now``: the node's clock in s (0: not running yet), against
-        which a state's stamp is aged; ``estop``: the e-stop is latched.
+        which a state's stamp is aged; ``estop``: the e-stop is latched; ``robot_stop``: why
+        the robot stopped itself (:meth:`RobotState.stop_reason`; '': it did not).
         """
         timeout = self.settings['state_timeout']
         age, how = np.nan, ''
@@ -188,7 +238,17 @@ class Deployment:
             return Tick(Status(NodeState.WAITING, f'waiting: no target yet for {goals}'),
                         age=age, how=how, waiting_for=goals,
                         events=(Event.NO_TARGET,) if goals != waiting_for else ())
+        if robot_stop:
+            # the hold from the fresh state: the next command ramps in from it
+            began, self.robot_stopped = not self.robot_stopped, True
+            return Tick(Status(NodeState.ROBOT_STOPPED, f'{robot_stop}: hold command, '
+                                                        'waiting for it to run again'),
+                        self.hold(joints, hold_decay(age, timeout)), hold=True, age=age,
+                        how=how, events=(Event.ROBOT_STOPPED,) if began else ())
         events = (Event.FRESH,) if self.watchdog.end() else ()
+        if self.robot_stopped:
+            self.robot_stopped = False
+            events += (Event.ROBOT_READY,)
         obs = self.observe(joints.q, joints.qdot, goals)
         mean, std = self.mean_std(obs)
         action = mean if self.settings['deterministic'] else \

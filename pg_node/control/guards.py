@@ -49,8 +49,9 @@ compensates gravity floats and coasts on zero torque.
 * effort: a damping torque ``tau = -D qdot - K (q - q_hold)`` from the measured state,
   computed at every tick, clipped to the actuators' effort range; ``D`` is ``hold_damping``
   (from the model: its joint damping, the damping the policy trained with and a torque-mode
-  robot lacks), ``K`` ``hold_stiffness`` (0 by default: pure damping), ``q_hold`` the
-  angles where the hold began. A stale state's velocity is no measure of the arm's: the
+  robot lacks; where the model has none, the braking gain of :data:`BRAKE_TICKS`), ``K``
+  ``hold_stiffness`` (0 by default: pure damping), ``q_hold`` the angles where the hold
+  began. A stale state's velocity is no measure of the arm's: the
   damping computed from it is scaled by ``decay`` (:func:`pg_node.control.watchdog.hold_decay`:
   full while the state is fresh, down to zero torque one more ``state_timeout`` later), since
   a brake from a velocity that has long stopped pushes the arm back. A hold sent once and
@@ -84,6 +85,13 @@ from pg_node.control.status import GuardEvent
 #: the share of the actuator's torque the braking guard plans with (the rest is slack for
 #: the tick's delay, the rate limit and the inertia's pose dependence)
 BRAKING_SHARE = 0.5
+#: a hold's braking gain where the model has no joint damping: ``D = I / (BRAKE_TICKS T)``
+#: takes ``1 / BRAKE_TICKS`` of the joint's speed off per control period ``T`` (``I`` its
+#: largest inertia). Held for a whole tick, as a controller holds a command, the brake is
+#: stable for any pose whose inertia is above ``I / (2 BRAKE_TICKS)`` (the speed changes by
+#: the factor ``1 - I_max / (BRAKE_TICKS I)`` a tick): 4 keeps the Panda's lightest shoulder
+#: (5x lighter than its largest) converging
+BRAKE_TICKS = 4.0
 
 
 @dataclass
@@ -129,7 +137,8 @@ def model_limits(act: Actuators, interface: CommandInterface, settings: GuardSet
 
     From the model, per actuator (``tau`` its torque bound, :func:`effort_limit`):
 
-    * ``hold_damping``: the joint's damping in the model;
+    * ``hold_damping``: the joint's damping in the model, or where it has none the braking
+      gain ``inertia / (BRAKE_TICKS * period)`` (:data:`BRAKE_TICKS`);
     * ``max_velocity``: ``tau / damping``, the speed at which the full torque is spent on
       the model's damping (``arm import --velocity-damping`` sets the damping so that this
       is the URDF's velocity limit); infinite (no check) without damping or torque bound;
@@ -154,7 +163,10 @@ def model_limits(act: Actuators, interface: CommandInterface, settings: GuardSet
         return np.asarray(model_value, dtype=float)
 
     with np.errstate(divide='ignore', invalid='ignore'):
-        damping = pick('hold_damping', act.damping)
+        # a torque robot brakes with the model's damping, or where the model has none (a
+        # Franka's torques come without it) with the braking gain: a hold is never 0 N m
+        brake = np.asarray(act.inertia, dtype=float) / (BRAKE_TICKS * period)
+        damping = pick('hold_damping', np.where(act.damping > 0, act.damping, brake))
         low, high = interface.si_range(act)
         if interface.limit == LIMIT_VELOCITY_CAP:
             # a velocity servo's range is the robot's velocity limit (the URDF's)

@@ -19,7 +19,7 @@ import re
 from typing import List, Optional, Sequence
 
 import numpy as np
-from pg_node.common.params import ConfigError
+from pg_node.common.param_schema import ConfigError
 
 #: a joint of arm ``i`` among several
 PREFIXED = re.compile(r'^arm(\d+)/(.+)$')

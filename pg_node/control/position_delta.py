@@ -23,6 +23,17 @@ import numpy as np
 
 #: the custom numeric of an arm model that holds the delta (rad per control step)
 MODEL_NUMERIC = 'pg_position_delta'
+#: A UR's servoj thread ignores a target that needs more than this speed, rad/s, from the last
+#: target or else from the measured angles within one robot cycle (Universal_Robots_Client_
+#: Library c5d1e26 resources/external_control.urscript:96 JOINT_IGNORE_SPEED; the check,
+#: targetWithinLimits, :143-170, a strict ``>``; applied at :199 and :207)
+URCL_JOINT_IGNORE_SPEED = 20.0
+#: a UR e-Series' robot cycle, s (get_steptime() at 500 Hz, external_control.urscript:5)
+UR_E_STEPTIME = 0.002
+#: the bound policy_node keeps a UR's targets within (``max_position_delta``): 0.9 of the
+#: 0.04 rad URCL takes, since a change of exactly 0.04 rad computed as ``q + 0.04`` is
+#: 0.04 + 1e-17 rad and is ignored (test_position_delta)
+UR_POSITION_DELTA = 0.036
 
 
 def deltas(value, joints: int) -> Optional[np.ndarray]:
@@ -62,6 +73,28 @@ def targets(action: np.ndarray, q: np.ndarray, delta: np.ndarray, low: np.ndarra
     a = np.asarray(action, dtype=float)
     with np.errstate(invalid='ignore'):
         return np.clip(np.asarray(q, dtype=float) + np.clip(a, -1.0, 1.0) * delta, low, high)
+
+
+def urcl_accepts(target: np.ndarray, last_target: np.ndarray, measured: np.ndarray,
+                 steptime: float = UR_E_STEPTIME) -> bool:
+    """
+    Return whether a UR's servoj thread takes ``target`` (rad per joint) rather than ignore it.
+
+    As external_control.urscript:199-210 decides: within reach of the last target it took
+    (``last_target``) at :data:`URCL_JOINT_IGNORE_SPEED` in one ``steptime``, or else of the
+    measured angles.
+
+    >>> urcl_accepts(np.array([0.039]), np.zeros(1), np.zeros(1))
+    True
+    >>> urcl_accepts(np.array([0.05]), np.zeros(1), np.array([0.02]))
+    True
+    >>> urcl_accepts(np.array([0.05]), np.zeros(1), np.zeros(1))
+    False
+    """
+    def within(start):
+        speed = np.abs(np.asarray(target) - np.asarray(start)) / steptime
+        return bool(np.all(speed <= URCL_JOINT_IGNORE_SPEED))
+    return within(last_target) or within(measured)
 
 
 def bound_change(target: np.ndarray, q: np.ndarray, bound: np.ndarray) -> np.ndarray:

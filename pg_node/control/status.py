@@ -8,7 +8,7 @@ the rule that picks the level (:func:`diagnostic_level`) lives here, apart from 
 text, which says why in words.
 """
 from enum import Enum, IntEnum
-from typing import Iterable
+from typing import Dict, Hashable, Iterable, Optional
 
 
 class Severity(IntEnum):
@@ -23,8 +23,9 @@ class GuardEvent(Enum):
     """
     A guard of :class:`pg_node.control.guards.CommandGuard` that acted on a tick.
 
-    ``key`` names its counter (``guard_<key>`` in /diagnostics); a WARN event is logged (at
-    most once a second) with ``warning``, an OK one only counted.
+    ``key`` names its counter (``guard_<key>`` in /diagnostics); a WARN event is logged with
+    ``warning`` (the first time, then at most once per :class:`RepeatedWarnings` period with
+    how often it came meanwhile), an OK one only counted.
 
     >>> GuardEvent.OVER_SPEED.key, GuardEvent.OVER_SPEED.severity.name
     ('over_speed', 'WARN')
@@ -60,6 +61,8 @@ class NodeState(Enum):
     COMMANDING = ('commanding', Severity.OK)
     STALE = ('stale', Severity.WARN)
     ESTOP = ('estop', Severity.WARN)
+    #: the robot stopped itself (its program not running, speed scaling 0): hold command
+    ROBOT_STOPPED = ('robot_stopped', Severity.WARN)
     FINALIZED = ('finalized', Severity.WARN)
 
     def __init__(self, key: str, severity: Severity):
@@ -96,3 +99,40 @@ def diagnostic_level(state: NodeState, faults: Iterable[Fault] = ()) -> Severity
     'WARN'
     """
     return max([state.severity] + [f.severity for f in faults])
+
+
+class RepeatedWarnings:
+    """
+    Which repeated warnings to log: each the first time, then once a ``period`` with a count.
+
+    A guard that acts every few ticks would log a line a second for as long as it acts; its
+    counter in /diagnostics holds the total, and the log needs the news: that it began, and
+    that it goes on (how often since the last line). Times are the caller's (monotonic s).
+
+    >>> w = RepeatedWarnings(period=30.0)
+    >>> w.line('limit', 'joint limit guard', 0.0)
+    'joint limit guard'
+    >>> [w.line('limit', 'joint limit guard', t) for t in (1.0, 2.0)]
+    [None, None]
+    >>> w.line('limit', 'joint limit guard', 31.0)
+    'joint limit guard (3 times in the last 31 s)'
+    """
+
+    def __init__(self, period: float):
+        """Log a warning at most once per ``period`` s, after its first time."""
+        self.period = period
+        self._last: Dict[Hashable, float] = {}       # key -> when it was last logged
+        self._count: Dict[Hashable, int] = {}        # key -> times since then (incl. now)
+
+    def line(self, key: Hashable, text: str, now: float) -> Optional[str]:
+        """Return the line to log for this occurrence of ``key``, or None to count it only."""
+        last = self._last.get(key)
+        if last is None:
+            self._last[key], self._count[key] = now, 0
+            return text
+        self._count[key] += 1
+        if now - last < self.period:
+            return None
+        count = self._count[key]
+        self._last[key], self._count[key] = now, 0
+        return f'{text} ({count} times in the last {now - last:.0f} s)'

@@ -209,7 +209,7 @@ class ArmLab:
 
 def trained_policy(train_steps: int, seed: int = 0, model: str = 'reacher2'):
     """Train A2C in-process for ``train_steps`` with ``seed``; return ``(policy, summary)``."""
-    from pg_node.common.params import load_config
+    from pg_node.common.config_files import load_config
     from pg_node.rl.train_inprocess import train_inprocess
     cfg = load_config(None, [f'seed={seed}', f'model={model}'])
     summary = train_inprocess(cfg, train_steps, eval_episodes=100)

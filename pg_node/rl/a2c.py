@@ -14,8 +14,8 @@ from dataclasses import dataclass
 from typing import Dict, List, Optional
 
 import numpy as np
-from pg_node.common.params import ALGO_SETTINGS
 from pg_node.rl import losses
+from pg_node.rl.update_settings import SETTINGS
 import torch
 from torch import nn
 
@@ -96,11 +96,12 @@ class A2CUpdate(_Optimized):
     """A2C: one gradient step of ``pg - ent_coef * H`` on the whole batch."""
 
     name = 'a2c'
-    settings = ALGO_SETTINGS['a2c']
+    #: the learner parameters it is built from (pg_node.rl.updaters checks configurations here)
+    settings = SETTINGS['a2c']
     #: a skipped step left the policy as it was: its batch's observations are not merged
     merge_obs_after_skip = False
-    #: stop a batch's epochs once the approximate KL exceeds 1.5 of this (None: never)
-    target_kl: Optional[float] = None
+    #: stop a batch's epochs once the approximate KL exceeds 1.5 of this (0: never; PPO's)
+    target_kl = 0.0
 
     def __init__(self, policy: nn.Module, learning_rate: float = 7e-4, ent_coef: float = 0.0,
                  max_grad_norm: float = 0.5, normalize_advantage: bool = False,
@@ -156,7 +157,7 @@ class A2CUpdate(_Optimized):
                     norms.append(norm)
                 logs.append(stats)
             kl = logs[-1]['approx_kl'] if logs else 0.0
-            if self.target_kl is not None and kl > 1.5 * self.target_kl:
+            if self.target_kl and kl > 1.5 * self.target_kl:
                 break
         self.skipped += skipped
         out = {k: float(np.mean([s[k] for s in logs])) for k in logs[0]}
@@ -169,14 +170,14 @@ class PPOUpdate(A2CUpdate):
     """PPO: ``n_epochs`` passes of shuffled minibatches on the clipped surrogate."""
 
     name = 'ppo'
-    settings = ALGO_SETTINGS['ppo']
+    settings = SETTINGS['ppo']
     #: ``skipped`` counts minibatches: the others moved the policy, so the batch is merged
     merge_obs_after_skip = True
 
     def __init__(self, policy: nn.Module, learning_rate: float = 7e-4, ent_coef: float = 0.0,
                  max_grad_norm: float = 0.5, normalize_advantage: bool = False,
                  optimizer: str = 'rmsprop', clip_range: float = 0.2, n_epochs: int = 10,
-                 batch_size: int = 64, target_kl: Optional[float] = None, seed: int = 0):
+                 batch_size: int = 64, target_kl: float = 0.0, seed: int = 0):
         super().__init__(policy, learning_rate, ent_coef, max_grad_norm, normalize_advantage,
                          optimizer)
         self.clip_range = clip_range

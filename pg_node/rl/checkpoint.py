@@ -9,19 +9,18 @@ loads is used; one that does not (truncated, corrupted) is reported and skipped.
 import logging
 import os
 from pathlib import Path
-import re
 import tempfile
 from typing import List, Optional, Tuple
 
+from pg_node.common.run_dir import CHECKPOINT_NAME, CHECKPOINT_PATTERN
 import torch
 
 log = logging.getLogger(__name__)
-PATTERN = re.compile(r'^ckpt_(\d{8})\.pt$')
 
 
 def checkpoint_path(directory, version: int) -> Path:
     """Return the file name of the checkpoint of policy ``version``."""
-    return Path(directory) / f'ckpt_{version:08d}.pt'
+    return Path(directory) / CHECKPOINT_NAME.format(version)
 
 
 def save_checkpoint(directory, version: int, state: dict, keep: int = 3) -> Path:
@@ -57,7 +56,7 @@ def list_checkpoints(directory) -> List[Tuple[Path, int]]:
     if not directory.is_dir():
         return []
     found = [(p, int(m.group(1))) for p in directory.iterdir()
-             if (m := PATTERN.match(p.name))]
+             if (m := CHECKPOINT_PATTERN.match(p.name))]
     return sorted(found, key=lambda pv: pv[1], reverse=True)
 
 

@@ -11,10 +11,10 @@ exactly the policy the actor sampled from.
 from typing import Dict, Optional
 
 import numpy as np
-from pg_node.common.params import check_algo_setting
 from pg_node.rl.a2c import PolicyBatch
 from pg_node.rl.checkpoint import load_latest, save_checkpoint
 from pg_node.rl.policy import GaussianPolicy
+from pg_node.rl.update_settings import check_algo_setting
 from pg_node.rl.updaters import make_updater
 from pg_node.rl.weights import flatten_state
 import torch
@@ -65,7 +65,7 @@ class Learner:
         """
         Change one setting between updates (``ros2 param set``); the next update uses it.
 
-        Raises :class:`~pg_node.common.params.ConfigError` for a setting the update does not
+        Raises :class:`~pg_node.common.param_schema.ConfigError` for a setting the update does not
         have, unless ``value`` is its default (then nothing changes).
         """
         check_algo_setting(name, self.cfg['algo'], name, value)

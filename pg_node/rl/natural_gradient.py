@@ -22,8 +22,8 @@ policy is left as it was.
 from typing import Callable, Dict, List, Tuple
 
 import numpy as np
-from pg_node.common.params import ALGO_SETTINGS
 from pg_node.rl import losses
+from pg_node.rl.update_settings import SETTINGS
 import torch
 from torch import nn
 from torch.distributions import kl_divergence, Normal
@@ -95,7 +95,8 @@ class NPGUpdate:
     """
 
     name = 'npg'
-    settings = ALGO_SETTINGS['npg']
+    #: the learner parameters it is built from (pg_node.rl.updaters checks configurations here)
+    settings = SETTINGS['npg']
     #: no learning rate: the step is sized by ``max_kl``; the logs show 0
     learning_rate = 0.0
     #: a skipped step left the policy as it was: its batch's observations are not merged
@@ -189,7 +190,7 @@ class TRPOUpdate(NPGUpdate):
     """TRPO on one batch: NPG's step, searched back until the KL bound holds and it improves."""
 
     name = 'trpo'
-    settings = ALGO_SETTINGS['trpo']
+    settings = SETTINGS['trpo']
 
     def __init__(self, policy: nn.Module, max_kl: float = 0.01, cg_iters: int = 10,
                  cg_damping: float = 0.1, line_search_steps: int = 10, ent_coef: float = 0.0,

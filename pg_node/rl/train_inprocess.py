@@ -38,7 +38,7 @@ def train_inprocess(cfg: Dict[str, Dict], total_steps: int,
     """
     Train for ``total_steps`` environment steps; return the final summary.
 
-    ``cfg`` is :func:`pg_node.common.params.load_config`'s result: every node's section,
+    ``cfg`` is :func:`pg_node.common.config_files.load_config`'s result: every node's section,
     the simulator's (episode length, reward weights, randomization) included.
     """
     torch.set_num_threads(1)

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Dict, List, Optional, Tuple
 
 import numpy as np
+from pg_node.common.run_dir import RunDir
 
 CARD_FORMAT = 'pg_node policy card 1'
 
@@ -42,8 +43,8 @@ def find_checkpoint(path) -> Tuple[dict, Path]:
     import torch
     from pg_node.rl.checkpoint import list_checkpoints, load_latest
     path = Path(path)
-    if path.is_dir() and (path / 'checkpoints').is_dir():
-        path = path / 'checkpoints'
+    if path.is_dir() and RunDir(path).checkpoints.is_dir():
+        path = RunDir(path).checkpoints
     if path.is_dir():
         state, _ = load_latest(path)
         if state is None:
@@ -70,7 +71,7 @@ def find_checkpoint(path) -> Tuple[dict, Path]:
 def run_sim_params(run_dir: Path) -> Dict:
     """Return ``sim_node``'s parameters from ``run_dir/params.yaml`` (none: ``{}``)."""
     import yaml
-    params = Path(run_dir) / 'params.yaml'
+    params = RunDir(run_dir).params
     try:
         raw = yaml.safe_load(params.read_text()) or {}
     except (OSError, yaml.YAMLError):

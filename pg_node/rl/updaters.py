@@ -8,16 +8,17 @@ their losses, :class:`~pg_node.rl.natural_gradient.NPGUpdate` and
 knows an update only through this protocol, and picks its class here by name; the math
 stays in its modules, the choice lives in this one.
 
-The names and the settings each update has are the parameter table's
-(:data:`pg_node.common.params.ALGO_SETTINGS`): train validates a configuration there, in a
-layer that cannot import this one. Each class takes its ``settings`` from that table, and a
-test keeps :data:`UPDATERS` and the table's names equal.
+Each class is built from the learner parameters :data:`pg_node.rl.update_settings.SETTINGS`
+gives its ``algo`` (its ``settings``): that table, free of torch, is the one place that says
+which update has which, and :func:`pg_node.rl.update_settings.check_algo_setting` refuses a
+setting the chosen update lacks, for ``train``'s configuration before any node starts, for
+the learner when it is built and for ``ros2 param set``.
 """
 from typing import Dict, Optional, Protocol, Tuple, Type
 
-from pg_node.common.params import check_algo_setting
 from pg_node.rl.a2c import A2CUpdate, PolicyBatch, PPOUpdate
 from pg_node.rl.natural_gradient import NPGUpdate, TRPOUpdate
+from pg_node.rl.update_settings import check_settings
 from torch import nn
 
 
@@ -58,10 +59,9 @@ def make_updater(policy: nn.Module, cfg: Dict) -> Updater:
     """
     Return the update ``cfg['algo']`` names, built from ``cfg``.
 
-    Raises :class:`~pg_node.common.params.ConfigError` when ``cfg`` gives a setting that
-    update does not have a value other than its default (a node started with
+    Raises :class:`~pg_node.common.param_schema.ConfigError` when ``cfg`` gives a setting
+    that update does not have a value other than its default (a node started with
     ``algo:=trpo -p clip_range:=0.3``).
     """
-    for key, value in cfg.items():
-        check_algo_setting(key, cfg['algo'], key, value)
+    check_settings('', cfg)
     return UPDATERS[cfg['algo']].from_config(policy, cfg)

@@ -34,19 +34,19 @@ going on across a resume) and ``tensorboard/`` (the same metrics as event files,
 ``total_steps`` environment steps are learned the learner writes a final checkpoint,
 closes the bag and, with ``exit_when_done``, exits with code 0.
 """
-import csv
-import math
-from pathlib import Path
 import time
 
 from diagnostic_msgs.msg import DiagnosticStatus
 import numpy as np
 from pg_node.bag.recorder import EPISODE_QOS, EpisodeRecorder
-from pg_node.common.params import check_algo_setting, ConfigError, params_for
+from pg_node.common.param_schema import ConfigError
+from pg_node.common.params import params_for
 from pg_node.common.paths import resolve_model
+from pg_node.common.run_dir import RunDir
 from pg_node.rl.learner import EpisodeStats, Learner
 from pg_node.rl.learner_gate import LearnerGate, Verdict
 from pg_node.rl.logger import TensorBoardLog
+from pg_node.rl.update_settings import check_algo_setting
 from pg_node.ros import messages
 from pg_node.ros import table_msg
 from pg_node.ros.diagnostics import Diagnostics, RateCounter
@@ -86,10 +86,9 @@ class LearnerNode(Node):
         model_path = resolve_model(self.cfg['model'])
         spec = ArmSpec.from_model(mujoco.MjModel.from_xml_path(str(model_path)))
         obs_dim = spec.obs_layout.size
-        self.run_dir = Path(self.cfg['run_dir'])
-        self.run_dir.mkdir(parents=True, exist_ok=True)
+        self.run_dir = RunDir(self.cfg['run_dir']).make()
         self.learner = Learner(obs_dim, len(spec.ctrl_low), self.cfg)
-        state, problems = self.learner.resume(self.run_dir / 'checkpoints')
+        state, problems = self.learner.resume(self.run_dir.checkpoints)
         for p in problems:
             self.get_logger().warning(p)
         if state is not None:
@@ -109,13 +108,7 @@ class LearnerNode(Node):
         self.last_metrics = {}
         self.done = False
         self.exit_code = None              # set when done: runtime.run then stops
-        bag_dir = self.run_dir / 'bag'
-        if bag_dir.exists():
-            # a restarted learner continues in a new bag beside the old one
-            k = 1
-            while (self.run_dir / f'bag_{k}').exists():
-                k += 1
-            bag_dir = self.run_dir / f'bag_{k}'
+        bag_dir = self.run_dir.next_bag()   # a restarted learner: a new bag beside the old
         self.run = RunGuard(self, self.cfg['run_id'])
         self.pub_episode = self.create_publisher(DiagnosticStatus, self.run.topic('episode'),
                                                  EPISODE_QOS)
@@ -126,13 +119,8 @@ class LearnerNode(Node):
                                         scene_period=self.cfg['record_scene_period'],
                                         frame_skip=self.bag_frame_skip())
         self.recorder_t = time.time_ns()
-        self.tensorboard = TensorBoardLog(self.run_dir / 'tensorboard')
-        progress = self.run_dir / 'progress.csv'
-        new = not progress.exists()
-        self.progress_file = open(progress, 'a', newline='')
-        self.progress = csv.DictWriter(self.progress_file, PROGRESS_FIELDS)
-        if new:
-            self.progress.writeheader()
+        self.tensorboard = TensorBoardLog(self.run_dir.tensorboard)
+        self.progress = self.run_dir.progress_writer(PROGRESS_FIELDS)
         self.pub_weights = self.create_publisher(Float64MultiArray,
                                                  self.run.topic('policy_weights'), LATCHED)
         self.pub_metrics = {name: self.create_publisher(Float64, self.run.topic(f'metrics/{name}'),
@@ -151,7 +139,8 @@ class LearnerNode(Node):
         self.publish_weights()
         self.get_logger().info(
             f'learner: {self.cfg["algo"]}, version {self.learner.version}, '
-            f'{self.learner.env_steps}/{self.cfg["total_steps"]} steps, run dir {self.run_dir}')
+            f'{self.learner.env_steps}/{self.cfg["total_steps"]} steps, '
+            f'run dir {self.run_dir.path}')
 
     def bag_frame_skip(self) -> int:
         """
@@ -162,7 +151,7 @@ class LearnerNode(Node):
         (a launch by hand): sim_node's default.
         """
         from pg_node.rl.trained_policy import run_frame_skip
-        return run_frame_skip(self.run_dir)
+        return run_frame_skip(self.run_dir.path)
 
     def refuse_other_updates_settings(self, params) -> SetParametersResult:
         """Refuse (``ros2 param set``) a setting the update lacks, naming the ones it has."""
@@ -248,9 +237,7 @@ class LearnerNode(Node):
         self.recorder.record_metrics(metrics, now_ns)
         self.tensorboard.write({**metrics, 'learning_rate': self.learner.update.learning_rate},
                                self.learner.env_steps)
-        self.progress.writerow({'wall_seconds': round(self.wall_seconds(), 3),
-                                **{k: ('' if isinstance(v, float) and math.isnan(v) else v)
-                                   for k, v in metrics.items()}})
+        self.progress.write(self.wall_seconds(), metrics)
         self.last_metrics.update(metrics)
         if self.learner.version % self.cfg['checkpoint_every'] == 0:
             self.save()
@@ -285,8 +272,8 @@ class LearnerNode(Node):
 
     def save(self):
         """Write an atomic checkpoint of the current version."""
-        self.learner.save(self.run_dir / 'checkpoints', {'wall_seconds': self.wall_seconds()})
-        self.progress_file.flush()
+        self.learner.save(self.run_dir.checkpoints, {'wall_seconds': self.wall_seconds()})
+        self.progress.flush()
         self.tensorboard.flush()
 
     def finish(self):
@@ -318,7 +305,7 @@ class LearnerNode(Node):
         if not self.done:
             self.save()
         self.recorder.close()
-        self.progress_file.close()
+        self.progress.close()
         self.tensorboard.close()
 
     def note_batch_after_gap(self):
@@ -356,7 +343,7 @@ class LearnerNode(Node):
         rate = self.steps.rate()
         self.last_metrics['steps_per_second'] = rate
         self.pub_metrics['steps_per_second'].publish(Float64(data=rate))
-        self.progress_file.flush()
+        self.progress.flush()
         self.diag.publish({**self.counters, 'foreign_messages': self.run.dropped,
                            'run_id': self.run.run_id, 'policy_version': self.learner.version,
                            'env_steps': self.learner.env_steps,

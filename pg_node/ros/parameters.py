@@ -14,7 +14,8 @@ import math
 import sys
 from typing import Any, Callable, Dict, Optional
 
-from pg_node.common.params import ConfigError, known_keys, Param
+from pg_node.common.param_schema import ConfigError, Param
+from pg_node.common.params import known_keys
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 SetParametersResult)
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
@@ -50,8 +51,8 @@ def declare_params(node: Node, table: Dict[str, Param],
     """
     Declare every parameter of ``table`` on ``node`` and return the checked values.
 
-    Raises :class:`~pg_node.common.params.ConfigError` naming the parameter when a value given in
-    the parameter file or on the command line is not allowed, or when a parameter given
+    Raises :class:`~pg_node.common.param_schema.ConfigError` naming the parameter when a value
+    given in the parameter file or on the command line is not allowed, or when a parameter given
     there is known to no pg_node node (a typo: ROS would silently ignore it). A key that
     another node reads is accepted, as a shared parameter file gives every node all of them.
 

@@ -42,10 +42,23 @@ Subscribed:
   where ``tf2_ros`` can be imported (a full ROS install; it is not on PyPI); otherwise it
   is refused, with one warning naming it. A target beyond the arm's reach
   (:meth:`pg_node.sim.observation.ObservationBuilder.reach`) is clamped onto it
-  (:mod:`pg_node.control.targets`), with a warning once; a non-finite one is ignored, with
-  a warning once (both counted in ``/diagnostics``);
+  (:mod:`pg_node.control.targets`), with a warning once; then one outside the goals the
+  policy trained on (its model's region or goal points,
+  :class:`pg_node.control.targets.GoalSet`) is moved onto the nearest of them (one under
+  the table is taken nowhere near it), with a warning once per spell of such targets, said
+  in the reach's line where that one is beyond the reach too; a non-finite one is ignored,
+  with a warning once (counted in ``/diagnostics``:
+  ``targets_out_of_reach``, ``targets_clamped_to_trained``, ``targets_ignored``);
 * ``estop`` (``std_msgs/Bool``, reliable): ``true`` latches an emergency stop; ``false``
   does not clear it. Service ``~/reset_estop`` (``std_srvs/Trigger``) clears it.
+* the robot's own state, off by default: ``robot_program_running_topic``
+  (``std_msgs/Bool``, transient local, as a UR's ``io_and_status_controller`` latches it)
+  and ``speed_scaling_topic`` (``std_msgs/Float64`` in percent, best effort, as its
+  ``speed_scaling_state_broadcaster`` sends it). A program not running, a speed scaling of
+  0 (a protective stop, a pause) or no message yet on a followed topic holds at every tick
+  (:class:`pg_node.control.deployment.RobotState`, state ``robot_stopped``, a warning and
+  ``robot_stops`` once per spell); when the robot runs again, commanding ramps in from the
+  hold over ``ramp_time``, so a stored command never runs at once.
 
 Published:
 
@@ -79,8 +92,9 @@ Published:
   events, e-stops, each guard's acting, dropped states, CPU share, the policy's source and
   sha256;
 * ``~/markers`` (``visualization_msgs/MarkerArray``) at ``marker_rate`` Hz while it has a
-  subscriber: the goal the policy acts on (clamped) and the fingertip, coloured by what the
-  node does, holds included (:mod:`pg_node.ros.policy_markers`).
+  subscriber: the goal the policy acts on (clamped), the goal as requested while it is
+  clamped, and the fingertip, coloured by what the node does, holds included
+  (:mod:`pg_node.ros.policy_markers`).
 
 Safety: the **hold** command is an active stop (:mod:`pg_node.control.guards`): with the
 effort interface a damping torque ``-hold_damping x qdot`` (and ``hold_stiffness`` back to
@@ -100,7 +114,8 @@ last commanded angles. Before the first joint state and target nothing is publis
 Diagnostics levels follow diagnostic_updater's habits (:mod:`pg_node.control.status`):
 commanding OK; unconfigured, inactive or waiting WARN; commanding with no subscriber on the
 command topic (no controller can listen; a subscriber does not prove an active one) or with
-the controller's joints unread WARN; stale states or a latched e-stop ERROR.
+the controller's joints unread WARN; the robot's own stop WARN; stale states or a latched
+e-stop ERROR.
 
 ``record`` (a bag directory) keeps every tick on ``/policy_node/ticks`` (a table per tick,
 :mod:`pg_node.ros.table_msg`: header stamp and policy id, the first 48 bits of the policy's
@@ -127,16 +142,19 @@ from geometry_msgs.msg import PointStamped
 import mujoco
 import numpy as np
 from pg_node.bag.writer import BagWriter
-from pg_node.common.params import ConfigError, POLICY_PARAMS
+from pg_node.common.param_schema import ConfigError
+from pg_node.common.params import POLICY_PARAMS
 from pg_node.common.run import CONTROLLER_COMMANDS, CONTROLLER_TRAJECTORY
 from pg_node.control import interfaces, physics_check
 from pg_node.control.composers import command_trajectory
-from pg_node.control.deployment import Deployment, Event, JointSample, Status
+from pg_node.control.deployment import Deployment, Event, JointSample, RobotState, Status
 from pg_node.control.estop import EStop
 from pg_node.control.guards import CommandGuard, GuardSettings
 from pg_node.control.joint_map import arm_joint_names, controller_mismatch, joint_columns
-from pg_node.control.status import diagnostic_level, Fault, GuardEvent, NodeState, Severity
-from pg_node.control.targets import BASE, clamp_to_reach, frame_key, target_array, Twins
+from pg_node.control.status import (diagnostic_level, Fault, GuardEvent, NodeState,
+                                    RepeatedWarnings, Severity)
+from pg_node.control.targets import (BASE, clamp_to_reach, frame_key, GoalSet, target_array,
+                                     Twins)
 from pg_node.control.watchdog import Watchdog
 from pg_node.rl.trained_policy import load_trained_policy, PolicySourceError
 from pg_node.ros import command
@@ -159,7 +177,7 @@ from rclpy.qos import (DurabilityPolicy, HistoryPolicy, qos_profile_sensor_data,
                        ReliabilityPolicy)
 from rclpy.wait_for_message import wait_for_message
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Bool, Float64MultiArray, String
+from std_msgs.msg import Bool, Float64, Float64MultiArray, String
 from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from visualization_msgs.msg import MarkerArray
@@ -173,6 +191,8 @@ LEVELS = {Severity.OK: DiagnosticStatus.OK, Severity.WARN: DiagnosticStatus.WARN
           Severity.ERROR: DiagnosticStatus.ERROR}
 #: calls of the policy on configure before the first real one
 WARM_UP = 5
+#: seconds between two lines of the same guard's warning (the first comes at once)
+REPEAT_PERIOD = 30.0
 #: the record's topic: one message per control tick
 TICKS_TOPIC = '/policy_node/ticks'
 #: its table's columns, one row per arm
@@ -200,6 +220,8 @@ class PolicyNode(LifecycleNode):
                               'ckpt_*.pt file or an exported .onnx file (-p policy:=PATH)')
         self.exit_code = None               # set on a fatal input: run() ends the process
         self.told = set()                   # the warnings given (once each)
+        # a guard's warning: the first time, then with a count once in REPEAT_PERIOD s
+        self.repeated = RepeatedWarnings(REPEAT_PERIOD)
         self.refusal: Optional[ConfigError] = None     # why the last configure failed
         # what configure builds (cleanup drops it): the decisions of each tick, the policy
         # and what the node publishes, records and reports of it
@@ -209,6 +231,7 @@ class PolicyNode(LifecycleNode):
         self.digest, self.policy_id = 'n/a', 0
         self.load_seconds = self.warm_up_ms = 0.0
         self.base, self.reach = np.zeros(3), 0.0
+        self.goal_set: Optional[GoalSet] = None     # the goals the policy trained on
         self.recorder = self.tf_buffer = self._tf = None
         self.settings = GuardSettings(**{k: p[k] for k in GUARD_PARAMS})
         self.num_arms = p['num_arms']
@@ -218,6 +241,8 @@ class PolicyNode(LifecycleNode):
         self.joint_state: Optional[JointSample] = None     # the newest, the model's joints
         self.raw_targets: Dict[str, np.ndarray] = {}    # frame_id -> point, as received
         self.targets: Dict[object, np.ndarray] = {}     # 'base' or arm index -> goal
+        self.requested: Dict[object, np.ndarray] = {}   # ... as asked, before the clamps
+        self.clamped = set()                # the frames in a spell of clamped targets
         self.description = None             # robot_description, when published
         self.description_digest = 'none'    # its sha256's first 12 digits, for diagnostics
         self.kinematics = 'not checked'     # what configure found of robot_description
@@ -232,7 +257,13 @@ class PolicyNode(LifecycleNode):
         self.counters = {'commands': 0, 'hold_commands': 0, 'stale_events': 0, 'estops': 0,
                          'states_received': 0, 'states_dropped_nonfinite': 0,
                          'targets_ignored': 0, 'targets_out_of_reach': 0,
+                         'targets_clamped_to_trained': 0, 'robot_stops': 0,
+                         'controller_deactivations': 0,
                          **{f'guard_{e.key}': 0 for e in GuardEvent}}
+        # ros2_control's controller manager (controller_manager): its client, and whether
+        # a stop deactivated the arm controller (only a reset or activate undoes it)
+        self.cm = None
+        self.controller_stopped = False
         self.ages = deque(maxlen=AGE_WINDOW)
         self.rate = RateCounter()
         self._cpu = (time.process_time(), time.monotonic())
@@ -257,6 +288,16 @@ class PolicyNode(LifecycleNode):
         self.create_subscription(Bool, 'estop', self.on_estop,
                                  QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
         self.create_service(Trigger, '~/reset_estop', self.on_reset_estop)
+        # the robot's own state, as a UR's driver publishes it (off by default)
+        self.robot = RobotState()
+        if p['robot_program_running_topic']:
+            self.robot.program_topic = self.resolve_topic_name(p['robot_program_running_topic'])
+            self.create_subscription(Bool, self.robot.program_topic, self.on_program_running,
+                                     LATCHED)
+        if p['speed_scaling_topic']:
+            self.robot.speed_topic = self.resolve_topic_name(p['speed_scaling_topic'])
+            self.create_subscription(Float64, self.robot.speed_topic, self.on_speed_scaling,
+                                     qos_profile_sensor_data)
         # the full name: two robots in two namespaces must not overwrite each other's status
         self.diagnostics = Diagnostics(self, f'{self.get_fully_qualified_name()}: trained policy',
                                        'policy_node')
@@ -358,6 +399,7 @@ class PolicyNode(LifecycleNode):
         commanded = arm_joint_names([joints[c] for c in guard.cols], len(index),
                                     joints[0] in self._names)
         self._check_controller(commanded)
+        self._check_with_controller_manager()
         load_seconds = time.perf_counter() - t0
         t0 = time.perf_counter()
         for _ in range(WARM_UP):                # the first calls allocate; not on the robot
@@ -385,6 +427,7 @@ class PolicyNode(LifecycleNode):
         self.load_seconds, self.warm_up_ms = load_seconds, warm_ms
         self.policy_id = int(digest[:12], 16)
         self.base, self.reach = builder.reach()
+        self.goal_set = GoalSet.of(builder.spec)
         self.set_status(NodeState.INACTIVE, 'inactive: configured, waiting for activate')
         self._tf_listener()
         for frame, point in list(self.raw_targets.items()):
@@ -510,8 +553,78 @@ class PolicyNode(LifecycleNode):
                                     ordered=p['command_message'] == 'forward'))
         self.controller_joints = f'match {controller}'
 
+    def _check_with_controller_manager(self):
+        """
+        Refuse a controller that cannot carry the card's commands or has no dead-man.
+
+        Read from ros2_control's controller manager (:mod:`pg_node.ros.controller_manager`,
+        the rules in :mod:`pg_node.control.controller_check`); the client stays for the
+        stops that deactivate the controller (``controller_stop``).
+        """
+        p = self.params
+        self._close_controller_manager()
+        if not p['controller_manager']:
+            return
+        from pg_node.ros.controller_manager import ControllerManagerClient, \
+            ControllerManagerError
+        try:
+            self.cm = ControllerManagerClient(
+                self.context, p['controller_manager'], max(p['controller_timeout'], 1.0),
+                namespace=self.get_namespace(), name=f'{self.get_name()}_controller_manager')
+        except ControllerManagerError as exc:
+            _refuse(f"parameter 'policy_node.controller_manager': {exc}")
+        reason = self.cm.refusal(self.controller_bare_name(), p['command_interface'],
+                                 p['command_message'], p['allow_no_dead_man'])
+        if reason:
+            self._close_controller_manager()
+            _refuse(f"parameter 'policy_node.controller_manager': {reason}")
+
+    def controller_bare_name(self) -> str:
+        """Return the arm controller's name as list_controllers gives it (no namespace)."""
+        return self.params['controller_name'].rstrip('/').rsplit('/', 1)[-1]
+
+    def stops_controller(self) -> bool:
+        """Whether a stop deactivates the arm controller (``controller_stop``)."""
+        how = self.params['controller_stop']
+        if how == 'auto':
+            how = 'hold' if self.params['command_interface'] == 'effort' else 'deactivate'
+        return self.cm is not None and how == 'deactivate'
+
+    def stop_controller(self, why: str):
+        """Deactivate the arm controller through the controller manager, when asked to."""
+        if not self.stops_controller() or self.controller_stopped:
+            return
+        failed = self.cm.deactivate(self.controller_bare_name())
+        if failed:
+            self.get_logger().error(f'{why}: could not deactivate the arm controller: '
+                                    f'{failed}; the hold command is all that stops the arm')
+            return
+        self.controller_stopped = True
+        self.counters['controller_deactivations'] += 1
+        self.get_logger().warning(f'{why}: arm controller {self.controller_bare_name()} '
+                                  "deactivated (the robot's own stop acts); activate or "
+                                  '~/reset_estop activates it again')
+
+    def restart_controller(self) -> Optional[str]:
+        """Activate the arm controller a stop deactivated (an explicit reset); None if done."""
+        if not self.controller_stopped:
+            return None
+        failed = self.cm.activate(self.controller_bare_name())
+        if failed is None:
+            self.controller_stopped = False
+        return failed
+
+    def _close_controller_manager(self):
+        if self.cm is not None:
+            self.cm.close()
+        self.cm, self.controller_stopped = None, False
+
     def on_activate(self, state) -> TransitionCallbackReturn:
         """Start commanding, ramping in from hold over ``ramp_time``."""
+        failed = self.restart_controller()
+        if failed:
+            self.get_logger().error(f'activate failed: the arm controller stays stopped: {failed}')
+            return TransitionCallbackReturn.FAILURE
         self.status = self.core.activate(time.monotonic())
         self.get_logger().info(f'active: commanding, ramping in from hold over '
                                f'{self.settings.ramp_time:g} s')
@@ -521,14 +634,18 @@ class PolicyNode(LifecycleNode):
         """Send one hold command and stop publishing."""
         self.set_status(NodeState.INACTIVE, 'inactive: deactivated, one hold command sent')
         self._hold_once()
+        self.stop_controller('deactivate')
         self.get_logger().info(self.status.text)
         return TransitionCallbackReturn.SUCCESS
 
     def on_cleanup(self, state) -> TransitionCallbackReturn:
         """Unload the policy and close the record."""
         self._close_record()
-        self.core = self.policy = self.builder = None
+        self._close_controller_manager()
+        self.core = self.policy = self.builder = self.goal_set = None
         self.targets.clear()
+        self.requested.clear()
+        self.clamped.clear()
         self.joints_unchecked, self.controller_joints = False, 'not checked'
         self.set_status(NodeState.UNCONFIGURED,
                         'unconfigured: cleaned up, waiting for configure')
@@ -553,6 +670,7 @@ class PolicyNode(LifecycleNode):
         if self.status.lifecycle == 'active':
             self.set_status(NodeState.INACTIVE, 'inactive: stopped, one hold command sent')
             self._hold_once()
+            self.stop_controller('shutdown')
         self._close_record()
 
     def _hold_once(self):
@@ -616,6 +734,14 @@ class PolicyNode(LifecycleNode):
         self.description = msg.data
         self.description_digest = hashlib.sha256(msg.data.encode()).hexdigest()[:12]
 
+    def on_program_running(self, msg: Bool):
+        """Keep whether the robot's program runs (a UR's ``robot_program_running``)."""
+        self.robot.program_running = bool(msg.data)
+
+    def on_speed_scaling(self, msg: Float64):
+        """Keep the robot's speed scaling in percent (a UR's ``speed_scaling``)."""
+        self.robot.speed_scaling = float(msg.data)
+
     def on_estop(self, msg: Bool):
         """Latch the e-stop on ``true`` (``false`` leaves it as it is)."""
         if msg.data and self.estop.trip():
@@ -623,11 +749,17 @@ class PolicyNode(LifecycleNode):
             self.get_logger().error('e-stop: latched; hold command at every tick until '
                                     '~/reset_estop')
             self.on_tick()          # at once, not at the next tick
+            self.stop_controller('e-stop')
 
     def on_reset_estop(self, request, response):
         """Clear a latched e-stop; commanding resumes at the next tick."""
         response.success = True
-        if self.estop.reset():
+        failed = self.restart_controller() if self.estop.latched else None
+        if failed:
+            response.success = False
+            response.message = f'e-stop kept: the arm controller stays stopped: {failed}'
+            self.get_logger().error(response.message)
+        elif self.estop.reset():
             response.message = 'e-stop cleared: commanding resumes'
             self.get_logger().warning(response.message)
         else:
@@ -662,16 +794,31 @@ class PolicyNode(LifecycleNode):
                 self.counters['targets_ignored'] += 1
                 return
             key = BASE
-        clamped, distance = clamp_to_reach(point, self.base, self.reach)
+        reached, distance = clamp_to_reach(point, self.base, self.reach)
+        goal, moved = self.goal_set.clamp(reached)
+        trained = (f'; outside the goals the policy trained on ({self.goal_set.describe()}): '
+                   f'taken as ({goal[0]:.3g}, {goal[1]:.3g}, {goal[2]:.3g}) (counted in '
+                   '/diagnostics as targets_clamped_to_trained)') if moved else ''
         if distance is not None:
+            # said once for the frame, with the clamp to the trained goals that follows it
             self.counters['targets_out_of_reach'] += 1
             self.warn_once(('reach', frame),
                            f'target ({point[0]:g}, {point[1]:g}, {point[2]:g}) in '
                            f"{frame or 'the base frame'} is {distance:.3g} m from the arm's "
                            f'base, beyond its reach of {self.reach:.3g} m: clamped to '
-                           f'({clamped[0]:.3g}, {clamped[1]:.3g}, {clamped[2]:.3g}) '
-                           '(counted in /diagnostics as targets_out_of_reach)')
-        self.targets[key] = clamped
+                           f'({reached[0]:.3g}, {reached[1]:.3g}, {reached[2]:.3g}) '
+                           f'(counted in /diagnostics as targets_out_of_reach){trained}')
+        if moved:
+            self.counters['targets_clamped_to_trained'] += 1
+            if frame not in self.clamped and distance is None:    # a spell begins: once
+                self.get_logger().warning(
+                    f'target ({point[0]:g}, {point[1]:g}, {point[2]:g}) in '
+                    f"{frame or 'the base frame'} is{trained[1:]}")
+            self.clamped.add(frame)
+        else:
+            self.clamped.discard(frame)
+        self.targets[key] = goal
+        self.requested[key] = point
 
     def _tf_listener(self):
         """Listen to tf2 where it can be imported (a full ROS install; not on PyPI)."""
@@ -717,13 +864,15 @@ class PolicyNode(LifecycleNode):
         joints = self.joint_state
         tick = self.core.tick(joints, target_array(self.targets, self.num_arms, self.plain),
                               time.monotonic(), self.get_clock().now().nanoseconds * 1e-9,
-                              self.estop.latched)
+                              self.estop.latched, self.robot.stop_reason())
         for event in tick.events:
             self.log_event(event, tick)
         for event in tick.guard_events:
             self.counters[f'guard_{event.key}'] += 1
-            if event.severity >= Severity.WARN:
-                self.get_logger().warning(event.warning, throttle_duration_sec=1.0)
+            line = self.repeated.line(event, event.warning, time.monotonic()) \
+                if event.severity >= Severity.WARN else None
+            if line:
+                self.get_logger().warning(line)
         if tick.command is not None:
             self.record(tick.command, self.publish(tick.command, hold=tick.hold), tick.age,
                         tick.obs, tick.mean, tick.action, tick.acted)
@@ -747,6 +896,13 @@ class PolicyNode(LifecycleNode):
                                    f"{' or arm0' if self.plain else ' or arm<i>'})")
         elif event is Event.FRESH:
             self.get_logger().info('fresh joint states: commanding again')
+        elif event is Event.ROBOT_STOPPED:
+            self.counters['robot_stops'] += 1
+            self.get_logger().warning(f'{tick.status.text} (counted in /diagnostics as '
+                                      'robot_stops)')
+        elif event is Event.ROBOT_READY:
+            self.get_logger().info(f'the robot runs again: commanding, ramping in from the '
+                                   f'hold over {self.settings.ramp_time:g} s')
 
     def publish_markers(self):
         """Publish the goals and fingertips (:mod:`pg_node.ros.policy_markers`) if watched."""
@@ -754,13 +910,15 @@ class PolicyNode(LifecycleNode):
             return
         goals = target_array(self.targets, self.num_arms, self.plain)
         goals = None if isinstance(goals, str) else goals
+        requested = None if goals is None else target_array(self.requested, self.num_arms,
+                                                            self.plain)
         tips = None if self.joint_state is None else self.builder.fingertips(self.joint_state.q)
         arms = len(goals) if goals is not None else len(tips) if tips is not None else 0
         frame = self.params['marker_frame']
         frames = [frame or (self.params['base_frame'] if self.plain else f'arm{i}')
                   for i in range(arms)]
         self.pub_markers.publish(policy_markers(goals, tips, self.status.state, frames,
-                                                self.get_clock().now().to_msg()))
+                                                self.get_clock().now().to_msg(), requested))
 
     def set_status(self, state: NodeState, text: str):
         """Note what the node is doing: the state (its level) and the text saying why."""
@@ -833,6 +991,11 @@ class PolicyNode(LifecycleNode):
             load_seconds=round(self.load_seconds, 3) if self.policy is not None else 'n/a',
             warm_up_ms_per_call=(round(self.warm_up_ms, 3) if self.policy is not None
                                  else 'n/a'),
+            trained_goals=(self.goal_set.describe() if self.goal_set is not None
+                           else 'not loaded'),
+            robot_program_running=_followed(self.robot.program_topic,
+                                            self.robot.program_running),
+            speed_scaling=_followed(self.robot.speed_topic, self.robot.speed_scaling),
             robot_description=self.description_digest, kinematics=self.kinematics,
             controller_joints=self.controller_joints,
             command_topic=self.pub.topic_name,
@@ -877,6 +1040,13 @@ def quat_rotate(wxyz, v: np.ndarray) -> np.ndarray:
     out = np.empty(3)
     mujoco.mju_rotVecQuat(out, np.asarray(v, dtype=float), np.asarray(wxyz, dtype=float))
     return out
+
+
+def _followed(topic: str, value) -> str:
+    """Return a robot state topic's last value for /diagnostics, or why there is none."""
+    if not topic:
+        return 'not followed'
+    return 'no message yet' if value is None else str(value).lower()
 
 
 def _refuse(reason: Optional[str]):

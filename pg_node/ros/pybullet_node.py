@@ -58,7 +58,8 @@ from pathlib import Path
 from geometry_msgs.msg import Point, PointStamped
 import numpy as np
 from pg_node.bag.ros_types import float64_field
-from pg_node.common.params import ConfigError, PYBULLET_PARAMS
+from pg_node.common.param_schema import ConfigError
+from pg_node.common.params import PYBULLET_PARAMS
 from pg_node.common.paths import resolve_model
 from pg_node.common.run import CONTROLLER_COMMANDS, CONTROLLER_TRAJECTORY
 from pg_node.control import interfaces

@@ -72,7 +72,8 @@ import threading
 import time
 
 from pg_node.bag import ros_types
-from pg_node.bag.reader import bag_dirs, BagReader, NOT_MCAP
+from pg_node.bag.reader import BagReader, NOT_MCAP
+from pg_node.common.run_dir import RunDir
 from pg_node.ros import runtime
 from rcl_interfaces.msg import ParameterDescriptor, ParameterType
 import rclpy
@@ -529,14 +530,14 @@ def _non_negative(text: str) -> float:
 
 def resolve_bag(path: str) -> str:
     """Return the bag of ``path``: its ``bag/`` when it is a run directory, else ``path``."""
-    from pathlib import Path
-    return str(Path(path) / 'bag') if (Path(path) / 'bag').is_dir() else path
+    run = RunDir(path)
+    return str(run.bag) if run.has_bag() else path
 
 
 def bags_of(path: str) -> list:
     """Return the bags ``path`` names: a run directory's (``bag``, ``bag_1``, ...), or itself."""
-    from pathlib import Path
-    return [str(b) for b in bag_dirs(path)] if (Path(path) / 'bag').is_dir() else [path]
+    run = RunDir(path)
+    return [str(b) for b in run.bags()] if run.has_bag() else [path]
 
 
 def is_command_topic(name: str) -> bool:

@@ -4,8 +4,8 @@ How a pg_node node process runs, from ``rclpy.init`` to its exit code.
 rclpy's init and executor, stop signals, the supervisor's death, CPU niceness, and the
 ``main`` loop (:func:`run`) with its exit codes.
 
-A bad configuration (:class:`pg_node.common.params.ConfigError`, raised by any layer) ends the
-process in one line with exit code 2; SIGINT and SIGTERM end the loop between callbacks.
+A bad configuration (:class:`pg_node.common.param_schema.ConfigError`, raised by any layer)
+ends the process in one line with exit code 2; SIGINT and SIGTERM end the loop between callbacks.
 """
 import contextlib
 import os
@@ -15,7 +15,7 @@ import textwrap
 import threading
 from typing import Callable, Iterator, List, Mapping, Optional, Union
 
-from pg_node.common.params import ConfigError
+from pg_node.common.param_schema import ConfigError
 from pg_node.common.paths import SUPERVISOR_ENV
 from pg_node.ros import local_hop
 import rclpy
@@ -290,7 +290,7 @@ def params_help(name: str, table: Mapping, args=None) -> bool:
     Print ``name``'s parameters if the command line asks ``--help``/``-h``; return whether.
 
     Asked before ``--ros-args`` (rclpy is not initialised: no graph is joined). ``table``:
-    a map of parameter name to :class:`pg_node.common.params.Param`.
+    a map of parameter name to :class:`pg_node.common.param_schema.Param`.
     """
     argv = list(sys.argv if args is None else args)
     if '--ros-args' in argv:

@@ -42,7 +42,9 @@ Topics published:
   shifted as in ``pg_node/markers`` (:mod:`pg_node.sim.scene`, :mod:`pg_node.ros.scene_msg`);
 * ``/diagnostics`` (``diagnostic_msgs/DiagnosticArray``) at ``diagnostics_rate`` Hz: mode,
   paused, steps, simulated time, steps per second, commands received / dropped (wrong size,
-  non-finite, absurd) / clipped / ignored, lock-step timeouts; in lock-step also the round
+  non-finite, absurd) / clipped / ignored, lock-step timeouts, ``physics_resets`` (arms whose
+  physics blew up: their episode ended, the arm reset, a WARN; in real time also
+  ``episodes_finished`` and their ``final_distance_mean_m``); in lock-step also the round
   trips since the last diagnostics (a transition published -> the command answering it
   received): how many, median and p99 in ms (``round_trip_log`` keeps every one in a file).
 
@@ -126,13 +128,16 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Point, PointStamped
 import numpy as np
 from pg_node.bag.ros_types import float64_field
-from pg_node.common.params import arm_indices, ConfigError, params_for
+from pg_node.common.bounds import MAX_ABS
+from pg_node.common.param_schema import arm_indices, ConfigError
+from pg_node.common.params import params_for
 from pg_node.common.paths import resolve_model
 from pg_node.common.perturbations import from_params
 from pg_node.common.run import COMMANDS, CONTROLLER_TRAJECTORY
 from pg_node.control import interfaces
 from pg_node.control import jtc
 from pg_node.control.joint_map import arm_joint_names
+from pg_node.control.status import RepeatedWarnings
 from pg_node.ros import command
 from pg_node.ros import jtc_msg
 from pg_node.ros import table_msg
@@ -157,7 +162,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 #: A command value beyond this (N m before gear) is not a torque but a bug: dropped, not
 #: clipped. Values between the control range and this are clipped (counted, warned).
-ABSURD_COMMAND = table_msg.MAX_ABS
+ABSURD_COMMAND = MAX_ABS
 
 
 def sim_stamp(seconds: float) -> Time:
@@ -228,7 +233,9 @@ class SimNode(Node):
                          'commands_clipped': 0, 'commands_ignored': 0,
                          'lock_step_timeouts': 0, 'transitions_resent': 0,
                          'trajectories_received': 0, 'trajectories_rejected': 0,
-                         'trajectory_timeouts': 0, 'episodes_finished': 0}
+                         'trajectory_timeouts': 0, 'episodes_finished': 0,
+                         'physics_resets': 0}
+        self.repeated = RepeatedWarnings(period=30.0)   # a warning, then once in 30 s
         self.distance_sum = 0.0           # the final distances of the finished episodes
         self.paused = bool(p['start_paused'])
         self.held = np.zeros((n, self.task.act_dim))
@@ -513,6 +520,8 @@ class SimNode(Node):
         """Step group ``g``'s arms once with their held command and publish the results."""
         arms = self.groups[g]
         obs, reward, terminated, truncated, info = self.task.step(self.held[arms], arms)
+        if info['blown_up'].any():
+            self.count_blow_ups(arms, info['blown_up'])
         if self.mode == 'real_time':
             self.log_episodes(arms, terminated | truncated, info)
         last = g == len(self.groups) - 1
@@ -523,6 +532,18 @@ class SimNode(Node):
         self.publish_state(g, self.group_transition(g, obs, reward, terminated, truncated,
                                                     info['final_obs']), last)
         self.publish_draws()
+
+    def count_blow_ups(self, arms: slice, blown: np.ndarray):
+        """Count and report arms whose physics blew up (ArmTask ended and reset them)."""
+        self.counters['physics_resets'] += int(blown.sum())
+        first = arms.start + int(np.flatnonzero(blown)[0])
+        line = self.repeated.line('physics', (
+            f'the physics of arm {first} blew up (an observation beyond {MAX_ABS:g}, or '
+            'MuJoCo reset a state it found unstable): its episode ended and the arm was '
+            'reset; a model whose arms keep doing this needs a smaller timestep, armature or '
+            'hard limits (arm import checks them)'), time.monotonic())
+        if line:
+            self.get_logger().warning(f"{line} [{self.counters['physics_resets']} so far]")
 
     def log_episodes(self, arms: slice, ended: np.ndarray, info: dict):
         """
@@ -731,9 +752,11 @@ class SimNode(Node):
         status = DiagnosticStatus()
         status.name = 'sim_node: simulated arms'
         status.hardware_id = f'{self.params["model"]} x {self.task.num_envs}'
-        status.level = DiagnosticStatus.WARN if dropped else DiagnosticStatus.OK
+        blown = self.counters['physics_resets']
+        status.level = DiagnosticStatus.WARN if dropped or blown else DiagnosticStatus.OK
         status.message = ('paused' if self.paused else self.mode) + (
-            f', {dropped} commands dropped' if dropped else '')
+            f', {dropped} commands dropped' if dropped else '') + (
+            f', {blown} arms reset after their physics blew up' if blown else '')
         values = dict(self.counters, foreign_messages=self.run.dropped, run_id=self.run.run_id,
                       mode=self.mode, paused=self.paused,
                       sim_time=round(self.sim_time, 6), steps_per_second=round(rate, 1),

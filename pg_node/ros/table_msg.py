@@ -25,12 +25,9 @@ from typing import Dict, Mapping, Optional, Sequence, Tuple
 
 import numpy as np
 from pg_node.bag.ros_types import float64_field, jazzy_typestore
+from pg_node.common.bounds import MAX_ABS
 
 ROWS_LABEL = 'rows'
-#: Largest magnitude a real value on pg_node's wire may have (observations, actions,
-#: rewards, advantages and torque commands of the arm stay far below): 1e300 is a bug
-#: upstream, and one such value would poison the running observation statistics for good.
-MAX_ABS = 1e6
 #: Whole numbers (ids, counters) are exact in float64 up to this magnitude.
 MAX_WHOLE = 2.0 ** 53
 

@@ -69,7 +69,8 @@ from typing import List, Mapping, Optional
 
 import mujoco
 import numpy as np
-from pg_node.common.params import ConfigError
+from pg_node.common.bounds import MAX_ABS
+from pg_node.common.param_schema import ConfigError
 from pg_node.common.perturbations import parse_terms
 from pg_node.control import position_delta
 from pg_node.control.interfaces import INTERFACES
@@ -368,6 +369,9 @@ class ArmTask:
         self.episode_id = np.zeros(self.num_envs, dtype=np.int64)
         self.episode_step = np.zeros(self.num_envs, dtype=np.int64)
         self.episode_return = np.zeros(self.num_envs)
+        #: per arm, the episodes ended because its physics blew up (step's ``blown_up``)
+        self.blow_ups = np.zeros(self.num_envs, dtype=np.int64)
+        self._reset_by_mujoco = np.zeros(self.num_envs, dtype=bool)
         self._next_episode_id = 0
         self._rngs = []
         terms = parse_terms(randomization or {})
@@ -570,7 +574,12 @@ class ArmTask:
         ``episode_step`` of the returned observation, ``final_episode_id`` (the episode
         the action was taken in), ``episode_return`` / ``episode_length`` (NaN / 0 where
         no episode ended), the two reward terms ``reward_dist`` and ``reward_ctrl`` and
-        ``distance``, the true fingertip-to-target distance in m after the step.
+        ``distance``, the true fingertip-to-target distance in m after the step, and
+        ``blown_up``: the arms whose observation passed :data:`pg_node.common.bounds.MAX_ABS`
+        (or was not finite), or whose state MuJoCo found bad and reset to the model's pose
+        (its "simulation is unstable" warning): their episode ends there (``terminated``, no
+        value after it) with the observation and reward bounded, and they are reset and
+        counted (``blow_ups``).
         """
         lo, hi, _ = (slice(None) if arms is None else arms).indices(self.num_envs)
         sl = slice(lo, hi)
@@ -591,13 +600,19 @@ class ArmTask:
             r.before_step(lo, hi)
             applied = r.applied_action(applied, lo, hi)
 
+        reset_by_mujoco = self._reset_by_mujoco
+
         def advance(envs):
             for i in envs:
+                before = datas[i].time
                 if r is not None and r.per_physics_step:    # servo tracking, payload
                     r.physics_steps(i, applied[i - lo], models[i], datas[i], n)
-                    continue
-                ctrl[i][:] = applied[i - lo]
-                mujoco.mj_step(models[i], datas[i], nstep=n)
+                else:
+                    ctrl[i][:] = applied[i - lo]
+                    mujoco.mj_step(models[i], datas[i], nstep=n)
+                # MuJoCo resets a state gone bad itself (mj_checkPos/Vel/Acc: a warning,
+                # mj_resetData, the time back to 0): the arm jumped to its model pose
+                reset_by_mujoco[i] = datas[i].time < before + (n - 0.5) * models[i].opt.timestep
 
         chunks = self._chunks_of(lo, hi)
         others = [self._pool.submit(advance, c) for c in chunks[1:]] if self._pool else ()
@@ -614,9 +629,18 @@ class ArmTask:
         reward_dist *= self.reward_dist_weight
         reward_ctrl = -np.square(act).sum(axis=1) * self.reward_control_weight
         reward = reward_dist + reward_ctrl
+        # physics that blew up (an unstable model, a torque far beyond what it can take):
+        # the episode ends there, its values bounded, and the arm starts a new one
+        blown = ~(np.abs(obs).max(axis=1) <= MAX_ABS) | reset_by_mujoco[sl]  # NaN counts
+        if blown.any():
+            obs = np.clip(np.nan_to_num(obs), -MAX_ABS, MAX_ABS)
+            # the distance term of a finite fingertip stays (the arm's reach bounds it); a
+            # non-finite one gives nothing rather than a value that would swamp the batch
+            reward = np.where(np.isfinite(reward), reward, 0.0)
+            self.blow_ups[sl] += blown
         self.episode_step[sl] += 1
         self.episode_return[sl] += reward
-        terminated = np.zeros(hi - lo, dtype=bool)
+        terminated = blown
         if self.max_episode_steps is None:
             truncated = np.zeros(hi - lo, dtype=bool)
         else:
@@ -631,6 +655,7 @@ class ArmTask:
             'reward_dist': reward_dist,
             'reward_ctrl': reward_ctrl,
             'distance': distance,
+            'blown_up': blown,
         }
         for i in np.flatnonzero(done):
             self.reset_env(lo + int(i))

@@ -39,7 +39,7 @@ def shared_config(cfg: Dict[str, Dict]) -> Dict[str, Dict]:
     """
     Return what every host of a run must agree on: the simulator's and the actor's values.
 
-    >>> from pg_node.common.params import load_config
+    >>> from pg_node.common.config_files import load_config
     >>> a = shared_config(load_config(None, ['run_dir=/a']))
     >>> a == shared_config(load_config(None, ['run_dir=/b', 'gamma=0.5',
     ...                                       'sim_node.round_trip_log=/tmp/t.npy']))

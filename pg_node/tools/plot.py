@@ -23,12 +23,12 @@ leave and the "stand still" level it must beat. Without ``-o`` one run directory
 is written into it, as ``learning_curve.png``.
 """
 import argparse
-import json
 from pathlib import Path
 import sys
 from typing import Dict, Optional
 
 import numpy as np
+from pg_node.common.run_dir import RunDir
 from pg_node.tools.args import positive_int
 
 PANELS = ('policy_loss', 'value_loss', 'entropy')
@@ -41,18 +41,18 @@ class RunData:
 
     def __init__(self, path):
         """Read ``path``: a bag directory, an ``.mcap`` file or a run directory."""
-        from pg_node.bag.reader import bag_dirs, BagReader
+        from pg_node.bag.reader import BagReader
         from pg_node.bag.recorder import EPISODE_TOPIC, METRICS_PREFIX, parse_episode
         path = Path(path)
         self.path = path
         self.summary: Optional[Dict] = None
         self.model: Optional[str] = None
         bags = [path]
-        if (path / 'bag').exists():
-            if (path / 'summary.json').is_file():
-                self.summary = json.loads((path / 'summary.json').read_text())
+        run = RunDir(path)
+        if run.has_bag():
+            self.summary = run.read_summary()
             # a restarted learner, or a resumed run, goes on in bag_1, bag_2, ... beside bag/
-            bags = bag_dirs(path)
+            bags = run.bags()
         self.bag = bags[0]
         self.bags = bags
         self.metrics: Dict[str, tuple] = {}
@@ -102,7 +102,7 @@ class RunData:
         path = self.path.resolve()
         if path.is_file():
             path = path.parent
-        if path.name.startswith('bag') and (path.parent / 'progress.csv').exists():
+        if path.name.startswith('bag') and RunDir(path.parent).progress.exists():
             path = path.parent
         return path.name
 
@@ -346,8 +346,8 @@ def main(argv=None) -> int:
         runs.append(data)
     output = args.output
     if output is None:
-        one_run_dir = len(runs) == 1 and (Path(args.paths[0]) / 'bag').is_dir()
-        output = (Path(args.paths[0]) if one_run_dir else Path('.')) / 'learning_curve.png'
+        run = RunDir(args.paths[0])     # one run directory's figure goes into it
+        output = run.curve if len(runs) == 1 and run.has_bag() else RunDir('.').curve
     plot_runs(runs, output, args.width, args.height, title=args.title)
     for data in runs:
         for problem in data.problems:

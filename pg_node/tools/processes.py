@@ -17,6 +17,9 @@ from pg_node.common.paths import SOURCE_ROOT, SUPERVISOR_ENV
 
 REPO = SOURCE_ROOT
 STOP_WAITS = ((signal.SIGINT, 10.0), (signal.SIGTERM, 5.0), (signal.SIGKILL, 5.0))
+#: the exit code of a command a Ctrl-C (or SIGTERM) stopped before it was done: a shell's
+#: 128 + SIGINT, as troubleshooting.md's table of exit codes says
+EXIT_INTERRUPTED = 128 + signal.SIGINT
 
 
 def child_env(domain_id: Optional[int] = None) -> Dict[str, str]:

@@ -17,10 +17,10 @@ import sys
 
 def bags_of(path: Path) -> list:
     """Return the bags ``path`` names: itself (a bag directory) or a run directory's bags."""
-    from pg_node.bag.reader import bag_dirs
+    from pg_node.common.run_dir import RunDir
     if (path / 'metadata.yaml').is_file() or any(path.glob('*.mcap')):
         return [path]
-    return bag_dirs(path)
+    return RunDir(path).bags()
 
 
 def main(argv=None) -> int:

@@ -26,6 +26,7 @@ import sys
 from typing import List
 
 import numpy as np
+from pg_node.common.run_dir import RunDir
 from pg_node.tools.args import positive_float, positive_int
 
 
@@ -207,8 +208,8 @@ def main(argv=None) -> int:
         print(f'render: -o {args.output}: {mp4_writer_missing()}', file=sys.stderr)
         return 2
     bag = Path(args.bag)
-    if (bag / 'bag').is_dir():
-        bag = bag / 'bag'
+    if RunDir(bag).has_bag():
+        bag = RunDir(bag).bag
     try:
         episodes = recorded_episodes(bag)
     except (ValueError, OSError) as exc:

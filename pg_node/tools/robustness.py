@@ -29,6 +29,7 @@ import sys
 from typing import Dict, List
 
 import numpy as np
+from pg_node.common.run_dir import RunDir
 from pg_node.tools.args import positive_int
 
 #: axis (a --perturb key) -> values; the first value that leaves the arm nominal is its centre
@@ -61,13 +62,8 @@ def load_run(path: str):
         state, _ = find_checkpoint(path)
     except PolicySourceError as exc:
         raise RunError(str(exc)) from None
-    # the run's name: <run>, <run>/checkpoints and <run>/checkpoints/ckpt_*.pt all say <run>
-    run = Path(path).resolve()
-    if run.suffix == '.pt':
-        run = run.parent.parent
-    elif run.name == 'checkpoints':
-        run = run.parent
-    return run.name, policy_from_checkpoint(state), state['config']['model']
+    name = RunDir.of_checkpoint(path).path.name
+    return name, policy_from_checkpoint(state), state['config']['model']
 
 
 def sweep(policy, model: str, episodes: int, seed: int, grid=None) -> Dict:
@@ -179,7 +175,7 @@ def train_presets(presets: List[str], seeds: List[int], steps: int, runs_dir: Pa
         group = Path(preset).stem
         for seed in seeds:
             run = runs_dir / f'{group}_s{seed}'
-            if (run / 'summary.json').is_file():
+            if RunDir(run).summary.is_file():
                 log(f'robustness: {run} is trained already; using it')
             else:
                 log(f'robustness: training {preset}, seed {seed}, {steps} steps -> {run}')

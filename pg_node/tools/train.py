@@ -22,27 +22,26 @@ tuned for reacher2, the same values as the default ``config/pg_node.yaml``). A p
 the values of its algorithm; every other value is the default.
 """
 import argparse
-import csv
 from datetime import datetime
-import json
-import math
 import os
 from pathlib import Path
-import resource
-import subprocess
 import sys
 import time
 from typing import List, Optional
 
-from pg_node.bag.reader import bag_dirs
 from pg_node.common import graph_plan
+from pg_node.common.config_files import load_config
 from pg_node.common.graph_plan import module_of
-from pg_node.common.params import ConfigError, load_config, SHARED
+from pg_node.common.param_schema import ConfigError
+from pg_node.common.params import SHARED
 from pg_node.common.paths import preset_names
 from pg_node.common.run import run_id_for_dir, run_namespace
+from pg_node.common.run_dir import RunDir
 from pg_node.tools.args import non_negative_float, run_id_arg
-from pg_node.tools.processes import (child_env, Interrupts, process_usage, shutting_down,
-                                     signal_process, STOP_WAITS, terminate_as_interrupt)
+from pg_node.tools.processes import (EXIT_INTERRUPTED, Interrupts, shutting_down,
+                                     terminate_as_interrupt)
+from pg_node.tools.progress_view import format_rate, format_return, ProgressView, supervise
+from pg_node.tools.supervisor import make_bags_whole, Supervisor
 import yaml
 
 
@@ -72,6 +71,11 @@ def parse_args(argv):
                         help='seconds before a dead node is first restarted, doubling at each '
                              'further restart (default: %(default)s)')
     parser.add_argument('--no-progress', action='store_true', help='no progress bar')
+    parser.add_argument('--stall-timeout', type=non_negative_float, default=300.0,
+                        metavar='SECONDS',
+                        help='stop, saying why, once no step has been learned for this long '
+                             '(the progress line says so after 30 s); 0: never '
+                             '(default: %(default)s)')
     parser.add_argument('--run-id', type=run_id_arg,
                         help="the run's name on the ROS network: its nodes and topics live "
                              'under /<run id>, and messages of other runs are dropped '
@@ -101,6 +105,7 @@ def parse_args(argv):
 def resolve_config(args) -> dict:
     """Return the validated configuration of every node, overrides applied."""
     from pg_node.common.paths import config_file, default_config
+    from pg_node.rl.update_settings import check_settings
     overrides = list(args.overrides)
     if args.total_steps is not None:
         overrides.append(f'total_steps={args.total_steps}')
@@ -114,7 +119,7 @@ def resolve_config(args) -> dict:
         path = config_file(args.config) if args.config else default_config()
     except FileNotFoundError as exc:
         raise ConfigError(str(exc)) from None
-    cfg = load_config(path, overrides)
+    cfg = load_config(path, overrides, check=check_settings)
     if not cfg[SHARED]['run_id']:
         # a run always has an identity on the network: its directory's name by default
         cfg = load_config(path, overrides + [f'run_id={run_id_for_dir(run_dir)}'])
@@ -221,252 +226,10 @@ def node_commands(params: Path, cfg: dict, compose: bool = False, part: str = 'a
     return cmds
 
 
-#: a restarted simulator's seed moves on by this much per restart: it draws new episodes
-RESTART_SEED_STRIDE = 1_000_003
-
-
-def make_bags_whole(bags) -> list:
-    """Reindex each bag (what ``ros2 bag reindex`` does); return one line per bag."""
-    from pg_node.bag.writer import reindex
-    lines = []
-    for bag in bags:
-        report = reindex(bag)
-        damage = '; '.join(f'{name}: {d}' for name, d in report.repaired) or 'nothing damaged'
-        kept = f'; damaged originals kept: {", ".join(report.kept)}' if report.kept else ''
-        lines.append(f'made {bag} whole: {report.message_count} messages ({damage}){kept}')
-        lines += [f'{bag / name}: nothing recoverable ({d.reason}); left as it is'
-                  for name, d in report.unrecoverable]
-    return lines
-
-
 def sim_seeds(cfg: dict, compose: bool = False) -> dict:
     """Return each simulator's seed by the name of its process in :func:`node_commands`."""
     return {proc.name: proc.pair.seed for proc in run_plan(cfg, compose)
             if graph_plan.SIMULATOR in proc.values}
-
-
-class Supervisor:
-    """Starts, watches, restarts and stops the node processes."""
-
-    def __init__(self, run_dir: Path, commands: dict, max_restarts: int,
-                 total_steps: Optional[int] = None, seeds: Optional[dict] = None,
-                 learner: str = 'learner_node', env: Optional[dict] = None,
-                 restart_delay: float = 1.0):
-        self.run_dir = run_dir
-        self.restart_delay = restart_delay     # s before a first restart, doubling after
-        self.learner = learner      # the process the learner runs in
-        self.commands = commands
-        self.total_steps = total_steps
-        self.seeds = dict(seeds or {})
-        self.unfinished_bags = []   # bags of learners that died without closing them
-        self.max_restarts = max_restarts
-        self.procs = {}
-        self.started_at = {}        # name -> time.monotonic() of its newest start
-        self.restarts = dict.fromkeys(commands, 0)
-        self.next_start = {}
-        self.samples = {}           # (name, pid) -> the newest process_usage of that process
-        self.cpu_at_first_update = None
-        (run_dir / 'logs').mkdir(parents=True, exist_ok=True)
-        self.env = child_env()
-        self.env.setdefault('AMENT_PREFIX_PATH', sys.prefix)
-        self.env.update(env or {})
-
-    def start(self, name: str):
-        """
-        Start one node (own session, so signals reach it alone).
-
-        A simulator started again gets a seed of its own (``seeds[name]`` plus
-        :data:`RESTART_SEED_STRIDE` per restart), so that it does not replay the episodes
-        it already produced; it logs the seed it uses.
-        """
-        cmd = list(self.commands[name])
-        if name in self.seeds and self.restarts[name] > 0:
-            cmd += ['-p', f'seed:={self.seeds[name] + RESTART_SEED_STRIDE * self.restarts[name]}']
-        log = open(self.run_dir / 'logs' / f'{name}.log', 'a')
-        self.procs[name] = subprocess.Popen(cmd, stdout=log,
-                                            stderr=subprocess.STDOUT, env=self.env,
-                                            start_new_session=True)
-        self.started_at[name] = time.monotonic()
-        log.close()
-
-    def start_all(self):
-        """Start every node."""
-        for name in self.commands:
-            self.start(name)
-
-    def check(self) -> str:
-        """
-        Restart nodes that died; return 'done', 'failed' or 'running'.
-
-        The learner exiting with 0 means training is done, if it learned ``total_steps``
-        (when given): a learner stopped by SIGTERM or SIGINT also exits with 0, and is
-        restarted as any node that stopped early.
-        """
-        self.sample_usage()
-        for name, proc in list(self.procs.items()):
-            code = self.poll(name, proc)
-            if code is None:
-                continue
-            if name == self.learner and code == 0 and self._learned_all():
-                return 'done'
-            if name == self.learner and code != 0 and name not in self.next_start:
-                # killed (SIGKILL, OOM...): its bag, the newest, has no summary yet
-                bags = bag_dirs(self.run_dir)
-                if bags and bags[-1] not in self.unfinished_bags:
-                    self.unfinished_bags.append(bags[-1])
-            if name in self.next_start:
-                if time.monotonic() >= self.next_start[name]:
-                    del self.next_start[name]
-                    self.start(name)
-                continue
-            if self.restarts[name] >= self.max_restarts:
-                self.failed = f'{name} exited with code {code} {self.restarts[name] + 1} times'
-                return 'failed'
-            self.restarts[name] += 1
-            delay = self.restart_delay * 2.0 ** (self.restarts[name] - 1)
-            print(f'\n{name} exited with code {code}; restarting in {delay:g} s '
-                  f'({self.restarts[name]}/{self.max_restarts}), see '
-                  f'{self.run_dir / "logs" / (name + ".log")}', file=sys.stderr)
-            self.next_start[name] = time.monotonic() + delay
-        return 'running'
-
-    def poll(self, name: str, proc: subprocess.Popen) -> Optional[int]:
-        """
-        Return ``proc``'s exit code (None while it runs); at its exit, its exact CPU seconds.
-
-        ``/proc`` is read twice a second, and a node's last moments would be lost; the
-        kernel's account of the children waited for (``RUSAGE_CHILDREN``) grows, at the
-        wait, by exactly that child's total. Only this thread waits for the nodes.
-        """
-        if proc.returncode is not None:
-            return proc.returncode
-        before = resource.getrusage(resource.RUSAGE_CHILDREN)
-        code = proc.poll()
-        if code is not None:
-            after = resource.getrusage(resource.RUSAGE_CHILDREN)
-            sample = self.samples.setdefault((name, proc.pid), {})
-            sample['cpu_seconds'] = (after.ru_utime - before.ru_utime
-                                     + after.ru_stime - before.ru_stime)
-        return code
-
-    def sample_usage(self):
-        """Read every live node's CPU seconds and memory from ``/proc``."""
-        for name, proc in self.procs.items():
-            if self.poll(name, proc) is None:
-                sample = process_usage(proc.pid)
-                if sample is not None:
-                    self.samples[(name, proc.pid)] = sample
-
-    def cpu_seconds(self) -> dict:
-        """Return each node's CPU seconds so far, summed over its restarts."""
-        total = dict.fromkeys(self.commands, 0.0)
-        for (name, _), sample in self.samples.items():
-            total[name] += sample['cpu_seconds']
-        return total
-
-    def usage(self) -> dict:
-        """
-        Return each node's peak resident memory (MB) and CPU seconds, whole and in training.
-
-        Sampled from ``/proc`` at every :meth:`check` (twice a second): the peak is exact,
-        and so are the CPU seconds of a process that ended (:meth:`poll`); a live one's miss
-        at most the last half second. ``cpu_seconds_training`` counts from the first update
-        (the first progress row, seen within half a second) to the end, without start-up.
-        """
-        cpu = self.cpu_seconds()
-        start = self.cpu_at_first_update or {}
-        return {name: {'peak_rss_mb': round(max((s['peak_rss_mb'] for (n, _), s
-                                                 in self.samples.items()
-                                                 if n == name and 'peak_rss_mb' in s),
-                                                default=float('nan')), 1),
-                       'cpu_seconds': round(cpu[name], 2),
-                       'cpu_seconds_training': round(cpu[name] - start.get(name, 0.0), 2)}
-                for name in self.commands}
-
-    def _learned_all(self) -> bool:
-        if self.total_steps is None:
-            return True
-        row = last_progress(self.run_dir / 'progress.csv')
-        return row is not None and row['env_steps'] >= self.total_steps
-
-    def stop_all(self):
-        """Stop every node: SIGINT, then SIGTERM, then SIGKILL, waiting between."""
-        self.sample_usage()         # the last reading of each node's CPU and memory
-        for sig, wait in STOP_WAITS:
-            alive = [(n, p) for n, p in self.procs.items() if self.poll(n, p) is None]
-            for _, p in alive:
-                signal_process(p, sig)
-            deadline = time.monotonic() + wait
-            while alive and time.monotonic() < deadline:
-                alive = [(n, p) for n, p in alive if self.poll(n, p) is None]
-                time.sleep(0.05)
-            if not alive:
-                return
-
-
-def _progress_rows(lines):
-    """Parse ``progress.csv`` lines (header first) into dicts of floats, empty cells NaN."""
-    if lines and not lines[-1].endswith('\n'):
-        lines = lines[:-1]      # the learner is still writing it: not a finished row
-    return [{k: float(v) if v not in ('', None) else float('nan') for k, v in r.items()}
-            for r in csv.DictReader(lines)]
-
-
-def read_progress(path: Path):
-    """
-    Return the rows of ``progress.csv`` as dicts of floats (empty cells NaN).
-
-    The learner may be writing while this reads: a last line without its newline is not
-    finished and is left out, whatever it holds so far.
-    """
-    if not path.exists():
-        return []
-    return _progress_rows(path.read_text().splitlines(keepends=True))
-
-
-def last_progress(path: Path, tail_bytes: int = 8192):
-    """
-    Return the newest finished row of ``progress.csv`` (None if none yet).
-
-    Reads the header and the last ``tail_bytes`` only: a watcher polls this while a long
-    run's file grows by a row per update.
-    """
-    try:
-        with open(path, 'rb') as f:
-            header = f.readline().decode(errors='replace')
-            start = max(f.tell(), f.seek(0, os.SEEK_END) - tail_bytes)
-            f.seek(start)
-            lines = f.read().decode(errors='replace').splitlines(keepends=True)
-    except OSError:
-        return None
-    if start > len(header):
-        lines = lines[1:]       # the tail began inside a row
-    rows = _progress_rows([header] + lines)
-    return rows[-1] if rows else None
-
-
-def strict_json(value):
-    """
-    Return ``value`` with every NaN or infinity replaced by None, for strict JSON (``null``).
-
-    ``json.dumps`` writes ``NaN``, which JSON does not have: ``jq`` and most other readers
-    refuse the file. A curve's return before any episode ended is such a value.
-
-    >>> strict_json({'curve': [{'r': float('nan')}, {'r': -4.5}], 'n': 3})
-    {'curve': [{'r': None}, {'r': -4.5}], 'n': 3}
-    """
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, dict):
-        return {k: strict_json(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [strict_json(v) for v in value]
-    return value
-
-
-def write_summary(path: Path, summary: dict):
-    """Write ``summary.json`` as strict JSON (no NaN: ``null``)."""
-    path.write_text(json.dumps(strict_json(summary), indent=2, default=str, allow_nan=False))
 
 
 def evaluate_run(run_dir: Path, episodes: int) -> dict:
@@ -481,12 +244,13 @@ def evaluate_run(run_dir: Path, episodes: int) -> dict:
     from pg_node.rl.evaluate import evaluate_policy
     from pg_node.rl.learner import policy_from_checkpoint
     from pg_node.rl.trained_policy import card_control, checkpoint_card
-    state, problems = load_latest(run_dir / 'checkpoints')
+    checkpoints = RunDir(run_dir).checkpoints
+    state, problems = load_latest(checkpoints)
     for p in problems:
         print(p, file=sys.stderr)
     if state is None:
         return {}
-    ckpt = next(path for path, version in list_checkpoints(run_dir / 'checkpoints')
+    ckpt = next(path for path, version in list_checkpoints(checkpoints)
                 if version == state['version'])
     card = checkpoint_card(state, ckpt)
     res = evaluate_policy(policy_from_checkpoint(state), state['config']['model'], episodes,
@@ -503,166 +267,17 @@ def resume_point(run_dir: Path) -> Optional[dict]:
     ``{'version', 'env_steps', 'wall_seconds', 'checkpoint'}``, or None for a fresh run.
     Read before the nodes start, so that the console can say it resumed.
     """
-    directory = run_dir / 'checkpoints'
-    if not directory.is_dir() or not any(directory.glob('ckpt_*.pt')):
+    run = RunDir(run_dir)
+    if not run.has_checkpoint():
         return None
     from pg_node.rl.checkpoint import checkpoint_path, load_latest
+    directory = run.checkpoints
     state, _ = load_latest(directory)
     if state is None:
         return None
     return {'version': int(state['version']), 'env_steps': int(state.get('env_steps', 0)),
             'wall_seconds': float(state.get('wall_seconds', 0.0)),
             'checkpoint': str(checkpoint_path(directory, int(state['version'])))}
-
-
-def _ret(value: float) -> str:
-    return 'n/a (no episode finished yet)' if value != value else f'{value:.2f}'
-
-
-def _rate(value: float) -> str:
-    # NaN: one update so far (a rate), or a node that ended before it was sampled (memory)
-    return 'n/a' if value != value else f'{value:,.0f}'
-
-
-class ProgressView:
-    """
-    The progress display of ``train``: one bar on a terminal, plain lines otherwise.
-
-    Until the learner's first ``progress.csv`` row of this session it says
-    ``starting nodes...``. Then it shows the environment steps, one speed (steps learned
-    per second between this session's first update and its newest, by the learner's clock
-    in ``progress.csv``: the figure the summary reports too, free of the bring-up), the
-    mean return of the recent *training* episodes
-    (stochastic policy) and the policy version. Without a terminal (tqdm disables itself)
-    it prints a line when learning starts and then every ``every`` seconds.
-    """
-
-    def __init__(self, progress: Path, total: int, start: Optional[dict], bar: bool = True,
-                 every: float = 30.0):
-        self.progress = progress
-        self.total = total
-        self.start_steps = start['env_steps'] if start else 0
-        # rows written before this session are not its progress
-        self.offset = progress.stat().st_size if progress.exists() else 0
-        self.t0 = time.monotonic()
-        self.every = every
-        self.bringup_seconds = None
-        self.first = None
-        self.last = None
-        self._next_line = 0.0
-        self.bar = None
-        if bar:
-            from tqdm import tqdm
-            # disable=None: no bar when stderr is not a terminal (CI logs stay readable);
-            # no tqdm rate: it would count the bring-up and resumed steps as speed
-            self.bar = tqdm(total=total, initial=min(self.start_steps, total), unit='step',
-                            unit_scale=True, dynamic_ncols=True, disable=None, mininterval=1.0,
-                            bar_format='{desc}{percentage:3.0f}%|{bar}| {n_fmt}/{total_fmt} '
-                                       '[{elapsed}{postfix}]')
-            if self.bar.disable:
-                self.bar = None
-        self.text = bar and self.bar is None
-        if self.bar is not None:
-            self.bar.set_description_str('starting nodes... ')
-        elif self.text:
-            print('starting nodes...', flush=True)
-
-    def steps_per_second(self, row) -> float:
-        """Return the speed from this session's first update to ``row`` (NaN: one update)."""
-        seconds = row['wall_seconds'] - self.first['wall_seconds']
-        steps = row['env_steps'] - self.first['env_steps']
-        return steps / seconds if seconds > 0 else float('nan')
-
-    def eta(self, row) -> str:
-        """
-        Return the time left at this session's speed, as tqdm writes times (n/a: unknown).
-
-        The speed is the one shown (since the first update): the bring-up and the steps of
-        an earlier session do not make it look faster or slower than it is.
-        """
-        from tqdm import tqdm
-        rate = self.steps_per_second(row)
-        if not rate > 0:
-            return 'n/a'
-        return tqdm.format_interval(max(self.total - row['env_steps'], 0) / rate)
-
-    def describe(self, row) -> str:
-        """Return the labelled fields of one progress row."""
-        return (f'{_rate(self.steps_per_second(row))} steps/s (since the first update), '
-                f'ETA {self.eta(row)}, '
-                f"training episodes' mean return {_ret(row['episode_return'])}, "
-                f"policy version {int(row['policy_version'])}")
-
-    def describe_short(self, row) -> str:
-        """Return :meth:`describe` in words that leave the bar room."""
-        ret = row['episode_return']
-        return (f'ETA {self.eta(row)}, {_rate(self.steps_per_second(row))} steps/s since 1st '
-                f"update, training return {'n/a' if ret != ret else f'{ret:.2f}'}, "
-                f"policy v{int(row['policy_version'])}")
-
-    def stopping(self):
-        """Say that the nodes are being stopped (the bar's clock goes on meanwhile)."""
-        if self.bar is not None:
-            self.bar.set_description_str('stopping nodes... ')
-
-    def _session_row(self):
-        if self.last is not None:
-            return last_progress(self.progress)
-        try:
-            with open(self.progress, 'rb') as f:
-                header = f.readline()
-                f.seek(max(self.offset, f.tell()))
-                tail = f.read()
-        except OSError:
-            return None
-        rows = _progress_rows([header.decode(errors='replace')]
-                              + tail.decode(errors='replace').splitlines(keepends=True))
-        if rows:
-            self.first = rows[0]
-        return rows[-1] if rows else None
-
-    def poll(self):
-        """Read the newest row of this session and show it."""
-        row = self._session_row()
-        if row is None:
-            return
-        now = time.monotonic()
-        first = self.last is None
-        self.last = row
-        if first:
-            self.bringup_seconds = now - self.t0
-            if self.bar is not None:
-                self.bar.set_description_str('')  # the bar itself shows it is learning
-            elif self.text:
-                print(f'nodes up after {self.bringup_seconds:.1f} s; learning', flush=True)
-        if self.bar is not None:
-            self.bar.n = min(int(row['env_steps']), self.total)
-            self.bar.set_postfix_str(self.describe_short(row), refresh=False)
-            self.bar.refresh()
-        elif self.text and now >= self._next_line:
-            self._next_line = now + self.every
-            print(f"step {int(row['env_steps'])}/{self.total}: {self.describe(row)}",
-                  flush=True)
-
-    def close(self):
-        """Close the bar."""
-        if self.bar is not None:
-            self.bar.close()
-
-
-def supervise(sup: Supervisor, view: ProgressView) -> str:
-    """Start the nodes and watch them until done or failed; return the final state."""
-    state = 'running'
-    sup.start_all()
-    while state == 'running':
-        time.sleep(0.5)
-        state = sup.check()
-        view.poll()
-        if sup.cpu_at_first_update is None and view.first is not None:
-            sup.cpu_at_first_update = sup.cpu_seconds()
-    view.poll()
-    view.stopping()
-    return state
 
 
 def check_part(args, cfg: dict) -> Optional[List[int]]:
@@ -691,12 +306,18 @@ def main(argv=None) -> int:
     except ConfigError as exc:
         print(f'configuration error: {exc}', file=sys.stderr)
         return 2
-    run_dir = Path(cfg[SHARED]['run_dir'])
-    params = run_dir / 'params.yaml'
-    if args.part != 'workers':      # a worker host writes its run folder once it has joined
-        run_dir.mkdir(parents=True, exist_ok=True)
-        write_params(cfg, params)
+    run = RunDir(cfg[SHARED]['run_dir'])
+    run_dir, params = run.path, run.params
     total = cfg['learner_node']['total_steps']
+    start = resume_point(run_dir) if args.part != 'workers' else None
+    if start is not None and start['env_steps'] >= total:
+        # a finished run is left as it is: no new bag, no summary written over
+        print(f"{run_dir}: already learned {start['env_steps']} steps (total_steps {total}); "
+              'raise --total-steps to go on', flush=True)
+        return 0
+    if args.part != 'workers':      # a worker host writes its run folder once it has joined
+        run.make()
+        write_params(cfg, params)
     n_act = cfg[SHARED]['num_actors']
     algo = f"{cfg['learner_node']['algo']} (phi = {cfg['critic_node']['estimator']})"
     part = {'all': '', 'learner': ' (this host: the critic and the learner)',
@@ -719,23 +340,22 @@ def main(argv=None) -> int:
     if args.part == 'learner':
         from pg_node.tools.hosts import Announcer
         announcer = Announcer(cfg)
-    start = resume_point(run_dir)
     if start is not None:
         print(f"resumed from policy version {start['version']} ({start['env_steps']} steps "
               f"learned, {start['checkpoint']})", flush=True)
-    bags_before = bag_dirs(run_dir)     # a resumed run's learner writes the next: bag_1, ...
+    bags_before = run.bags()    # a resumed run's learner writes the next: bag_1, ...
     compose = not args.separate
     sup = Supervisor(run_dir, node_commands(params, cfg, compose, args.part), args.max_restarts,
                      total, sim_seeds(cfg, compose), learner_process(compose), env=discovery,
                      restart_delay=args.restart_delay)
-    view = ProgressView(run_dir / 'progress.csv', total, start, bar=not args.no_progress)
+    view = ProgressView(run.progress, total, start, bar=not args.no_progress)
     interrupts = Interrupts()
     with interrupts.handled():  # SIGTERM / SIGHUP stop the nodes as Ctrl-C does
         return supervise_and_report(args, cfg, sup, view, start, announcer, interrupts,
                                     bags_before)
 
 
-def supervise_and_report(args, cfg: dict, sup: Supervisor, view: 'ProgressView',
+def supervise_and_report(args, cfg: dict, sup: Supervisor, view: ProgressView,
                          start: Optional[dict], announcer, interrupts: Interrupts,
                          bags_before: list) -> int:
     """
@@ -746,13 +366,45 @@ def supervise_and_report(args, cfg: dict, sup: Supervisor, view: 'ProgressView',
     ``skipped``); further ones change nothing: the summary and the curve are written.
     ``bags_before``: the run's bag folders before this session (a resume writes the next).
     """
-    run_dir = sup.run_dir
-    t0 = view.t0
+    run = sup.run
+    state, interrupted = run_until_stopped(args, sup, view, announcer, interrupts)
+    if state == 'failed':
+        print(f'training failed: {sup.failed}; logs in {run.logs}', file=sys.stderr)
+    elif state == 'stalled':
+        print(f'training stopped: {sup.failed}', file=sys.stderr)
+    for line in make_bags_whole(sup.unfinished_bags):
+        print(line)
+    rows = run.read_progress()
+    summary = session_summary(sup, view, start, rows, bags_before, interrupted, state)
+    evaluate_unless_skipped(run, args.eval_episodes, interrupts, summary)
+    summary['curve'] = [{'env_steps': r['env_steps'], 'wall_seconds': r['wall_seconds'],
+                         'episode_return': r['episode_return']} for r in rows]
+    summary['config'] = dict(cfg)
+    summary['wall_seconds_total'] = time.monotonic() - view.t0  # this command, evaluation too
+    run.write_summary(summary)
+    if rows:
+        # the same figure as python -m pg_node plot <run dir>: returns, speed, losses, entropy
+        from pg_node.tools.plot import plot_run, RunData
+        plot_run(RunData(run.path), run.curve)
+    print_report(run, summary, view, bags_before)
+    if state in ('failed', 'stalled'):
+        return 1
+    return EXIT_INTERRUPTED if interrupted else 0
+
+
+def run_until_stopped(args, sup: Supervisor, view: ProgressView, announcer,
+                      interrupts: Interrupts) -> tuple:
+    """
+    Supervise the graph until done, failed or Ctrl-C; stop the nodes; return the outcome.
+
+    ``(state, interrupted)``. Whatever ended it, the nodes are stopped, the worker hosts
+    (``announcer``) told, and the rows the learner wrote while it was being stopped shown.
+    """
     state = 'running'
     interrupted = False
     try:
         with interrupts.raising():
-            state = supervise(sup, view)
+            state = supervise(sup, view, args.stall_timeout)
     except KeyboardInterrupt as exc:
         interrupted = True
         skip = (f'; Ctrl-C again skips the evaluation that follows ({args.eval_episodes} '
@@ -769,13 +421,20 @@ def supervise_and_report(args, cfg: dict, sup: Supervisor, view: 'ProgressView',
         # interrupted fresh run said '185344 steps in this session (189952 in all)')
         view.poll()
         view.close()
-    if state == 'failed':
-        print(f'training failed: {sup.failed}; logs in {run_dir / "logs"}', file=sys.stderr)
-    for line in make_bags_whole(sup.unfinished_bags):
-        print(line)
-    rows = read_progress(run_dir / 'progress.csv')
+    return state, interrupted
+
+
+def session_summary(sup: Supervisor, view: ProgressView, start: Optional[dict], rows: list,
+                    bags_before: list, interrupted: bool, state: str) -> dict:
+    """
+    Return the summary of the run and of this session: steps, times, restarts, usage, bags.
+
+    ``rows``: the run's progress rows, every session's; ``start``: what this session
+    resumed from (None: a fresh run).
+    """
     last = view.last  # the newest row of this session (None: it learned nothing)
-    summary = {'interrupted': interrupted, 'failed': state == 'failed',
+    summary = {'interrupted': interrupted, 'failed': state in ('failed', 'stalled'),
+               'stalled': sup.failed if state == 'stalled' else None,
                'total_steps': int(rows[-1]['env_steps']) if rows else 0,
                'resumed_from_version': start['version'] if start else None,
                # the learner's clock, which goes on across resumes
@@ -788,34 +447,44 @@ def supervise_and_report(args, cfg: dict, sup: Supervisor, view: 'ProgressView',
                'bringup_seconds': view.bringup_seconds,
                'restarts': sup.restarts,
                'nodes': sup.usage()}
-    bags = bag_dirs(run_dir)
+    bags = sup.run.bags()
     # every bag of the run, in order (plot and replay --info read them all), and this
     # session's: a resumed run's are new folders beside the first
     summary['bags'] = [b.name for b in bags]
     summary['session_bags'] = [b.name for b in bags if b not in bags_before]
     summary['steps_per_second'] = view.steps_per_second(last) if last else float('nan')
+    return summary
+
+
+def evaluate_unless_skipped(run: RunDir, episodes: int, interrupts: Interrupts,
+                            summary: dict):
+    """
+    Evaluate the run's newest checkpoint into ``summary``, unless Ctrl-C says not to.
+
+    ``summary['evaluation']`` says what happened: ``no checkpoint``, ``skipped`` (a second
+    Ctrl-C, before or during it) or ``done`` (and the evaluation's figures are added).
+    """
     summary['evaluation'] = 'no checkpoint'
-    if any((run_dir / 'checkpoints').glob('ckpt_*.pt')):
-        summary['evaluation'] = 'skipped'
-        if interrupts.count < 2:
-            print(f'evaluating the deterministic policy over {args.eval_episodes} episodes '
-                  '(Ctrl-C skips it) ...', flush=True)
-            try:
-                with interrupts.raising():
-                    summary.update(evaluate_run(run_dir, args.eval_episodes))
-                summary['evaluation'] = 'done'
-            except KeyboardInterrupt:
-                pass
-    summary['curve'] = [{'env_steps': r['env_steps'], 'wall_seconds': r['wall_seconds'],
-                         'episode_return': r['episode_return']} for r in rows]
-    summary['config'] = dict(cfg)
-    summary['wall_seconds_total'] = time.monotonic() - t0  # this command, evaluation included
-    write_summary(run_dir / 'summary.json', summary)
-    png = run_dir / 'learning_curve.png'
-    if rows:
-        # the same figure as python -m pg_node plot <run dir>: returns, speed, losses, entropy
-        from pg_node.tools.plot import plot_run, RunData
-        plot_run(RunData(run_dir), png)
+    if not run.has_checkpoint():
+        return
+    if not summary['total_steps']:
+        # only the initial policy's checkpoint: nothing to evaluate but an untrained policy
+        summary['evaluation'] = 'nothing learned'
+        return
+    summary['evaluation'] = 'skipped'
+    if interrupts.count < 2:
+        print(f'evaluating the deterministic policy over {episodes} episodes '
+              '(Ctrl-C skips it) ...', flush=True)
+        try:
+            with interrupts.raising():
+                summary.update(evaluate_run(run.path, episodes))
+            summary['evaluation'] = 'done'
+        except KeyboardInterrupt:
+            pass
+
+
+def print_report(run: RunDir, summary: dict, view: ProgressView, bags_before: list):
+    """Print the end of a run: the evaluation, the speed, the nodes' usage, the files."""
     # a failed run prints only what exists: no evaluation of nothing, no path to no file
     if 'eval_return' in summary:
         print(f"deterministic evaluation: return {summary['eval_return']:.2f} +/- "
@@ -823,30 +492,34 @@ def supervise_and_report(args, cfg: dict, sup: Supervisor, view: 'ProgressView',
               f"final distance {100 * summary['eval_final_distance']:.2f} cm, "
               f"{100 * summary['eval_reached']:.0f}% within 2 cm, "
               f"policy version {summary['policy_version']}")
+    elif summary['evaluation'] == 'nothing learned':
+        print('nothing learned yet (stopped before the first update): no evaluation')
     elif summary['evaluation'] == 'skipped':
-        print(f'evaluation skipped (Ctrl-C): python -m pg_node eval {run_dir} evaluates the '
+        print(f'evaluation skipped (Ctrl-C): python -m pg_node eval {run.path} evaluates the '
               'run')
     else:
         print('no policy to evaluate: the learner wrote no checkpoint')
-    if last is not None:
-        print(f"training episodes' mean return (last update): {_ret(last['episode_return'])}")
-    bringup = ('no progress row' if view.bringup_seconds is None
+    if view.last is not None:
+        print("training episodes' mean return (last update): "
+              f"{format_return(view.last['episode_return'])}")
+    bringup = ('not over: no update yet' if view.bringup_seconds is None
                else f'{view.bringup_seconds:.1f} s')
     print(f"{summary['session_steps']} steps learned in this session "
-          f"({summary['total_steps']} in all): {_rate(summary['steps_per_second'])} steps/s "
-          f"from its first update to its last ({summary['session_training_seconds']:.1f} s); "
+          f"({summary['total_steps']} in all): {format_rate(summary['steps_per_second'])} "
+          'steps/s from its first update to its last '
+          f"({summary['session_training_seconds']:.1f} s); "
           f"bring-up {bringup}, {summary['wall_seconds_total']:.0f} s in total")
     print('nodes (peak memory, CPU in training): ' + '; '.join(
-        f"{name} {_rate(u['peak_rss_mb'])} MB, {u['cpu_seconds_training']:.1f} s"
+        f"{name} {format_rate(u['peak_rss_mb'])} MB, {u['cpu_seconds_training']:.1f} s"
         for name, u in summary['nodes'].items()))
     this = ' (this session)' if bags_before else ''
-    files = [('run dir', run_dir, '')] + [
-        ('bag', b, this if b.name in summary['session_bags'] else '') for b in bags] + [
-        ('checkpoint', Path(summary.get('checkpoint', run_dir / 'no checkpoint')), ''),
-        ('summary', run_dir / 'summary.json', ''), ('curve', png, '')]
+    files = [('run dir', run.path, '')] + [
+        ('bag', run.path / b, this if b in summary['session_bags'] else '')
+        for b in summary['bags']] + [
+        ('checkpoint', Path(summary.get('checkpoint', run.path / 'no checkpoint')), ''),
+        ('summary', run.summary, ''), ('curve', run.curve, '')]
     print('\n'.join(f'{label + ":":<11} {path}{note}'
                     for label, path, note in files if path.exists()))
-    return 1 if state == 'failed' else 0
 
 
 def run_workers(args, cfg: dict, actors: List[int], params: Path, discovery: dict) -> int:
@@ -859,7 +532,8 @@ def run_workers(args, cfg: dict, actors: List[int], params: Path, discovery: dic
     (restarting one that dies) until the learner host says the run has ended.
     """
     from pg_node.tools.hosts import Follower
-    run_id, run_dir = cfg[SHARED]['run_id'], Path(cfg[SHARED]['run_dir'])
+    run_id, run = cfg[SHARED]['run_id'], RunDir(cfg[SHARED]['run_dir'])
+    run_dir = run.path
     follower = Follower(run_id)
     state, interrupted = 'running', False
     try:
@@ -881,7 +555,7 @@ def run_workers(args, cfg: dict, actors: List[int], params: Path, discovery: dic
             print(f'run {run_id} has ended on the learner host ({info["state"]}): nothing '
                   'to do', file=sys.stderr)
             return 1
-        run_dir.mkdir(parents=True, exist_ok=True)
+        run.make()
         write_params(cfg, params)
         compose = not args.separate
         sup = Supervisor(run_dir, node_commands(params, cfg, compose, 'workers', actors),
@@ -889,7 +563,7 @@ def run_workers(args, cfg: dict, actors: List[int], params: Path, discovery: dic
                          learner_process(compose), env=discovery,
                          restart_delay=args.restart_delay)
         print(f'joined run {run_id}: starting {", ".join(sup.commands)}; logs in '
-              f'{run_dir / "logs"}', flush=True)
+              f'{run.logs}', flush=True)
         try:
             with terminate_as_interrupt():
                 sup.start_all()
@@ -906,12 +580,12 @@ def run_workers(args, cfg: dict, actors: List[int], params: Path, discovery: dic
     finally:
         follower.close()
     if state == 'failed':
-        print(f'worker host failed: {sup.failed}; logs in {run_dir / "logs"}', file=sys.stderr)
+        print(f'worker host failed: {sup.failed}; logs in {run.logs}', file=sys.stderr)
     summary = {'part': 'workers', 'actors': actors, 'interrupted': interrupted,
                'failed': state == 'failed', 'learner_host_state': (follower.info or {}).get(
                    'state'), 'restarts': sup.restarts, 'nodes': sup.usage(),
                'config': dict(cfg)}
-    write_summary(run_dir / 'summary.json', summary)
+    run.write_summary(summary)
     if state == 'done':
         print(f'run {run_id} has ended on the learner host '
               f'({follower.info["state"]}); this host ran actors '

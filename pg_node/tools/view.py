@@ -33,6 +33,7 @@ import time
 from typing import Dict, Optional
 
 import numpy as np
+from pg_node.common.run_dir import RunDir
 
 DEFAULT_PORT = 8765
 LIVE_TOPICS = {
@@ -194,7 +195,7 @@ def serve_live(served: Served, ns: str, stop_after: Optional[float]) -> int:
 
 
 def _bag_path(run: Path) -> Path:
-    return run / 'bag' if (run / 'bag').is_dir() else run
+    return RunDir(run).bag if RunDir(run).has_bag() else run
 
 
 def serve_bag(served: Served, reader, model_path: str, view_arms, rate: float,
@@ -293,7 +294,7 @@ def _set_target(spec, data, point) -> None:
 
 def main(argv=None) -> int:
     """Serve the live graph or a bag to the Foxglove app; return the exit status."""
-    from pg_node.common.params import arm_indices
+    from pg_node.common.param_schema import arm_indices
     parser = argparse.ArgumentParser(prog='python -m pg_node view',
                                      description=__doc__.split('\n\n')[0].strip('`'))
     parser.add_argument('run', nargs='?', help='run directory, bag directory or .mcap '
