@@ -20,7 +20,7 @@ from pathlib import Path
 import shlex
 
 import numpy as np
-from pg_node.common.params import load_config
+from pg_node.common.config_files import load_config
 from pg_node.common.paths import config_file
 from pg_node.rl.evaluate import evaluate_policy
 from pg_node.rl.train_inprocess import train_inprocess
