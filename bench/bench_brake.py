@@ -63,9 +63,11 @@ def run(kind: str, guard: CommandGuard, sim, act_names, q0, v0, period: float,
             torque = guard.interface.to_si(guard.act, guard.hold_tick(q[None], v[None]))[0]
         elif kind == 'stale states':
             age = t                              # no state since the stop
-            decay = hold_decay(age, state_timeout) if age > state_timeout else 1.0
-            torque = guard.interface.to_si(
-                guard.act, guard.hold_tick(stale_q, stale_v, decay))[0]
+            if age <= state_timeout:             # the policy's last command: 0 N m here
+                torque = np.zeros(len(act_names))
+            else:                                # the deployment's stale hold
+                torque = guard.interface.to_si(guard.act, guard.hold_tick(
+                    stale_q, stale_v, hold_decay(age, state_timeout), age - state_timeout))[0]
         else:                                    # killed, or zero torque: 0 N m from the start
             torque = np.zeros(len(act_names))
         sim.step(torque, 'effort')
@@ -84,7 +86,7 @@ def main(argv=None) -> int:
     parser.add_argument('--seconds', type=float, default=3.0, help='how long each stop runs')
     args = parser.parse_args(argv)
     import mujoco
-    from pg_node.sim.actuation import actuators
+    from pg_node.sim.actuation import actuators, inertia_at, mass_matrix_at
     from pg_node.sim.pybullet_arm import PybulletArm
     with tempfile.TemporaryDirectory() as tmp:
         path = panda_model(Path(tmp))
@@ -94,16 +96,18 @@ def main(argv=None) -> int:
         period = frame_skip * model.opt.timestep
         urdf = ARMS['panda'][0]
         sim = PybulletArm(urdf, act.joints, control_period=period, gravity_compensation=True)
-        guard = CommandGuard(act, act.joints, 'effort', GuardSettings(), period=period)
+        guard = CommandGuard(act, act.joints, 'effort', GuardSettings(), period=period,
+                             inertia_at=inertia_at(model, act.joints),
+                             mass_at=mass_matrix_at(model, act.joints))
         home = np.array([float(x) for x in ARMS['panda'][2]])
         mid = (sim.lower + sim.upper) / 2
         v0 = args.speed * np.where(home >= mid, -1.0, 1.0)      # away from the nearer limit
-        gains = guard.limits().hold_damping
+        gains = np.diag(guard.mass_at(home[None])[0]) / (BRAKE_TICKS * period)
         print(f'Panda (example-robot-data), PyBullet, gravity compensated; control period '
               f'{period:g} s; every joint at {args.speed:g} rad/s when the stop comes; '
-              f'hold_damping from the model: {", ".join(f"{g:.3g}" for g in gains)} N m s/rad '
-              f'(model damping {", ".join(f"{d:g}" for d in act.damping)}; braking gain '
-              f'I / ({BRAKE_TICKS:g} T))')
+              f'the hold brakes with M(q) / ({BRAKE_TICKS:g} T), the inertia at the measured pose '
+              f'(its diagonal at the start: {", ".join(f"{g:.3g}" for g in gains)} N m s/rad; '
+              f'the model\'s damping: {", ".join(f"{d:g}" for d in act.damping)})')
         print()
         print('| stop | largest travel (rad) | all joints below 0.01 rad/s after |')
         print('|---|---|---|')

@@ -16,7 +16,7 @@ from pg_node.control.deployment import (Deployment, Event, JointSample, LIFECYCL
                                         RobotState, Status)
 from pg_node.control.guards import CommandGuard, GuardSettings
 from pg_node.control.status import GuardEvent, NodeState
-from pg_node.control.watchdog import Watchdog
+from pg_node.control.watchdog import hold_decay, Watchdog
 import pytest
 
 TIMEOUT = 0.2
@@ -94,6 +94,37 @@ def test_a_stale_state_holds_with_decay_then_a_fresh_one_commands_with_one_event
     assert [t.status.state for t in fresh] == [NodeState.COMMANDING] * 2
     assert [t.events for t in fresh] == [(Event.FRESH,), ()]
     assert not fresh[0].hold and not d.watchdog.stale
+
+
+def test_a_stale_states_brake_adds_up_to_at_most_its_speed_never_a_push_back():
+    """
+    A stale state's braking hold never pushes back, however long the spell (issue 54, item 3).
+
+    Each tick's torque takes a quarter of the speed it expects off, so the spell's torques
+    together take off at most the state's speed; a fade alone would reverse the joints.
+    """
+    period, inertia = 0.01, np.array([[2.0, 0.6], [0.6, 0.5]])     # coupled joints
+    guard = CommandGuard(REACHER2, ['joint0', 'joint1'], 'effort', GuardSettings(),
+                         period=period,
+                         mass_at=lambda q: np.broadcast_to(inertia, (len(q), 2, 2)))
+    d = Deployment(guard, None, None, {'state_timeout': TIMEOUT, 'deterministic': True},
+                   np.random.default_rng(0))
+    d.activate(0.0)
+    qdot = np.array([2.0, -1.0])
+    change = np.zeros(2)                                 # the speed the torques take off
+    fade = np.zeros(2)                                   # the same with the fade alone
+    for k in range(1, int(TIMEOUT / period) + 1):
+        age = TIMEOUT + k * period - period / 2
+        t = tick(d, joints(1.0 + age, age=age, qdot=qdot), 1.0 + age)
+        assert t.status.state is NodeState.STALE
+        torque = guard.interface.to_si(REACHER2, t.command)[0]
+        change += period * np.linalg.solve(inertia, torque)
+        fade += period * np.linalg.solve(inertia, -inertia @ qdot / (4 * period)) \
+            * hold_decay(age, TIMEOUT)
+    share = change / -qdot
+    np.testing.assert_allclose(share, share[0])           # along the speed, every joint alike
+    assert 0.5 < share[0] <= 1.0, share                   # a brake, never past a stop
+    assert np.all(fade / -qdot > 1.5), fade               # the fade alone: reversed
 
 
 def test_a_stale_state_by_its_stamp_holds_too():

@@ -26,6 +26,7 @@ from pg_node.common.config_files import load_config
 from pg_node.common.paths import resolve_model
 from pg_node.common.run import COMMANDS, CONTROLLER_COMMANDS
 from pg_node.ros import transition
+from pg_node.sim.actuation import mass_matrix_at
 from pg_node.sim.arm_task import ArmTask
 from pg_node.sim.observation import ObservationBuilder
 from pg_node.tools import processes
@@ -318,8 +319,9 @@ def test_real_time_return_equals_lock_step_evaluation(tmp_path, client, trained,
     assert all(np.isfinite(d) for _, d in got.values())
 
 
-#: the joints' speed the hold tests feed (rad/s), and reacher2's joint damping (N m s/rad):
-#: the effort hold's damping taken from the model
+#: the joints' speed the hold tests feed (rad/s), and the effort hold's damping they give
+#: (N m s/rad; from the model the hold brakes with the arm's inertia at the pose: the
+#: lifecycle test)
 QD, DAMPING = np.array([0.5, -0.25]), 1.0
 
 
@@ -355,7 +357,8 @@ def test_stale_joint_states_hold_with_damping_then_resume_ramping(tmp_path, clie
     timeout, rate, ramp, record = 0.2, 50.0, 0.2, tmp_path / 'ticks'
     pol = start_policy(tmp_path, f'policy:={trained["onnx"]}',
                        f'state_timeout:={timeout}', f'control_rate:={rate}',
-                       f'ramp_time:={ramp}', 'max_change:=1.0', f'record:={record}')
+                       f'ramp_time:={ramp}', 'max_change:=1.0', f'record:={record}',
+                       f'hold_damping:={DAMPING}')
     try:
         client.feed_while_loading()
         with client.lock:
@@ -417,7 +420,7 @@ def test_stale_joint_states_hold_with_damping_then_resume_ramping(tmp_path, clie
     assert diag[1]['level'] == 2 and waiting['level'] == 1          # ERROR, WARN
     assert all(np.all(np.isfinite(c)) and np.all(np.abs(c) <= GEAR) for c in cmds)
     # the values taken from the model, shown
-    assert diag[1]['hold_damping_taken'] == '1, 1 N m s/rad (from the model)', diag[1]
+    assert diag[1]['hold_damping_taken'] == '1, 1 N m s/rad (parameter)', diag[1]
     assert diag[1]['max_change_taken'] == '1, 1 of the range per tick (parameter)'
 
 
@@ -426,7 +429,7 @@ def test_estop_latches_a_damping_hold_until_reset_then_ramps_in(tmp_path, client
     rate, ramp, record = 50.0, 0.2, tmp_path / 'ticks'
     pol = start_policy(tmp_path, f'policy:={trained["onnx"]}', 'state_timeout:=5.0',
                        f'control_rate:={rate}', f'ramp_time:={ramp}', 'max_change:=1.0',
-                       f'record:={record}')
+                       f'record:={record}', f'hold_damping:={DAMPING}')
     rng = np.random.default_rng(1)
 
     def feed(seconds):
@@ -841,9 +844,9 @@ def test_lifecycle_configure_checks_activate_ramps_deactivate_holds(tmp_path, cl
     """
     Run the lifecycle: configure checks, activate ramps in, deactivate holds once.
 
-    Managed: nothing is published until activate; activate ramps in from the damping hold
-    (-damping x the speed); deactivate sends one zero (the hold left in force) and stops;
-    configure refuses a robot_description of another arm, in one line, and takes reacher2's
+    Managed: nothing is published until activate; activate ramps in from the hold (from the
+    model: the arm's inertia at the pose x the speed / 4 ticks); deactivate sends one zero
+    (the hold left in force) and stops; configure refuses a robot_description of another arm, in one line, and takes reacher2's
     own.
     """
     import hashlib
@@ -896,9 +899,10 @@ def test_lifecycle_configure_checks_activate_ramps_deactivate_holds(tmp_path, cl
     assert ("configure failed: robot_description is not the policy's arm: joint joint1 is "
             '100.0 mm away') in log
     assert 'kinematics match robot_description' in log
-    # the ramp: from the damping hold to the policy's command, the share rising from near 0
-    # to 1, then 1 to the end
-    hold = -DAMPING * qd
+    # the ramp: from the hold to the policy's command, the share rising from near 0 to 1,
+    # then 1 to the end; the hold from the model: the arm's inertia at q over 4 ticks
+    inertia = mass_matrix_at(model, ['joint0', 'joint1'])(q[None])[0]
+    hold = -inertia @ qd * rate / 4
     shares = np.array([(c - hold) @ (want - hold) / ((want - hold) @ (want - hold))
                        for c in cmds[:-1]])
     np.testing.assert_allclose([c - hold - s * (want - hold) for c, s in zip(cmds[:-1], shares)],

@@ -252,11 +252,11 @@ POLICY_PARAMS: Dict[str, Param] = {
                                '(max_velocity_taken)', low=0.0, live=True),
     'hold_damping': Param(0.0, 'N m s/rad: the effort hold is the torque -hold_damping x qdot '
                                '(- hold_stiffness x (q - q_hold)), from the newest state at '
-                               "every tick; 0: each joint's damping in the model, the damping "
-                               'the policy trained with and a torque-mode robot lacks, or '
-                               'where the model has none a braking gain, its largest inertia '
-                               'over 4 control periods (never 0 N m). The value taken is in '
-                               '/diagnostics (hold_damping_taken)', low=0.0,
+                               "every tick; 0: the arm's inertia matrix at the measured pose "
+                               'over 4 control periods, M(q) qdot / (4 T): a quarter of every '
+                               "joint's speed off per tick, coupled joints too, on a robot "
+                               'with no damping of its own (never 0 N m). The value taken is '
+                               'in /diagnostics (hold_damping_taken)', low=0.0,
                           live=True),
     'hold_stiffness': Param(0.0, 'N m/rad: the effort hold also pulls each joint back to the '
                                  'angle where the hold began (0: damping alone; a robot whose '

@@ -194,17 +194,21 @@ class Deployment:
         self.robot_stopped = False
         return NO_STATE
 
-    def hold(self, joints: Optional[JointSample], decay: float = 0.0) -> Optional[np.ndarray]:
+    def hold(self, joints: Optional[JointSample], decay: float = 0.0,
+             age: float = 0.0) -> Optional[np.ndarray]:
         """
         Return the hold command from ``joints``, or None before the first joint state.
 
         ``decay`` 0, as the one hold left in force on deactivate or a stop: zero torque (a
         damping torque from one velocity, kept forever by a forward controller, would push
-        the arm), or the last commanded angles. The next command ramps in from it.
+        the arm), or the last commanded angles. The next command ramps in from it. ``age``:
+        the state's age in s; past ``state_timeout`` the hold has braked from it that long
+        already (``coasting``, :meth:`CommandGuard.hold`).
         """
         if joints is None:
             return None
-        return self.guard.hold_tick(joints.q, joints.qdot, decay)
+        coasting = age - self.settings['state_timeout'] if age == age else 0.0
+        return self.guard.hold_tick(joints.q, joints.qdot, decay, max(coasting, 0.0))
 
     def tick(self, joints: Optional[JointSample], goals: Union[np.ndarray, str], now: float,
              clock_now: float, estop: bool, robot_stop: str = '') -> Tick:
@@ -224,14 +228,15 @@ class Deployment:
         waiting_for, self.waiting_for = self.waiting_for, None
         if estop:
             # the active hold from the newest state (a stale one's damping decays)
-            return Tick(ESTOP, self.hold(joints, hold_decay(age, timeout)), hold=True, how=how)
+            return Tick(ESTOP, self.hold(joints, hold_decay(age, timeout), age), hold=True,
+                        how=how)
         if joints is None:
             return Tick(NO_STATE)
         if age > timeout:
             events = (Event.STALE,) if self.watchdog.begin() else ()
             return Tick(Status(NodeState.STALE, f'stale: joint states {age:.2f} s old {how}, '
                                                 'hold command, waiting for fresh ones'),
-                        self.hold(joints, hold_decay(age, timeout)), hold=True, age=age,
+                        self.hold(joints, hold_decay(age, timeout), age), hold=True, age=age,
                         how=how, events=events)
         if isinstance(goals, str):
             self.waiting_for = goals
@@ -243,7 +248,7 @@ class Deployment:
             began, self.robot_stopped = not self.robot_stopped, True
             return Tick(Status(NodeState.ROBOT_STOPPED, f'{robot_stop}: hold command, '
                                                         'waiting for it to run again'),
-                        self.hold(joints, hold_decay(age, timeout)), hold=True, age=age,
+                        self.hold(joints, hold_decay(age, timeout), age), hold=True, age=age,
                         how=how, events=(Event.ROBOT_STOPPED,) if began else ())
         events = (Event.FRESH,) if self.watchdog.end() else ()
         if self.robot_stopped:

@@ -48,13 +48,21 @@ compensates gravity floats and coasts on zero torque.
 
 * effort: a damping torque ``tau = -D qdot - K (q - q_hold)`` from the measured state,
   computed at every tick, clipped to the actuators' effort range; ``D`` is ``hold_damping``
-  (from the model: its joint damping, the damping the policy trained with and a torque-mode
-  robot lacks; where the model has none, the braking gain of :data:`BRAKE_TICKS`), ``K``
+  when it is given, else (from the model) the braking matrix ``M_a(q) / (BRAKE_TICKS T)``
+  of the arm's inertia at the measured pose (``mass_at``,
+  :func:`pg_node.sim.actuation.mass_matrix_at`): the torque that takes ``1 / BRAKE_TICKS``
+  of every joint's speed off per tick, coupled joints too, on a robot with no joint damping
+  of its own (a Franka's torques come without it; the Panda URDF's 0.003 N m s/rad is a
+  trace). Without ``mass_at``: the model's joint damping, or where it has none the gain
+  ``I / (BRAKE_TICKS T)`` of the joint's largest inertia. ``K`` is
   ``hold_stiffness`` (0 by default: pure damping), ``q_hold`` the angles where the hold
   began. A stale state's velocity is no measure of the arm's: the
   damping computed from it is scaled by ``decay`` (:func:`pg_node.control.watchdog.hold_decay`:
   full while the state is fresh, down to zero torque one more ``state_timeout`` later), since
-  a brake from a velocity that has long stopped pushes the arm back. A hold sent once and
+  a brake from a velocity that has long stopped pushes the arm back; the braking matrix's
+  torque also by ``(1 - 1 / BRAKE_TICKS)`` per tick it has braked from that state already
+  (the speed it leaves), so that its torques add up to at most the state's speed. A hold
+  sent once and
   then left in force (deactivate, shutdown: a forward controller keeps it forever,
   ros2_controllers (jazzy ed360c97d) forward_command_controller/src/
   forward_controllers_base.cpp:154-158) is zero torque, for the same reason; the joint
@@ -85,12 +93,13 @@ from pg_node.control.status import GuardEvent
 #: the share of the actuator's torque the braking guard plans with (the rest is slack for
 #: the tick's delay, the rate limit and the inertia's pose dependence)
 BRAKING_SHARE = 0.5
-#: a hold's braking gain where the model has no joint damping: ``D = I / (BRAKE_TICKS T)``
-#: takes ``1 / BRAKE_TICKS`` of the joint's speed off per control period ``T`` (``I`` its
-#: largest inertia). Held for a whole tick, as a controller holds a command, the brake is
-#: stable for any pose whose inertia is above ``I / (2 BRAKE_TICKS)`` (the speed changes by
-#: the factor ``1 - I_max / (BRAKE_TICKS I)`` a tick): 4 keeps the Panda's lightest shoulder
-#: (5x lighter than its largest) converging
+#: the effort hold's brake: ``D = M_a(q) / (BRAKE_TICKS T)`` takes ``1 / BRAKE_TICKS`` of
+#: every joint's speed off per control period ``T``; held for a whole tick, as a controller
+#: holds a command, the speeds fall by ``1 - 1 / BRAKE_TICKS`` a tick, stable while the
+#: robot's inertia is within ``2 BRAKE_TICKS - 1`` times the model's. Without the pose's
+#: matrix, ``I / (BRAKE_TICKS T)`` with ``I`` a joint's largest inertia: the speed changes by
+#: ``1 - I_max / (BRAKE_TICKS I)`` a tick, stable for a pose whose inertia is above
+#: ``I / (2 BRAKE_TICKS)`` (the Panda's lightest shoulder is 5x lighter than its largest)
 BRAKE_TICKS = 4.0
 
 
@@ -194,7 +203,8 @@ class CommandGuard:
     def __init__(self, act: Actuators, joint_names: Sequence[str], interface: str,
                  settings: Optional[GuardSettings] = None, period: float = 0.02,
                  position_delta: Optional[np.ndarray] = None,
-                 inertia_at: Optional[Callable[[np.ndarray], np.ndarray]] = None):
+                 inertia_at: Optional[Callable[[np.ndarray], np.ndarray]] = None,
+                 mass_at: Optional[Callable[[np.ndarray], np.ndarray]] = None):
         """
         Take the actuators, the limits of their joints and the interface that commands them.
 
@@ -206,10 +216,14 @@ class CommandGuard:
         ``inertia_at``: a function of the angles ``(arms, joints)`` (``joint_names``' order)
         returning each actuator's inertia at that pose ``(arms, actuators)`` in kg m^2, the
         braking guard's ``I`` (:func:`pg_node.sim.actuation.inertia_at`); None: the
-        record's largest, ``Actuators.inertia``.
+        record's largest, ``Actuators.inertia``. ``mass_at``: a function of the angles
+        returning the actuated joints' inertia matrix ``(arms, nu, nu)``
+        (:func:`pg_node.sim.actuation.mass_matrix_at`), the effort hold's brake; None: the
+        model's damping (see the module's docstring).
         """
         self.act = act
         self.inertia_at = inertia_at
+        self.mass_at = mass_at
         self.interface = INTERFACES[interface]
         self.settings = settings or GuardSettings()
         self.period = period
@@ -237,14 +251,24 @@ class CommandGuard:
         """Return the numbers the guards act with now (the settings may change live)."""
         return model_limits(self.act, self.interface, self.settings, self.period)
 
+    def braking_matrix(self) -> bool:
+        """Whether the effort hold brakes with the pose's inertia matrix (:meth:`hold`)."""
+        return (self.interface.name == 'effort' and self.mass_at is not None
+                and self.settings.hold_damping <= 0)
+
     def describe(self) -> Dict[str, str]:
         """Return the values taken, per actuator, each saying whether from the model."""
         lim = self.limits()
         out = {}
+        if self.braking_matrix():
+            out['hold_damping_taken'] = (f'M(q) / ({BRAKE_TICKS:g} x {self.period:g} s): the '
+                                         "arm's inertia at the measured pose (from the model)")
         for name, unit in (('max_change', 'of the range per tick'), ('max_velocity', 'rad/s'),
                            ('hold_damping', 'N m s/rad'), ('max_deceleration', 'rad/s^2'),
                            ('max_acceleration', 'rad/s^2')):
             if name == 'max_acceleration' and self.interface.hold != HOLD_ZERO_VELOCITY:
+                continue
+            if f'{name}_taken' in out:
                 continue
             values = ', '.join(f'{v:.4g}' for v in getattr(lim, name))
             how = 'from the model' if name in lim.from_model else 'parameter'
@@ -267,13 +291,17 @@ class CommandGuard:
         target = np.clip(q[:, self.cols], self.q_low, self.q_high)
         return np.clip(self.interface.from_si(self.act, target), self.low, self.high)
 
-    def hold(self, q: np.ndarray, qdot: np.ndarray, decay: float = 1.0) -> np.ndarray:
+    def hold(self, q: np.ndarray, qdot: np.ndarray, decay: float = 1.0,
+             coasting: float = 0.0) -> np.ndarray:
         """
         Return the hold command ``(arms, nu)``: a damping torque, or the last commanded angles.
 
         Effort: ``-(D qdot + K (q - q_hold)) * decay`` N m, clipped to the effort range
         (``decay``: 1 from a fresh state, less from a stale one, 0 for a hold left in force);
         ``q_hold`` the angles where this arm's hold began (no spring before one began).
+        ``D``: ``hold_damping``, or the braking matrix ``M_a(q) / (BRAKE_TICKS T)`` at ``q``
+        (:meth:`braking_matrix`), whose torque a ``coasting`` s old hold (the time a stale
+        state's hold has braked already) scales by ``(1 - 1 / BRAKE_TICKS)`` per tick.
         Position: the angles this arm's hold began with, else the last command sent, else
         (before any) the measured ``q``.
         """
@@ -286,8 +314,13 @@ class CommandGuard:
             return np.where(np.isnan(self.anchor_u), last, self.anchor_u)
         qa = q[:, self.cols]
         spring = np.where(np.isnan(self.anchor_q), 0.0, qa - self.anchor_q)
-        torque = -(self.limits().hold_damping * qdot[:, self.cols]
-                   + self.settings.hold_stiffness * spring) * decay
+        if self.braking_matrix():
+            left = (1.0 - 1.0 / BRAKE_TICKS) ** (max(coasting, 0.0) / self.period)
+            brake = np.einsum('aij,aj->ai', self.mass_at(q), qdot[:, self.cols])
+            damping = brake * left / (BRAKE_TICKS * self.period)
+        else:
+            damping = self.limits().hold_damping * qdot[:, self.cols]
+        torque = -(damping + self.settings.hold_stiffness * spring) * decay
         low, high = self.interface.si_range(self.act)
         return np.clip(self.interface.from_si(self.act, np.clip(torque, low, high)),
                        self.low, self.high)
@@ -301,17 +334,18 @@ class CommandGuard:
             self.anchor_u[new] = last[new]
         self.held |= arms
 
-    def hold_tick(self, q: np.ndarray, qdot: np.ndarray, decay: float = 1.0) -> np.ndarray:
+    def hold_tick(self, q: np.ndarray, qdot: np.ndarray, decay: float = 1.0,
+                  coasting: float = 0.0) -> np.ndarray:
         """
         Return the hold command the node sends for every arm (stale, e-stop, stop); note it.
 
         The next :meth:`__call__` ramps from the hold again (step 2), and steps 3 and 4 run
-        from it.
+        from it. ``decay``, ``coasting``: as :meth:`hold`'s.
         """
         self._arms(len(q))
         self._begin_hold(q, np.ones(len(q), dtype=bool))
         self.ramp_start[:] = np.nan
-        u = self.hold(q, qdot, decay)
+        u = self.hold(q, qdot, decay, coasting)
         self.previous = u.copy()
         return u
 

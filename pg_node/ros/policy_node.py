@@ -97,8 +97,10 @@ Published:
   (:mod:`pg_node.ros.policy_markers`).
 
 Safety: the **hold** command is an active stop (:mod:`pg_node.control.guards`): with the
-effort interface a damping torque ``-hold_damping x qdot`` (and ``hold_stiffness`` back to
-where the hold began) from the newest joint state at every tick, with the position interface
+effort interface a braking torque ``-M(q) qdot / (4 T)`` (the arm's inertia at the measured
+pose: a quarter of every joint's speed off per control period ``T``; ``-hold_damping x qdot``
+where that is given; and ``hold_stiffness`` back to where the hold began) from the newest
+joint state at every tick, with the position interface
 the last commanded angles (never a stale measured one), with the velocity interface zero
 velocity. When the newest joint state is older
 than ``state_timeout`` s, since it arrived or by its ``header.stamp`` (the node's clock: give
@@ -163,7 +165,7 @@ from pg_node.ros.diagnostics import Diagnostics, RateCounter
 from pg_node.ros.parameters import declare_params
 from pg_node.ros.policy_markers import policy_markers
 from pg_node.ros.runtime import params_help, run
-from pg_node.sim.actuation import actuators, inertia_at
+from pg_node.sim.actuation import actuators, inertia_at, mass_matrix_at
 from pg_node.sim.kinematics_check import compare_kinematics
 from pg_node.sim.observation import ObservationBuilder
 from rcl_interfaces.msg import ParameterType
@@ -395,7 +397,8 @@ class PolicyNode(LifecycleNode):
         delta = (card.get('command_interfaces') or {}).get(interface, {}).get(
             'max_position_delta')
         guard = CommandGuard(arm, joints, interface, self.settings, 1.0 / self.control_rate(),
-                             position_delta=delta, inertia_at=inertia_at(model, joints))
+                             position_delta=delta, inertia_at=inertia_at(model, joints),
+                             mass_at=mass_matrix_at(model, joints))
         commanded = arm_joint_names([joints[c] for c in guard.cols], len(index),
                                     joints[0] in self._names)
         self._check_controller(commanded)

@@ -8,7 +8,7 @@ dynamics, a joint transmission); the command interfaces, their units and maps li
 It reads too what the guards take their defaults from: each joint's damping, the largest
 joint torque its actuator may apply, and its largest inertia (:func:`joint_inertia`).
 """
-from typing import Callable, Sequence
+from typing import Callable, Optional, Sequence
 
 import mujoco
 import numpy as np
@@ -135,3 +135,41 @@ def ctrl_range(model: mujoco.MjModel):
     limited = model.actuator_ctrllimited.astype(bool)
     return (np.where(limited, model.actuator_ctrlrange[:, 0], -np.inf),
             np.where(limited, model.actuator_ctrlrange[:, 1], np.inf))
+
+
+def mass_matrix_at(model: mujoco.MjModel, joint_names: Sequence[str]
+                   ) -> Optional[Callable[[np.ndarray], np.ndarray]]:
+    """
+    Return a function: angles ``(arms, len(joint_names))`` to the actuated joints' inertia.
+
+    The ``(arms, nu, nu)`` matrix ``((M^-1)_aa)^-1`` of the joint-space inertia matrix ``M``
+    (armature included) over the actuators' joints ``a``: the inertia the actuators' torques
+    meet together at that pose, the other joints free to move (with none, the block of
+    ``M``). The effort hold brakes with it (:meth:`pg_node.control.guards.CommandGuard.hold`):
+    ``tau = -M_a qdot / (BRAKE_TICKS T)`` takes the same share of every joint's speed off per
+    tick, however the joints are coupled. None where an actuator has no joint of its own.
+
+    >>> from pg_node.common.paths import resolve_model
+    >>> m = mujoco.MjModel.from_xml_path(str(resolve_model('arm7')))
+    >>> names = [m.joint(j).name for j in range(7)]
+    >>> ready = mass_matrix_at(m, names)(np.array([[0, -0.785, 0, -2.356, 0, 1.571, 0.785]]))
+    >>> ready.shape, bool(np.allclose(ready, np.swapaxes(ready, 1, 2)))
+    ((1, 7, 7), True)
+    """
+    if not np.all(model.actuator_trntype == mujoco.mjtTrn.mjTRN_JOINT):
+        return None
+    data = mujoco.MjData(model)
+    adr = np.array([model.joint(n).qposadr[0] for n in joint_names])
+    dof = model.jnt_dofadr[model.actuator_trnid[:, 0]]
+    full = np.zeros((model.nv, model.nv))
+
+    def at(q: np.ndarray) -> np.ndarray:
+        out = np.empty((len(q), model.nu, model.nu))
+        for i, angles in enumerate(q):
+            data.qpos[:] = model.qpos0
+            data.qpos[adr] = angles
+            mujoco.mj_fwdPosition(model, data)
+            mujoco.mj_fullM(model, data, full)
+            out[i] = np.linalg.inv(np.linalg.inv(full)[np.ix_(dof, dof)])
+        return out
+    return at

@@ -176,7 +176,7 @@ def assumptions(opts: ImportOptions) -> List[str]:
     if opts.effort_scale != 1:
         out.append(f'effort: the URDF effort limits x {opts.effort_scale:g} (--effort-scale)')
     if opts.max_acceleration is not None and math.isfinite(opts.max_acceleration):
-        out.append(f'effort: each arm joint\'s effort at most {opts.max_acceleration:g} rad/s^2 x '
+        out.append(f"effort: each arm joint's effort at most {opts.max_acceleration:g} rad/s^2 x "
                    'its inertia at the start pose (arm import --max-acceleration; '
                    'pg_import_choices names the joints it caps)')
     return out
@@ -1096,10 +1096,10 @@ def _cap_efforts(spec: mujoco.MjSpec, robot: _Robot, task: _Task,
             capped.append(f'{name} {cap:g} (URDF {urdf:g})')
     if not capped:
         return ''
-    return (f'efforts: capped at {opts.max_acceleration:g} rad/s^2 x each joint\'s inertia at '
+    return (f"efforts: capped at {opts.max_acceleration:g} rad/s^2 x each joint's inertia at "
             f'the start pose, N m: {", ".join(capped)}: a full command no longer whips the '
             'light links, and the policy commands no more than this on the robot '
-            '(--max-acceleration sets the rate, inf keeps the URDF\'s)')
+            "(--max-acceleration sets the rate, inf keeps the URDF's)")
 
 
 #: the start poses tried, drawn in the middle half of every joint's range

@@ -89,7 +89,7 @@ def parser() -> argparse.ArgumentParser:
                    help='multiplies every URDF effort limit (default: %(default)s)')
     p.add_argument('--max-acceleration', type=_acceleration, metavar='RAD_S2',
                    help="caps each arm joint's effort at RAD_S2 x its inertia at the start "
-                        "pose, so that a full torque does not whip a light wrist (default: 2000 "
+                        'pose, so that a full torque does not whip a light wrist (default: 2000 '
                         "for motor actuators, none for servos; inf: the URDF's efforts)")
     p.add_argument('--gravity-compensation', action=argparse.BooleanOptionalAction,
                    default=True,
