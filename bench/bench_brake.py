@@ -16,7 +16,14 @@ far the joints went (largest, rad) and when every joint was below 0.01 rad/s:
   ``cmd_timeout``, then JTC's own hold, which on the effort interface is 0 N m
   (ros2_controllers jazzy ed360c97d joint_trajectory_controller.cpp:2063-2086);
 * ``zero torque (before)``: every hold 0 N m, as the Panda recipe's holds were before the
-  braking gain.
+  braking gain;
+* ``controller_hold pd``: a JTC with a ``d`` gain per joint
+  (``config/controllers/jtc_effort_pd.yaml``; here each joint's inertia at the start pose
+  over 4 control periods) at 1 kHz, policy_node's points carrying the measured speeds: its
+  PID sends ``-d qdot`` from the controller's own state in a hold policy_node sends
+  (e-stop: at once; stale states: from ``state_timeout`` on, policy_node's hold point) and
+  after ``cmd_timeout`` when policy_node is killed (jtc.cpp:416-426, 2063-2086); before
+  that, the last command (0 N m here).
 
 Run: ``.venv/bin/python bench/bench_brake.py`` (prints a table; about 10 s).
 """
@@ -79,6 +86,25 @@ def run(kind: str, guard: CommandGuard, sim, act_names, q0, v0, period: float,
     return travel, rest_at
 
 
+def run_controller(sim, d: np.ndarray, q0, v0, delay: float, seconds: float):
+    """
+    Brake with a JTC's ``-d qdot`` at 1 kHz from ``delay`` s on; return (travel, rest).
+
+    0 N m before ``delay``.
+
+    ``sim``: the arm stepped every 1 ms, as the controller runs.
+    """
+    sim.set_state(q0, v0)
+    rest_at, t, dt = None, 0.0, sim.control_period
+    for _ in range(int(round(seconds / dt))):
+        _, v, _ = sim.state()
+        sim.step(-d * v if t >= delay - 1e-12 else np.zeros(len(v)), 'effort')
+        t += dt
+        if rest_at is None and np.all(np.abs(sim.state()[1]) < REST):
+            rest_at = t
+    return float(np.max(np.abs(sim.state()[0] - q0))), rest_at
+
+
 def main(argv=None) -> int:
     """Print the table."""
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
@@ -118,6 +144,19 @@ def main(argv=None) -> int:
             when = f'{rest:.2f} s' if rest is not None else f'not within {args.seconds:g} s'
             print(f'| {kind} | {travel:.3f} | {when} |')
         sim.close()
+        # the controller's own brake (controller_hold pd), a JTC at 1 kHz
+        fast = PybulletArm(urdf, act.joints, control_period=0.001, gravity_compensation=True)
+        d = np.diag(guard.mass_at(home[None])[0]) / (BRAKE_TICKS * period)
+        for kind, delay in (('controller_hold pd: hold (e-stop, over-speed)', 0.0),
+                            ('controller_hold pd: stale states', 0.2),
+                            ('controller_hold pd: policy_node killed, cmd_timeout 0.2 s', 0.2)):
+            travel, rest = run_controller(fast, d, home, v0, delay, args.seconds)
+            when = f'{rest:.2f} s' if rest is not None else f'not within {args.seconds:g} s'
+            print(f'| {kind} | {travel:.3f} | {when} |')
+        print()
+        print(f'controller_hold pd: d = {", ".join(f"{g:.3g}" for g in d)} N m s/rad (each '
+              f"joint's inertia at the start pose over {BRAKE_TICKS:g} control periods)")
+        fast.close()
     return 0
 
 

@@ -30,6 +30,7 @@ import numpy as np
 from pg_node.common.paths import resolve_model
 from pg_node.control import jtc
 from pg_node.control.composers import command_trajectory, POINT_FIELDS
+from pg_node.control.controller_check import Controller, refusal
 from pg_node.control.interfaces import INTERFACES
 from pg_node.control.joint_map import arm_joint_names
 from pg_node.control.jtc import (FLAGS, interfaces_reject, jtc_rejects, JtcFollower, Point,
@@ -119,17 +120,26 @@ def test_policy_nodes_old_message_is_rejected_by_rule_5():
 
 
 @pytest.mark.parametrize('arms', [1, 3])
-@pytest.mark.parametrize('interface', sorted(POINT_FIELDS))
+@pytest.mark.parametrize('interface', sorted(POINT_FIELDS) + ['effort_pd'])
 def test_every_message_policy_node_composes_passes_its_shipped_controller(interface, arms):
     section = load(f'jtc_{interface}.yaml')['arm_controller']['ros__parameters']
     flags = {k: v for k, v in section.items() if k in FLAGS}
     names = arm_joint_names(section['joints'], arms, plain=arms == 1)
     rng = np.random.default_rng(arms)
+    pd = interface == 'effort_pd'                       # controller_hold pd: speeds carried
     for _ in range(20):
-        si, q = rng.normal(size=(2, arms, len(section['joints']))) * 3
-        t = command_trajectory(INTERFACES[interface], si, q, names)
-        assert jtc_rejects(t, names, section['command_interfaces'], now=1e9, flags=flags) \
-            is None
+        si, q, qdot = rng.normal(size=(3, arms, len(section['joints']))) * 3
+        for hold in (False, True):
+            t = command_trajectory(INTERFACES[interface.split('_')[0]], si, q, names,
+                                   qdot=qdot if pd else None, hold=hold)
+            assert jtc_rejects(t, names, section['command_interfaces'], now=1e9,
+                               flags=flags) is None
+    # the same points to the zero-gain file: rejected (rule 5), as configure says
+    if pd:
+        zero = load('jtc_effort.yaml')['arm_controller']['ros__parameters']
+        moving = command_trajectory(INTERFACES['effort'], si, q, names, qdot=qdot)
+        assert 'rule 5' in jtc_rejects(moving, names, zero['command_interfaces'], now=1e9,
+                                       flags={k: v for k, v in zero.items() if k in FLAGS})
 
 
 @pytest.mark.parametrize('command,state,ok', [
@@ -151,6 +161,15 @@ def test_interface_combinations(command, state, ok):
 
 # --- the shipped controller YAML ---------------------------------------------------------
 
+def flat_parameters(section):
+    """Return a controller's YAML section as its parameter service names them."""
+    flat = {k: v for k, v in section.items() if k not in ('gains', 'constraints')}
+    flat.update({f'gains.{j}.{k}': v for j, gains in section.get('gains', {}).items()
+                 for k, v in gains.items()})
+    flat['constraints.goal_time'] = section.get('constraints', {}).get('goal_time', 0.0)
+    return flat
+
+
 def load(name):
     return yaml.safe_load((CONTROLLERS / name).read_text())
 
@@ -162,6 +181,7 @@ def reacher2_actuated_joints():
 #: file -> controller type, command interface of policy_node it serves
 SHIPPED = {
     'jtc_effort.yaml': ('joint_trajectory_controller/JointTrajectoryController', 'effort'),
+    'jtc_effort_pd.yaml': ('joint_trajectory_controller/JointTrajectoryController', 'effort'),
     'jtc_position.yaml': ('joint_trajectory_controller/JointTrajectoryController', 'position'),
     'forward_effort.yaml': ('effort_controllers/JointGroupEffortController', 'effort'),
     'forward_position.yaml': ('position_controllers/JointGroupPositionController',
@@ -197,8 +217,9 @@ def test_controller_yaml_is_complete_and_keeps_the_rules(name):
     # a stop the controller keeps: cmd_timeout on, and above goal_time (jtc.cpp:1231-1250)
     assert section['cmd_timeout'] > section['constraints']['goal_time']
     assert section['cmd_timeout'] > 0
+    d_gain = max((g.get('d', 0.0) for g in section.get('gains', {}).values()), default=0.0)
     for flag, default in FLAGS.items():                 # the flags it relies on, said
-        assert section[flag] is jtc.SHIPPED_FLAGS.get(interface, {}).get(flag, default)
+        assert section[flag] is jtc.stand_in_flags(interface, d_gain).get(flag, default)
     if interface == 'velocity':
         # the PID adapter sends velocity x ff_velocity_scale + PID (jtc.cpp:412-425): the
         # speed passes through with scale 1 and zero gains; the default 0 would send 0
@@ -207,11 +228,24 @@ def test_controller_yaml_is_complete_and_keeps_the_rules(name):
         for gains in section['gains'].values():
             assert all(gains[k] == 0.0 for k in ('p', 'i', 'd'))
             assert gains['ff_velocity_scale'] == 1.0
+    elif interface == 'effort' and name.endswith('_pd.yaml'):
+        # a d gain on every joint, nothing else: ~0 while the points carry the measured
+        # speed, -d qdot in a hold and after cmd_timeout; what configure asks of it
+        assert list(section['gains']) == joints
+        for gains in section['gains'].values():
+            assert gains['d'] > 0
+            assert all(gains[k] == 0.0 for k in ('p', 'i', 'ff_velocity_scale'))
+        ctrl = Controller('arm_controller', kind, 'active', flat_parameters(section))
+        assert refusal(ctrl, 'effort', 'trajectory', controller_hold='pd') is None
+        assert 'gains.joint0.d 12.5' in refusal(ctrl, 'effort', 'trajectory')
     elif interface == 'effort':
         # zero gains: the point's effort passes through (jtc.cpp:416-426)
         assert list(section['gains']) == joints
         for gains in section['gains'].values():
             assert all(gains[k] == 0.0 for k in ('p', 'i', 'd', 'ff_velocity_scale'))
+        ctrl = Controller('arm_controller', kind, 'active', flat_parameters(section))
+        assert refusal(ctrl, 'effort', 'trajectory') is None
+        assert 'gains.joint0.d 0' in refusal(ctrl, 'effort', 'trajectory', controller_hold='pd')
     else:
         assert 'gains' not in section                   # no PID on position (jtc.cpp:892-903)
 
@@ -239,6 +273,30 @@ def test_effort_is_applied_at_once_held_then_zero_after_cmd_timeout():
     # the next message is followed again
     follower.receive(msg({'positions': [0, 0], 'effort': [3.0, 4.0]}), 60.0)
     np.testing.assert_array_equal(follower.command(60.1, np.zeros(2)), [3.0, 4.0])
+
+
+def test_a_d_gain_adds_nothing_while_the_points_carry_the_speed_and_brakes_after_timeout():
+    """Effort + d (point speed - measured speed) (jtc.cpp:416-426); the hold: -d qdot."""
+    follower = JtcFollower(J, 'effort', cmd_timeout=0.2, d=[12.5],
+                           flags=jtc.stand_in_flags('effort', 12.5))
+    point = {'positions': [0.1, 0.2], 'effort': [2.0, -1.0], 'velocities': [0.5, -0.3]}
+    assert follower.receive(msg(point), 10.0) is None
+    np.testing.assert_allclose(follower.command(10.0, [0.1, 0.2], [0.5, -0.3]), [2.0, -1.0])
+    # the speed changed within the tick: the d term resists the change only
+    np.testing.assert_allclose(follower.command(10.1, [0.15, 0.17], [0.6, -0.3]),
+                               [2.0 - 12.5 * 0.1, -1.0])
+    # a hold from policy_node (velocity 0, effort 0): -d qdot from the measured speed
+    hold = {'positions': [0.1, 0.2], 'effort': [0.0, 0.0], 'velocities': [0.0, 0.0]}
+    follower.receive(msg(hold), 11.0)
+    np.testing.assert_allclose(follower.command(11.0, [0.3, 0.2], [0.8, -0.4]), [-10.0, 5.0])
+    # no message for cmd_timeout: JTC's hold point, -d qdot (p 0: no pull to the angles)
+    follower.receive(msg(point), 12.0)
+    np.testing.assert_allclose(follower.command(12.3, [0.9, 0.9], [1.0, 2.0]), [-12.5, -25.0])
+    assert follower.timeouts == 1
+    # zero gains (jtc_effort.yaml): 0 N m whatever the speed
+    zero = JtcFollower(J, 'effort', cmd_timeout=0.2)
+    zero.receive(msg({'positions': [0, 0], 'effort': [2.0, -1.0]}), 0.0)
+    np.testing.assert_array_equal(zero.command(0.3, [0.9, 0.9], [1.0, 2.0]), [0.0, 0.0])
 
 
 def test_position_hold_is_the_angle_measured_at_the_timeout_not_later():

@@ -846,8 +846,8 @@ def test_lifecycle_configure_checks_activate_ramps_deactivate_holds(tmp_path, cl
 
     Managed: nothing is published until activate; activate ramps in from the hold (from the
     model: the arm's inertia at the pose x the speed / 4 ticks); deactivate sends one zero
-    (the hold left in force) and stops; configure refuses a robot_description of another arm, in one line, and takes reacher2's
-    own.
+    (the hold left in force) and stops; configure refuses a robot_description of another
+    arm, in one line, and takes reacher2's own.
     """
     import hashlib
     from std_msgs.msg import String
@@ -1020,7 +1020,11 @@ def test_the_default_message_is_one_jazzys_trajectory_controller_accepts_and_app
     assert jtc_rejects(received, section['joints'], section['command_interfaces']) is None
 
 
-@pytest.mark.parametrize('command_message', ['trajectory', 'forward'])
+#: the stand-in JTC's d gain with controller_hold pd: config/controllers/jtc_effort_pd.yaml's
+D_GAIN = 12.5
+
+
+@pytest.mark.parametrize('command_message', ['trajectory', 'forward', 'trajectory-pd'])
 def test_when_policy_node_is_killed_the_trajectory_path_holds_the_forward_keeps_torque(
         tmp_path, client, trained, command_message):
     """
@@ -1028,23 +1032,32 @@ def test_when_policy_node_is_killed_the_trajectory_path_holds_the_forward_keeps_
 
     Trajectory (the default): jtc_cmd_timeout (0.2 s) after the last point the stand-in's
     JTC holds as Jazzy's does with zero gains: 0 N m (joint_trajectory_controller.cpp:350-369,
-    2063-2086). Forward: the stand-in with an endless command_timeout, as a forward command
-    controller has none (forward_controllers_base.cpp:154-158, 178-187), keeps the last torque.
+    2063-2086). Trajectory with controller_hold pd and a JTC with a d gain
+    (jtc_effort_pd.yaml): every point is taken (they carry the measured speeds), and the
+    hold brakes from the controller's own state, -d x qdot at every tick. Forward: the
+    stand-in with an endless command_timeout, as a forward command controller has none
+    (forward_controllers_base.cpp:154-158, 178-187), keeps the last torque.
     """
     from rclpy.qos import qos_profile_sensor_data
-    efforts = []
+    pd = command_message == 'trajectory-pd'
+    command_message = command_message.split('-')[0]
+    efforts, states = [], []
     client.node.create_subscription(
         JointState, '/joint_states',
-        lambda m: efforts.append((time.monotonic(), np.array(m.effort))),
+        lambda m: (efforts.append((time.monotonic(), np.array(m.effort))),
+                   states.append((time.monotonic(), m.header.stamp.sec
+                                  + m.header.stamp.nanosec * 1e-9, np.array(m.velocity),
+                                  np.array(m.effort)))),
         qos_profile_sensor_data)
     pol = start_policy(tmp_path, f'policy:={trained["onnx"]}', 'use_sim_time:=true',
-                       f'command_message:={command_message}')
+                       f'command_message:={command_message}',
+                       f'controller_hold:={"pd" if pd else "none"}')
     sim = None
     try:
         # policy_node's configure waits for the stand-in's first joint state
         sim = start(tmp_path, 'pg_node.ros.sim_node', 'mode:=real_time', f'seed:={SIM_SEED}',
                     'num_envs:=1', 'jtc_cmd_timeout:=0.2', 'command_timeout:=1000.0',
-                    *SIM_AS_ROBOT, remap=AS_ROBOT)
+                    f'jtc_d_gain:={D_GAIN if pd else 0.0}', *SIM_AS_ROBOT, remap=AS_ROBOT)
         client.wait(lambda: len(client.commands) > 25, what='commands')
         client.wait(lambda: efforts and efforts[-1][1].any(), what='a torque in joint_states')
         pol.kill()                                      # SIGKILL: no hold, no goodbye
@@ -1060,7 +1073,19 @@ def test_when_policy_node_is_killed_the_trajectory_path_holds_the_forward_keeps_
     assert logs[-1][0] == 0, sim_log[-3000:]
     assert after[-1][0] > 1.0, 'joint_states stopped'
     late = [e for t, e in after if t > 1.0]
-    if command_message == 'trajectory':
+    if pd:
+        # from 0.5 s on (the 0.2 s timeout, a tick, room for a loaded machine): each tick's
+        # effort is -d x the speed the tick before reported, consecutive by their stamps,
+        # but at an episode's reset (which reports the reset state's zero effort)
+        held = [s for s in states if s[0] > killed + 0.5]
+        pairs = [(b[3], -D_GAIN * a[2]) for a, b in zip(held, held[1:])
+                 if abs(b[1] - a[1] - 0.02) < 1e-6]
+        braking = [np.allclose(e, want, atol=1e-6) for e, want in pairs]
+        resets = int((held[-1][1] - held[0][1]) // 1.0) + 1
+        assert len(pairs) >= 20 and sum(braking) >= len(pairs) - resets, pairs[:5]
+        assert 'aborted due to command timeout' in sim_log, sim_log[-3000:]
+        assert 'rejected a trajectory' not in sim_log
+    elif command_message == 'trajectory':
         assert all(not e.any() for e in late), late[:3]
         # held from before 1 s on: the last torque comes before it (an episode's reset tick,
         # which reports the reset state's zero effort, may come earlier, while torque holds)

@@ -165,6 +165,12 @@ SIM_PARAMS: Dict[str, Param] = {
                                   'node stands in for on arm_controller/joint_trajectory (s '
                                   'after the last point before its hold: zero effort, the '
                                   'positions measured then, or zero velocity)', **POSITIVE),
+    'jtc_d_gain': Param(0.0, 'real_time, command_interface effort: the d gain (N m s/rad, every '
+                             'joint) of the joint trajectory controller the node stands in '
+                             "for: its effort is the point's plus d x (the point's velocity "
+                             '- the measured one), and it takes points that end with a '
+                             'velocity, as config/controllers/jtc_effort_pd.yaml; 0: the zero '
+                             'gains of jtc_effort.yaml', low=0.0),
     'real_time_factor': Param(1.0, 'simulated seconds per wall second (real_time)', **POSITIVE,
                               live=True),
     'start_paused': Param(False, 'start paused (step with ~/step_simulation)'),
@@ -347,6 +353,15 @@ POLICY_PARAMS: Dict[str, Param] = {
                                      'deactivated writes 0 N m, which lets an arm whose weight '
                                      'the robot compensates coast)',
                              choices=('auto', 'deactivate', 'hold')),
+    'controller_hold': Param('none', 'effort, command_message trajectory: pd: every point carries '
+                                     'the measured speeds as its velocities and a hold is the '
+                                     'point effort 0, velocity 0, so that a JTC with d gains '
+                                     '(config/controllers/jtc_effort_pd.yaml) brakes from its '
+                                     'own fresh state, -d x qdot, in a hold and after its '
+                                     'cmd_timeout when policy_node dies (with '
+                                     'controller_manager, configure checks its gains); none: no '
+                                     "velocities, the JTC's timeout hold is 0 N m (zero gains)",
+                             choices=('none', 'pd')),
     'gravity_compensation': Param('', "who carries the arm's weight on this robot: robot (its "
                                       'driver compensates gravity, as a Franka in torque mode '
                                       'does) or policy (nothing does); empty: not stated. '
@@ -374,6 +389,11 @@ PYBULLET_PARAMS: Dict[str, Param] = {
     'jtc_cmd_timeout': Param(0.2, 'the cmd_timeout of the joint trajectory controller on '
                                   'arm_controller/joint_trajectory (s after the last point '
                                   'before its hold)', **POSITIVE),
+    'jtc_d_gain': Param(0.0, 'command_interface effort: the d gain (N m s/rad, every joint) of '
+                             'the joint trajectory controller on arm_controller/joint_trajectory '
+                             "(its effort: the point's plus d x (the point's velocity - the "
+                             'measured one); it takes points that end with a velocity, as '
+                             'config/controllers/jtc_effort_pd.yaml); 0: zero gains', low=0.0),
     'real_time_factor': Param(1.0, 'simulated seconds per wall second', **POSITIVE),
 }
 

@@ -19,7 +19,12 @@ The point's fields per command interface are :data:`POINT_FIELDS`, one row per i
   should someone set gains, measured angles give the P term no error to fight, where NaN
   would make the command NaN. Velocities stay empty: Jazzy rejects a last point with a
   non-zero velocity (rule 5, ``allow_nonzero_velocity_at_trajectory_end`` false,
-  jtc.cpp:1717-1730), and an empty field is a desired velocity of 0;
+  jtc.cpp:1717-1730), and an empty field is a desired velocity of 0. With ``policy_node``'s
+  ``controller_hold`` ``pd`` (:func:`command_trajectory`'s ``qdot``) the point carries the
+  measured speeds as its ``velocities``, and a hold is the point ``effort`` 0, ``velocities``
+  0: a JTC with ``d`` gains (``config/controllers/jtc_effort_pd.yaml``, which allows a
+  non-zero velocity at the end) finds no speed error while commands come and brakes from its
+  own fresh state, ``-d qdot``, in a hold and after ``cmd_timeout`` when they stop;
 * ``position``: ``positions`` = the commanded angles, nothing else;
 * ``velocity``: ``velocities`` = the speeds, ``positions`` = the measured angles (required,
   rule 8). JTC on a velocity command interface alone runs its PID adapter (jtc.cpp:890-895)
@@ -30,7 +35,7 @@ The point's fields per command interface are :data:`POINT_FIELDS`, one row per i
   true``, without which rule 5 rejects every command that moves.
 The forward controllers' ``Float64MultiArray`` is :func:`pg_node.ros.command.to_msg`.
 """
-from typing import Dict, List, Tuple
+from typing import Dict, List, Optional, Tuple
 
 import numpy as np
 from pg_node.control.interfaces import CommandInterface
@@ -47,20 +52,31 @@ POINT_FIELDS: Dict[str, Tuple[Tuple[str, str], ...]] = {
 
 
 def command_trajectory(interface: CommandInterface, si: np.ndarray, q: np.ndarray,
-                       joint_names: List[str]) -> Trajectory:
+                       joint_names: List[str], qdot: Optional[np.ndarray] = None,
+                       hold: bool = False) -> Trajectory:
     """
     Return SI commands ``si`` ``(arms, nu)`` as the one-point trajectory JTC applies at once.
 
     ``q``: the measured angles of the actuated joints ``(arms, nu)``; ``joint_names``: their
-    names, arm-major.
+    names, arm-major. ``qdot`` (effort; ``controller_hold`` ``pd``): their measured speeds,
+    carried as the point's velocities; then a ``hold`` is velocity 0 and effort 0, the
+    controller's PD brake.
 
     >>> from pg_node.control.interfaces import INTERFACES
     >>> t = command_trajectory(INTERFACES['effort'], np.array([[2.0, -1.0]]),
     ...                        np.array([[0.1, 0.2]]), ['a', 'b'])
     >>> t.stamp, t.points[0].fields, t.points[0].time_from_start
     (0.0, {'positions': [0.1, 0.2], 'effort': [2.0, -1.0]}, 0.0)
+    >>> command_trajectory(INTERFACES['effort'], np.array([[2.0, -1.0]]), np.array([[0.1, 0.2]]),
+    ...                    ['a', 'b'], qdot=np.array([[0.5, 0.0]])).points[0].fields
+    {'positions': [0.1, 0.2], 'effort': [2.0, -1.0], 'velocities': [0.5, 0.0]}
     """
     source = {COMMAND: si, MEASURED: q}
     fields = {name: np.asarray(source[what], dtype=float).ravel().tolist()
               for name, what in POINT_FIELDS[interface.name]}
+    if qdot is not None and interface.name == 'effort':
+        speeds = np.zeros_like(np.asarray(si, dtype=float)) if hold else qdot
+        fields['velocities'] = np.asarray(speeds, dtype=float).ravel().tolist()
+        if hold:
+            fields['effort'] = [0.0] * len(fields['effort'])
     return Trajectory(list(joint_names), [Point(fields, 0.0)], 0.0)

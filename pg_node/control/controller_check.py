@@ -16,7 +16,14 @@ reads both, ROS-free, and returns one line naming the parameter that is wrong, o
   another ``interface_name``;
 * it has no dead-man, nothing that stops the arm when the commands stop: every forward
   command controller, a JTC without ``cmd_timeout`` above ``constraints.goal_time``, unless
-  the user opts out with :data:`OPT_OUT`.
+  the user opts out with :data:`OPT_OUT`;
+* on the effort interface, its PID does not fit ``controller_hold`` (:func:`_effort_pid`):
+  with ``pd`` (points that carry the measured speeds, holds of velocity 0) every joint needs
+  a ``d`` gain (its timeout hold is ``-d qdot``, 0 N m without), ``ff_velocity_scale`` 0 (it
+  would add the carried speed as a torque) and ``allow_nonzero_velocity_at_trajectory_end``
+  true (rule 5 rejects a last point with a speed); with ``none`` (no velocities: a desired
+  speed of 0) a ``p`` or ``d`` gain acts on every command, pulling towards the one-tick-old
+  angles or damping towards rest.
 
 Citations are to ros2_controllers, branch jazzy, commit ed360c97d (``jtc.cpp``,
 ``params.yaml``: as in :mod:`pg_node.control.jtc`; ``forward_controllers_base.cpp``:
@@ -49,7 +56,8 @@ FORWARD_TYPES = {
 NEEDS = {'trajectory': ('a joint trajectory controller', TRAJECTORY_TYPES),
          'forward': ('a forward command controller', tuple(FORWARD_TYPES))}
 
-#: the parameters configure reads (``gains.<joint>.ff_velocity_scale`` per joint besides)
+#: the parameters configure reads (``gains.<joint>.ff_velocity_scale``, ``.p`` and ``.d`` per
+#: joint besides)
 PARAMETERS = ('joints', 'command_interfaces', 'state_interfaces', 'open_loop_control',
               'cmd_timeout', 'constraints.goal_time', 'allow_nonzero_velocity_at_trajectory_end',
               'interface_name')
@@ -74,14 +82,20 @@ class Controller:
         """Return the names of its joints' ``ff_velocity_scale`` gains."""
         return [f'gains.{j}.ff_velocity_scale' for j in self.params.get('joints', ())]
 
+    def gain_names(self) -> Sequence[str]:
+        """Return the names of its joints' gains configure reads (params.yaml:142-215)."""
+        return [f'gains.{j}.{g}' for j in self.params.get('joints', ())
+                for g in ('ff_velocity_scale', 'p', 'd')]
+
 
 def refusal(ctrl: Controller, interface: str, command_message: str,
-            allow_no_dead_man: bool = False) -> Optional[str]:
+            allow_no_dead_man: bool = False, controller_hold: str = 'none') -> Optional[str]:
     """
     Return why configure refuses to drive ``ctrl`` with the card's commands, or None.
 
     ``interface``: the card's command interface (effort, position, velocity);
-    ``command_message``: policy_node's (trajectory or forward).
+    ``command_message``: policy_node's (trajectory or forward); ``controller_hold``:
+    policy_node's (``pd``: effort points carry the measured speeds).
 
     >>> jtc = Controller('arm_controller', TRAJECTORY_TYPES[0], 'active',
     ...                  {'command_interfaces': ['position'], 'cmd_timeout': 0.2})
@@ -101,6 +115,8 @@ velocity commands (a JTC writes only its command_interfaces, jtc.cpp:417-440); g
                 f'{command_message} needs ({", ".join(types)})')
     carry = (_jtc_cannot_carry if command_message == 'trajectory' else _forward_cannot_carry)
     reason = carry(ctrl, interface)
+    if reason is None and command_message == 'trajectory' and interface == 'effort':
+        reason = _effort_pid(ctrl, controller_hold)
     if reason is not None:
         return f'{who} {reason}'
     if allow_no_dead_man:
@@ -135,6 +151,53 @@ def _jtc_cannot_carry(ctrl: Controller, interface: str) -> Optional[str]:
         return ('has allow_nonzero_velocity_at_trajectory_end false: it rejects every command '
                 'that moves (a one-point trajectory with a velocity, jtc.cpp:1717-1730); set '
                 'it true')
+    return None
+
+
+def _effort_pid(ctrl: Controller, controller_hold: str) -> Optional[str]:
+    """
+    Return why a JTC's effort PID does not fit ``controller_hold``, or None.
+
+    The effort is ``ff_velocity_scale v + effort + p (positions - q) + d (velocities - qdot)``
+    (jtc.cpp:416-426, 1494-1520; a point without velocities desires 0, trajectory.cpp:
+    238-250); its hold after ``cmd_timeout`` is the measured positions with velocity and
+    effort 0 (jtc.cpp:2063-2086).
+
+    >>> jtc = Controller('arm', TRAJECTORY_TYPES[0], 'active', {'joints': ['j0'],
+    ...                  'gains.j0.d': 0.0, 'allow_nonzero_velocity_at_trajectory_end': True})
+    >>> print(_effort_pid(jtc, 'pd'))
+    has gains.j0.d 0: its hold after cmd_timeout is 0 N m, which lets an arm whose weight the \
+robot carries coast (controller_hold pd brakes with -d x qdot); give every joint a d gain, \
+e.g. its inertia / (4 x the command period)
+    """
+    p = ctrl.params
+    joints = list(p.get('joints', ()))
+    if controller_hold == 'pd':
+        for j in joints:
+            if float(p.get(f'gains.{j}.d', 0.0)) <= 0.0:
+                return (f'has gains.{j}.d {float(p.get(f"gains.{j}.d", 0.0)):g}: its hold after '
+                        'cmd_timeout is 0 N m, which lets an arm whose weight the robot carries '
+                        'coast (controller_hold pd brakes with -d x qdot); give every joint a d '
+                        'gain, e.g. its inertia / (4 x the command period)')
+            scale = float(p.get(f'gains.{j}.ff_velocity_scale', 0.0))
+            if scale != 0.0:
+                return (f'has gains.{j}.ff_velocity_scale {scale:g}: it would add the measured '
+                        'speed the points carry (controller_hold pd) as a torque '
+                        '(jtc.cpp:416-426); set it to 0')
+        if not p.get('allow_nonzero_velocity_at_trajectory_end', False):
+            return ('has allow_nonzero_velocity_at_trajectory_end false: it rejects every point '
+                    'that carries a speed (controller_hold pd; rule 5, jtc.cpp:1717-1730); set '
+                    'it true')
+        return None
+    for j in joints:
+        for gain, does in (('p', 'pulls every command towards the one-tick-old angles the '
+                                 'points carry'),
+                           ('d', 'damps every command towards rest (the points carry no '
+                                 'speed)')):
+            value = float(p.get(f'gains.{j}.{gain}', 0.0))
+            if value != 0.0:
+                return (f'has gains.{j}.{gain} {value:g}: its PID {does} (jtc.cpp:416-426); '
+                        'set controller_hold pd for a d gain, or the gains to 0')
     return None
 
 

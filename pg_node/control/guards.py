@@ -66,9 +66,11 @@ compensates gravity floats and coasts on zero torque.
   then left in force (deactivate, shutdown: a forward controller keeps it forever,
   ros2_controllers (jazzy ed360c97d) forward_command_controller/src/
   forward_controllers_base.cpp:154-158) is zero torque, for the same reason; the joint
-  trajectory controller's own hold after ``cmd_timeout`` is zero effort as well
-  (ros2_controllers (jazzy ed360c97d)
-  joint_trajectory_controller/src/joint_trajectory_controller.cpp:2063-2086).
+  trajectory controller's own hold after ``cmd_timeout`` is zero effort as well with zero
+  gains (ros2_controllers (jazzy ed360c97d)
+  joint_trajectory_controller/src/joint_trajectory_controller.cpp:2063-2086), ``-d qdot``
+  with a ``d`` gain (``policy_node``'s ``controller_hold`` ``pd``,
+  :mod:`pg_node.control.composers`).
 * position: the last commanded angles, which the guard remembers (what it sent), never the
   measured angles of a stale state; before any command, the measured angles.
 * velocity: a speed of zero (the robot's velocity loop brakes the joint); JTC's hold after

@@ -244,10 +244,26 @@ FOLLOWED_FIELD = {'effort': 'effort', 'position': 'positions', 'velocity': 'velo
 SHIPPED_FLAGS = {'velocity': {'allow_nonzero_velocity_at_trajectory_end': True}}
 
 
+def stand_in_flags(interface: str, d_gain: float = 0.0) -> Dict[str, bool]:
+    """
+    Return the ``allow_*`` flags of the shipped controller a stand-in follows.
+
+    ``jtc_<interface>.yaml``'s (:data:`SHIPPED_FLAGS`); on the effort interface with a ``d``
+    gain, ``jtc_effort_pd.yaml``'s: points that end with the measured speed are taken.
+
+    >>> stand_in_flags('effort', 6.25)
+    {'allow_nonzero_velocity_at_trajectory_end': True}
+    """
+    flags = dict(SHIPPED_FLAGS.get(interface, {}))
+    if interface == 'effort' and d_gain > 0:
+        flags['allow_nonzero_velocity_at_trajectory_end'] = True
+    return flags
+
+
 @dataclass
 class JtcFollower:
     """
-    Jazzy's JTC with zero gains following the trajectories it accepts, for one command interface.
+    Jazzy's JTC following the trajectories it accepts, for one command interface.
 
     What it does (the hardware's command at each :meth:`command` call):
 
@@ -257,15 +273,22 @@ class JtcFollower:
       until the next (JTC's ``interpolation_method: none``, trajectory.cpp:148-169; with
       ``splines`` JTC would ramp there instead: the same for the one point at
       ``time_from_start`` 0 that ``policy_node`` sends, which JTC applies on its first
-      cycle). The effort interface passes the point's effort through: the PID adds nothing
-      with the zero gains of ``config/controllers/jtc_effort.yaml`` (jtc.cpp:416-426;
-      params.yaml:144-178);
+      cycle). The effort interface sends the point's effort plus its PID of the errors,
+      ``p (positions - measured) + d (velocities - measured speeds)`` (jtc.cpp:416-426,
+      1494-1520; an empty field is 0, trajectory.cpp:238-250): with the zero gains of
+      ``config/controllers/jtc_effort.yaml`` (params.yaml:144-178) the effort passes through;
+      with ``d`` gains and points that carry the measured speeds
+      (``config/controllers/jtc_effort_pd.yaml``) the PID finds no error while commands come
+      and brakes once they stop;
     * past the last point, the last point is held (trajectory.cpp:208-253), empty efforts
       as 0;
     * ``cmd_timeout`` s after the last point's time, JTC's hold (jtc.cpp:350-369,
-      2063-2086): effort 0, velocity 0 (with zero gains; ``ff_velocity_scale`` times the hold
-      point's 0), or the positions measured at that moment; held until the next accepted
-      message. A ``cmd_timeout`` not above ``goal_time`` is off (jtc.cpp:1231-1250).
+      2063-2086): the positions measured at that moment, velocity 0 and effort 0: on the
+      effort interface 0 N m with zero gains, ``-d qdot`` with a ``d`` gain (``p`` 0), on the
+      velocity interface 0 rad/s (zero gains; ``ff_velocity_scale`` times the hold point's
+      0), on the position interface those positions; held until the next accepted message.
+      A ``cmd_timeout`` not above ``goal_time`` is off (jtc.cpp:1231-1250). The stand-in
+      computes the command once per call (its control step), a JTC at its update rate.
 
     Beyond JTC, the stand-in refuses what JTC would pass on unchecked (no hardware to spare):
     non-finite values (JTC has no check, jtc.cpp:1671-1816) and efforts of another size
@@ -278,6 +301,9 @@ class JtcFollower:
     goal_time: float = 0.0
     flags: Dict[str, bool] = field(default_factory=dict)
     timeouts: int = 0                   # JTC holds after cmd_timeout so far
+    #: the effort PID's gains per joint (``gains.<joint>.p`` and ``.d``); empty: 0
+    p: Sequence[float] = ()
+    d: Sequence[float] = ()
 
     def __post_init__(self):
         """Apply the ``cmd_timeout`` rule and start with nothing to follow."""
@@ -285,7 +311,11 @@ class JtcFollower:
             raise ValueError(f'no JTC stand-in for command interface {self.interface!r} '
                              f'(one of {", ".join(FOLLOWED_FIELD)})')
         self.timeout_used = self.cmd_timeout if self.cmd_timeout > self.goal_time else 0.0
-        self.points: Optional[List[Tuple[float, np.ndarray]]] = None   # (time, command)
+        n = len(self.joints)
+        self.kp = np.broadcast_to(np.asarray(self.p if len(self.p) else 0.0, dtype=float), n)
+        self.kd = np.broadcast_to(np.asarray(self.d if len(self.d) else 0.0, dtype=float), n)
+        # (time, command, desired positions, desired speeds); the last two for the PID
+        self.points: Optional[List[Tuple[float, np.ndarray, np.ndarray, np.ndarray]]] = None
         self.start = 0.0
         self.holding = False
 
@@ -304,30 +334,45 @@ class JtcFollower:
                         'it to the hardware)')
         # names in any order: to the controller's order (jtc.cpp:1603-1650)
         order = [msg.joint_names.index(j) for j in self.joints]
+
+        def field_of(point, key):
+            values = point.get(key)
+            return (np.asarray(values, dtype=float)[order] if values
+                    else np.zeros(len(self.joints)))
         key = FOLLOWED_FIELD[self.interface]
-        self.points = [(p.time_from_start,
-                        np.asarray(p.get(key), dtype=float)[order] if p.get(key)
-                        else np.zeros(len(self.joints))) for p in msg.points]
+        self.points = [(p.time_from_start, field_of(p, key), field_of(p, 'positions'),
+                        field_of(p, 'velocities')) for p in msg.points]
         self.start = msg.stamp if msg.stamp else now
         self.holding = False
         return None
 
-    def command(self, now: float, measured: np.ndarray) -> Optional[np.ndarray]:
+    def command(self, now: float, measured: np.ndarray,
+                speeds: Optional[np.ndarray] = None) -> Optional[np.ndarray]:
         """
         Return the command at time ``now`` (s), in the controller's joint order, or None.
 
-        ``measured``: the joints' measured positions (the hold's, on a timeout).
+        ``measured``: the joints' measured positions (the hold's, on a timeout); ``speeds``:
+        their measured speeds (the effort PID's velocity error; None: 0).
         """
         if self.points is None:
             return None
         t = now - self.start
         end = self.points[-1][0]
+        measured = np.asarray(measured, dtype=float)
+        zero = np.zeros(len(self.joints))
         if not self.holding and self.timeout_used > 0 and t - end > self.timeout_used:
-            # "Aborted due to command timeout": the hold point, now (jtc.cpp:350-369)
-            hold = (np.array(measured, dtype=float) if self.interface == 'position'
-                    else np.zeros(len(self.joints)))
-            self.points, self.start, self.holding = [(0.0, hold)], now, True
+            # "Aborted due to command timeout": the hold point, now (jtc.cpp:350-369): the
+            # measured positions, velocity and effort 0 (jtc.cpp:2063-2086)
+            hold = measured.copy() if self.interface == 'position' else zero
+            self.points, self.start, self.holding = [(0.0, hold, measured.copy(), zero)], \
+                now, True
             self.timeouts += 1
             t = 0.0
-        due = [cmd for time_from_start, cmd in self.points if time_from_start <= t]
-        return due[-1].copy() if due else None
+        due = [point for point in self.points if point[0] <= t]
+        if not due:
+            return None
+        _, cmd, positions, velocities = due[-1]
+        if self.interface != 'effort':
+            return cmd.copy()
+        qdot = zero if speeds is None else np.asarray(speeds, dtype=float)
+        return cmd + self.kp * (positions - measured) + self.kd * (velocities - qdot)

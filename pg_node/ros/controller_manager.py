@@ -125,13 +125,14 @@ class ControllerManagerClient:
         entry = self.state(name)
         path = self.controller_path(name)
         params = self.parameters(path, PARAMETERS)
-        gains = Controller(name, '', '', params).ff_velocity_names()
+        gains = Controller(name, '', '', params).gain_names()
         if gains:
             params.update(self.parameters(path, gains))
         return Controller(name, entry['type'], entry['state'], params, path)
 
     def refusal(self, name: str, interface: str, command_message: str,
-                allow_no_dead_man: bool = False) -> Optional[str]:
+                allow_no_dead_man: bool = False, controller_hold: str = 'none'
+                ) -> Optional[str]:
         """
         Return why configure refuses controller ``name`` for the card's commands, or None.
 
@@ -142,7 +143,7 @@ class ControllerManagerClient:
             ctrl = self.controller(name)
         except ControllerManagerError as err:
             return f'cannot check controller {name} through {self.manager}: {err}'
-        return refusal(ctrl, interface, command_message, allow_no_dead_man)
+        return refusal(ctrl, interface, command_message, allow_no_dead_man, controller_hold)
 
     def switch(self, activate: Sequence[str] = (), deactivate: Sequence[str] = (),
                strict: bool = False) -> Tuple[bool, str]:

@@ -577,7 +577,8 @@ class PolicyNode(LifecycleNode):
         except ControllerManagerError as exc:
             _refuse(f"parameter 'policy_node.controller_manager': {exc}")
         reason = self.cm.refusal(self.controller_bare_name(), p['command_interface'],
-                                 p['command_message'], p['allow_no_dead_man'])
+                                 p['command_message'], p['allow_no_dead_man'],
+                                 p['controller_hold'])
         if reason:
             self._close_controller_manager()
             _refuse(f"parameter 'policy_node.controller_manager': {reason}")
@@ -931,7 +932,7 @@ class PolicyNode(LifecycleNode):
         """Publish controls ``ctrl`` (arms x actuators) in SI units; return those."""
         si = self.guard.interface.to_si(self.actuators, ctrl)
         if self.params['command_message'] == 'trajectory':
-            self.pub.publish(self.trajectory(si))
+            self.pub.publish(self.trajectory(si, hold))
         else:
             self.pub.publish(command.to_msg(si))
         self.counters['commands'] += 1
@@ -939,12 +940,19 @@ class PolicyNode(LifecycleNode):
         self.rate.add()
         return si
 
-    def trajectory(self, si: np.ndarray) -> JointTrajectory:
-        """Return ``si`` as JTC's "apply now, hold": stamp 0, one point at time 0."""
+    def trajectory(self, si: np.ndarray, hold: bool = False) -> JointTrajectory:
+        """
+        Return ``si`` as JTC's "apply now, hold": stamp 0, one point at time 0.
+
+        With ``controller_hold`` ``pd`` the point carries the measured speeds, and a hold is
+        velocity 0, effort 0: the controller's own PD brake (:mod:`pg_node.control.composers`).
+        """
         cols = self.guard.cols
         names = arm_joint_names([self.joints[c] for c in cols], self.num_arms, self.plain)
+        qdot = (self.joint_state.qdot[:, cols] if self.params['controller_hold'] == 'pd'
+                else None)
         composed = command_trajectory(self.guard.interface, si, self.joint_state.q[:, cols],
-                                      names)
+                                      names, qdot=qdot, hold=hold)
         (point,) = composed.points          # time_from_start 0, header.stamp 0: the defaults
         return JointTrajectory(joint_names=composed.joint_names,
                                points=[JointTrajectoryPoint(**point.fields)])

@@ -129,7 +129,9 @@ class PybulletNode(Node):
         self.seq = -1
         self.episode_id = -1
         self.follower = jtc.JtcFollower(self.joints, self.interface, p['jtc_cmd_timeout'],
-                                        flags=dict(jtc.SHIPPED_FLAGS.get(self.interface, {})))
+                                        flags=jtc.stand_in_flags(self.interface,
+                                                                 p['jtc_d_gain']),
+                                        d=[p['jtc_d_gain']])
 
         self.pub_description = self.create_publisher(String, 'robot_description', LATCHED)
         self.pub_description.publish(String(data=Path(urdf).read_text()))
@@ -227,7 +229,8 @@ class PybulletNode(Node):
         """One control period with the command the controllers hold; publish the results."""
         if self.follower.points is not None:
             timeouts = self.follower.timeouts
-            cmd = self.follower.command(self.now(), self.arm.state()[0])
+            q, qdot, _ = self.arm.state()
+            cmd = self.follower.command(self.now(), q, qdot)
             if self.follower.timeouts != timeouts:
                 self.get_logger().warning(
                     f'{CONTROLLER_TRAJECTORY}: aborted due to command timeout (jtc_cmd_timeout '

@@ -303,8 +303,8 @@ class SimNode(Node):
             self.actuated = [spec.joint_names.index(j) for j in self.actuators.joints]
             self.follower = jtc.JtcFollower(
                 arm_joint_names(self.actuators.joints, n, plain=n == 1),
-                self.interface, p['jtc_cmd_timeout'],
-                flags=dict(jtc.SHIPPED_FLAGS.get(self.interface, {})))
+                self.interface, p['jtc_cmd_timeout'], flags=jtc.stand_in_flags(
+                    self.interface, p['jtc_d_gain']), d=[p['jtc_d_gain']])
             self.create_subscription(JointTrajectory, CONTROLLER_TRAJECTORY,
                                      self.on_trajectory, 10)
         self.create_service(Trigger, '~/reset_world', self.on_reset_world)
@@ -477,8 +477,10 @@ class SimNode(Node):
     def follow_trajectory(self):
         """Hold the trajectory controller's command (SI, joint order) as controls."""
         timeouts = self.follower.timeouts
-        measured = self.task.joint_state()[0].reshape(self.task.num_envs, -1)
-        si = self.follower.command(self.clock_seconds(), measured[:, self.actuated].ravel())
+        q, qdot, _ = self.task.joint_state()
+        measured = q.reshape(self.task.num_envs, -1)[:, self.actuated].ravel()
+        speeds = qdot.reshape(self.task.num_envs, -1)[:, self.actuated].ravel()
+        si = self.follower.command(self.clock_seconds(), measured, speeds)
         if self.follower.timeouts != timeouts:
             self.counters['trajectory_timeouts'] += 1
             self.get_logger().warning(
