@@ -83,6 +83,7 @@ Defaults from the model (:func:`model_limits`): a parameter at 0 takes its value
 actuators' record, per actuator, and :meth:`CommandGuard.describe` says which was taken.
 """
 from dataclasses import dataclass
+import functools
 from typing import Callable, Dict, Optional, Sequence, Tuple
 
 import numpy as np
@@ -372,7 +373,9 @@ class CommandGuard:
             self.pending_ramp = None
         self.ramp_start[self.held] = now        # a hold ended: ramp in from it
         self.held[:] = False
-        hold = self.hold(q, qdot)
+        # computed only on a tick that needs it (a non-finite action, a ramp, an over-speed):
+        # the braking matrix costs a mass matrix per arm
+        hold = functools.cache(lambda: self.hold(q, qdot))
         acted = {e: np.zeros(arms, dtype=bool) for e in GuardEvent}
         action = self.relative(action, q)
         u = self.clip_range(action, hold, acted)
@@ -427,17 +430,24 @@ class CommandGuard:
         return np.where(changed, np.clip(self.interface.from_si(self.act, kept), self.low,
                                          self.high), u)
 
-    def clip_range(self, action: np.ndarray, hold: np.ndarray, acted) -> np.ndarray:
-        """Step 1: the hold command for a non-finite action, the rest clipped to the range."""
+    def clip_range(self, action: np.ndarray, hold: Callable[[], np.ndarray],
+                   acted) -> np.ndarray:
+        """
+        Step 1: the hold command for a non-finite action, the rest clipped to the range.
+
+        ``hold``: returns the hold command (:meth:`hold`), asked for only when needed.
+        """
         u = np.array(action, dtype=float)
         bad = ~np.all(np.isfinite(u), axis=1)
         acted[GuardEvent.NONFINITE] = bad
-        u[bad] = hold[bad]
+        if bad.any():
+            u[bad] = hold()[bad]
         clipped = np.clip(u, self.low, self.high)
         acted[GuardEvent.CLIPPED] = np.any(clipped != u, axis=1)
         return clipped
 
-    def ramp(self, u: np.ndarray, hold: np.ndarray, now: float, acted) -> np.ndarray:
+    def ramp(self, u: np.ndarray, hold: Callable[[], np.ndarray], now: float,
+             acted) -> np.ndarray:
         """Step 2: blend from the hold command over ``ramp_time`` s since the hold ended."""
         ramping = ~np.isnan(self.ramp_start)
         if not ramping.any():
@@ -446,13 +456,17 @@ class CommandGuard:
         with np.errstate(invalid='ignore'):
             ratio = np.ones(len(u)) if ramp_time <= 0 else (now - self.ramp_start) / ramp_time
             done = ramping & (ratio >= 1.0)
+        active = ramping & ~done
+        if active.any() or done.any():
+            hold()          # from the anchors as they are, before a finished ramp drops them
         self.ramp_start[done] = np.nan          # the hold is over: no anchors kept
         self.anchor_q[done] = np.nan
         self.anchor_u[done] = np.nan
-        active = ramping & ~done
         acted[GuardEvent.RAMPED] = active
+        if not active.any():
+            return u
         share = np.clip(np.nan_to_num(ratio), 0.0, 1.0)[:, None]
-        return np.where(active[:, None], hold + share * (u - hold), u)
+        return np.where(active[:, None], hold() + share * (u - hold()), u)
 
     def smooth(self, u: np.ndarray, previous: Optional[np.ndarray]) -> np.ndarray:
         """Step 3: the low-pass filter on the published commands (``smoothing`` 0: off)."""
@@ -533,13 +547,12 @@ class CommandGuard:
         return np.where(changed, np.clip(self.interface.from_si(self.act, kept), self.low,
                                          self.high), u)
 
-    def over_speed(self, u: np.ndarray, qdot: np.ndarray, hold: np.ndarray,
+    def over_speed(self, u: np.ndarray, qdot: np.ndarray, hold: Callable[[], np.ndarray],
                    acted) -> np.ndarray:
         """Step 6: the hold command for an arm with a joint faster than its velocity limit."""
         fast = np.any(np.abs(qdot) > self.limits().max_velocity, axis=1)
-        u = np.where(fast[:, None], hold, u)
         acted[GuardEvent.OVER_SPEED] = fast
-        return u
+        return np.where(fast[:, None], hold(), u) if fast.any() else u
 
     def accelerate(self, u: np.ndarray, previous: Optional[np.ndarray], acted) -> np.ndarray:
         """
