@@ -112,21 +112,38 @@ def inertia_at(model: mujoco.MjModel, joint_names: Sequence[str]
     True
     """
     largest = actuators(model).inertia
-    data = mujoco.MjData(model)
-    adr = np.array([model.joint(n).qposadr[0] for n in joint_names])
+    inverse = _inverse_mass_at(model, joint_names)
     on_joint = model.actuator_trntype == mujoco.mjtTrn.mjTRN_JOINT
     dof = model.jnt_dofadr[np.where(on_joint, model.actuator_trnid[:, 0], 0)]
+
+    def at(q: np.ndarray) -> np.ndarray:
+        diagonal = np.diagonal(inverse(q), axis1=1, axis2=2)[:, dof]
+        return np.minimum(np.where(on_joint, 1.0 / diagonal, np.inf), largest)
+    return at
+
+
+def _inverse_mass_at(model: mujoco.MjModel, joint_names: Sequence[str]
+                     ) -> Callable[[np.ndarray], np.ndarray]:
+    """
+    Return a function: angles ``(arms, len(joint_names))`` to ``M^-1`` ``(arms, nv, nv)``.
+
+    ``M`` the joint-space inertia matrix at each pose (armature included), the model's other
+    joints at their reference angles: what :func:`inertia_at` and :func:`mass_matrix_at`
+    read their inertias from.
+    """
+    data = mujoco.MjData(model)
+    adr = np.array([model.joint(n).qposadr[0] for n in joint_names])
     full = np.zeros((model.nv, model.nv))
 
     def at(q: np.ndarray) -> np.ndarray:
-        out = np.empty((len(q), model.nu))
+        out = np.empty((len(q), model.nv, model.nv))
         for i, angles in enumerate(q):
             data.qpos[:] = model.qpos0
             data.qpos[adr] = angles
             mujoco.mj_fwdPosition(model, data)
             mujoco.mj_fullM(model, data, full)
-            out[i] = np.where(on_joint, 1.0 / np.diag(np.linalg.inv(full))[dof], np.inf)
-        return np.minimum(out, largest)
+            out[i] = np.linalg.inv(full)
+        return out
     return at
 
 
@@ -158,18 +175,9 @@ def mass_matrix_at(model: mujoco.MjModel, joint_names: Sequence[str]
     """
     if not np.all(model.actuator_trntype == mujoco.mjtTrn.mjTRN_JOINT):
         return None
-    data = mujoco.MjData(model)
-    adr = np.array([model.joint(n).qposadr[0] for n in joint_names])
+    inverse = _inverse_mass_at(model, joint_names)
     dof = model.jnt_dofadr[model.actuator_trnid[:, 0]]
-    full = np.zeros((model.nv, model.nv))
 
     def at(q: np.ndarray) -> np.ndarray:
-        out = np.empty((len(q), model.nu, model.nu))
-        for i, angles in enumerate(q):
-            data.qpos[:] = model.qpos0
-            data.qpos[adr] = angles
-            mujoco.mj_fwdPosition(model, data)
-            mujoco.mj_fullM(model, data, full)
-            out[i] = np.linalg.inv(np.linalg.inv(full)[np.ix_(dof, dof)])
-        return out
+        return np.linalg.inv(inverse(q)[:, dof][:, :, dof])
     return at
