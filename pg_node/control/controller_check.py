@@ -174,8 +174,9 @@ e.g. its inertia / (4 x the command period)
     joints = list(p.get('joints', ()))
     if controller_hold == 'pd':
         for j in joints:
-            if float(p.get(f'gains.{j}.d', 0.0)) <= 0.0:
-                return (f'has gains.{j}.d {float(p.get(f"gains.{j}.d", 0.0)):g}: its hold after '
+            d = float(p.get(f'gains.{j}.d', 0.0))
+            if d <= 0.0:
+                return (f'has gains.{j}.d {d:g}: its hold after '
                         'cmd_timeout is 0 N m, which lets an arm whose weight the robot carries '
                         'coast (controller_hold pd brakes with -d x qdot); give every joint a d '
                         'gain, e.g. its inertia / (4 x the command period)')

@@ -274,7 +274,7 @@ class JtcFollower:
       ``splines`` JTC would ramp there instead: the same for the one point at
       ``time_from_start`` 0 that ``policy_node`` sends, which JTC applies on its first
       cycle). The effort interface sends the point's effort plus its PID of the errors,
-      ``p (positions - measured) + d (velocities - measured speeds)`` (jtc.cpp:416-426,
+      here ``d (velocities - measured speeds)`` (``p`` and ``i`` 0; jtc.cpp:416-426,
       1494-1520; an empty field is 0, trajectory.cpp:238-250): with the zero gains of
       ``config/controllers/jtc_effort.yaml`` (params.yaml:144-178) the effort passes through;
       with ``d`` gains and points that carry the measured speeds
@@ -284,7 +284,7 @@ class JtcFollower:
       as 0;
     * ``cmd_timeout`` s after the last point's time, JTC's hold (jtc.cpp:350-369,
       2063-2086): the positions measured at that moment, velocity 0 and effort 0: on the
-      effort interface 0 N m with zero gains, ``-d qdot`` with a ``d`` gain (``p`` 0), on the
+      effort interface 0 N m with zero gains, ``-d qdot`` with a ``d`` gain, on the
       velocity interface 0 rad/s (zero gains; ``ff_velocity_scale`` times the hold point's
       0), on the position interface those positions; held until the next accepted message.
       A ``cmd_timeout`` not above ``goal_time`` is off (jtc.cpp:1231-1250). The stand-in
@@ -301,8 +301,8 @@ class JtcFollower:
     goal_time: float = 0.0
     flags: Dict[str, bool] = field(default_factory=dict)
     timeouts: int = 0                   # JTC holds after cmd_timeout so far
-    #: the effort PID's gains per joint (``gains.<joint>.p`` and ``.d``); empty: 0
-    p: Sequence[float] = ()
+    #: the effort PID's ``d`` gain per joint (``gains.<joint>.d``; one value: every joint); empty:
+    #: 0. Its ``p`` and ``i`` are 0, as in the shipped jtc_effort*.yaml
     d: Sequence[float] = ()
 
     def __post_init__(self):
@@ -311,11 +311,10 @@ class JtcFollower:
             raise ValueError(f'no JTC stand-in for command interface {self.interface!r} '
                              f'(one of {", ".join(FOLLOWED_FIELD)})')
         self.timeout_used = self.cmd_timeout if self.cmd_timeout > self.goal_time else 0.0
-        n = len(self.joints)
-        self.kp = np.broadcast_to(np.asarray(self.p if len(self.p) else 0.0, dtype=float), n)
-        self.kd = np.broadcast_to(np.asarray(self.d if len(self.d) else 0.0, dtype=float), n)
-        # (time, command, desired positions, desired speeds); the last two for the PID
-        self.points: Optional[List[Tuple[float, np.ndarray, np.ndarray, np.ndarray]]] = None
+        self.kd = np.broadcast_to(np.asarray(self.d if len(self.d) else 0.0, dtype=float),
+                                  len(self.joints))
+        # (time, command, desired speeds); the speeds for the effort PID
+        self.points: Optional[List[Tuple[float, np.ndarray, np.ndarray]]] = None
         self.start = 0.0
         self.holding = False
 
@@ -340,8 +339,8 @@ class JtcFollower:
             return (np.asarray(values, dtype=float)[order] if values
                     else np.zeros(len(self.joints)))
         key = FOLLOWED_FIELD[self.interface]
-        self.points = [(p.time_from_start, field_of(p, key), field_of(p, 'positions'),
-                        field_of(p, 'velocities')) for p in msg.points]
+        self.points = [(p.time_from_start, field_of(p, key), field_of(p, 'velocities'))
+                       for p in msg.points]
         self.start = msg.stamp if msg.stamp else now
         self.holding = False
         return None
@@ -358,21 +357,19 @@ class JtcFollower:
             return None
         t = now - self.start
         end = self.points[-1][0]
-        measured = np.asarray(measured, dtype=float)
         zero = np.zeros(len(self.joints))
         if not self.holding and self.timeout_used > 0 and t - end > self.timeout_used:
             # "Aborted due to command timeout": the hold point, now (jtc.cpp:350-369): the
             # measured positions, velocity and effort 0 (jtc.cpp:2063-2086)
-            hold = measured.copy() if self.interface == 'position' else zero
-            self.points, self.start, self.holding = [(0.0, hold, measured.copy(), zero)], \
-                now, True
+            hold = np.array(measured, dtype=float) if self.interface == 'position' else zero
+            self.points, self.start, self.holding = [(0.0, hold, zero)], now, True
             self.timeouts += 1
             t = 0.0
         due = [point for point in self.points if point[0] <= t]
         if not due:
             return None
-        _, cmd, positions, velocities = due[-1]
+        _, cmd, velocities = due[-1]
         if self.interface != 'effort':
             return cmd.copy()
         qdot = zero if speeds is None else np.asarray(speeds, dtype=float)
-        return cmd + self.kp * (positions - measured) + self.kd * (velocities - qdot)
+        return cmd + self.kd * (velocities - qdot)
