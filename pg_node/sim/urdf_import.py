@@ -1137,11 +1137,7 @@ class _Kinematics:
     def tip(self, q) -> np.ndarray:
         """Return the fingertip at arm angles ``q`` (coupled joints on their mimic)."""
         data = self.data
-        for name, value in zip(self.arm, q):
-            data.qpos[self.adr[name]] = value
-        for _ in self.coupled:   # in chain order; a mimic of a mimic settles in as many passes
-            for name, (leader, multiplier, offset) in self.coupled.items():
-                data.qpos[self.adr[name]] = offset + multiplier * data.qpos[self.adr[leader]]
+        _set_pose(data, self.adr, self.arm, self.coupled, q)
         mujoco.mj_kinematics(self.model, data)
         return data.xpos[self.body] + data.xmat[self.body].reshape(3, 3) @ self.offset
 
@@ -1463,10 +1459,7 @@ def _coupling_error(model: mujoco.MjModel, arm: List[str],
     frame_skip, steps = training_settings(opts.timestep)
     data = mujoco.MjData(model)
     adr = {name: model.joint(name).qposadr[0] for name in [*arm, *coupled]}
-    data.qpos[[adr[name] for name in arm]] = home
-    for _ in coupled:
-        for name, (leader, multiplier, offset) in coupled.items():
-            data.qpos[adr[name]] = offset + multiplier * data.qpos[adr[leader]]
+    _set_pose(data, adr, arm, coupled, home)
     rng = np.random.default_rng(opts.seed)
     worst = dict.fromkeys(coupled, 0.0)
     for _ in range(steps):
@@ -1491,6 +1484,22 @@ def write_model(result: ImportResult, out_path) -> None:
     Path(out_path).write_text(result.xml)
 
 
+def _set_pose(data: mujoco.MjData, qpos: Mapping[str, int], arm: Sequence[str],
+              coupled: Mapping[str, Tuple[str, float, float]], q) -> None:
+    """
+    Set the arm joints of ``data`` to the angles ``q`` and each coupled joint on its mimic.
+
+    ``qpos``: each arm and coupled joint's address in ``qpos``; ``coupled``: joint ->
+    (leader, multiplier, offset), in chain order, so that a mimic of a mimic settles in as
+    many passes as there are coupled joints.
+    """
+    for name, value in zip(arm, q):
+        data.qpos[qpos[name]] = value
+    for _ in coupled:
+        for name, (leader, multiplier, offset) in coupled.items():
+            data.qpos[qpos[name]] = offset + multiplier * data.qpos[qpos[leader]]
+
+
 def _reachable_points(model: mujoco.MjModel, robot: _Robot, task: _Task, *, count: int,
                       seed: int, kin: Optional[_Kinematics] = None):
     """
@@ -1504,7 +1513,6 @@ def _reachable_points(model: mujoco.MjModel, robot: _Robot, task: _Task, *, coun
     rng = np.random.default_rng(seed)
     data = mujoco.MjData(model)
     site = model.site('fingertip').id
-    adr = [model.joint(name).qposadr[0] for name in arm]
     qpos = {name: model.joint(name).qposadr[0] for name in [*arm, *coupled]}
     keep = []
     tries = 0
@@ -1514,10 +1522,7 @@ def _reachable_points(model: mujoco.MjModel, robot: _Robot, task: _Task, *, coun
     while len(keep) < count and tries < 50 * count:
         tries += 1
         q = rng.uniform(ranges[:, 0], ranges[:, 1])
-        data.qpos[adr] = q
-        for _ in coupled:   # in chain order; a mimic of a mimic settles in as many passes
-            for name, (leader, multiplier, offset) in coupled.items():
-                data.qpos[qpos[name]] = offset + multiplier * data.qpos[qpos[leader]]
+        _set_pose(data, qpos, arm, coupled, q)
         mujoco.mj_kinematics(model, data)
         p = data.site_xpos[site].copy()
         if task.min_height is not None and p[2] < task.min_height:
